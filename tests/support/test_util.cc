@@ -1,0 +1,27 @@
+#include "tests/support/test_util.h"
+
+#include <atomic>
+#include <random>
+#include <unistd.h>
+
+namespace nimbus::testing {
+
+TempDir::TempDir() {
+  static std::atomic<int> counter{0};
+  std::random_device rd;
+  path_ = std::filesystem::temp_directory_path() /
+          ("nimbus-test-" + std::to_string(::getpid()) + "-" + std::to_string(counter++) + "-" +
+           std::to_string(rd()));
+  std::filesystem::create_directories(path_);
+}
+
+TempDir::~TempDir() {
+  std::error_code ec;
+  std::filesystem::remove_all(path_, ec);
+}
+
+std::filesystem::path SourcePath(const std::string& relative) {
+  return std::filesystem::path(NIMBUS_SOURCE_DIR) / relative;
+}
+
+}  // namespace nimbus::testing

@@ -1,0 +1,26 @@
+// Helpers shared by the tests: scratch folders and paths into the source tree.
+#pragma once
+
+#include <filesystem>
+#include <string>
+
+namespace nimbus::testing {
+
+/// A fresh, empty folder removed again when the object dies.
+class TempDir {
+ public:
+  TempDir();
+  ~TempDir();
+  TempDir(const TempDir&) = delete;
+  TempDir& operator=(const TempDir&) = delete;
+  const std::filesystem::path& path() const { return path_; }
+  std::filesystem::path operator/(const std::string& name) const { return path_ / name; }
+
+ private:
+  std::filesystem::path path_;
+};
+
+/// Absolute path of a file in the source tree, e.g. SourcePath("examples/tree.json").
+std::filesystem::path SourcePath(const std::string& relative);
+
+}  // namespace nimbus::testing
