@@ -61,4 +61,14 @@ std::optional<VariationKind> VariationFromName(std::string_view name);
 /// Every kind, in enum order.
 const std::vector<VariationKind>& AllVariations();
 
+/// Static facts about one variation, for validators, explorers and UIs.
+struct VariationInfo {
+  std::string_view name;   // same as VariationName
+  int param_count = 0;     // leading entries of VariationTerm::params it reads
+  bool planar = false;     // classic 2D formula in the xy plane (docs: z rule)
+  bool random = false;     // draws from the Rng
+  bool reads_pre = false;  // reads coefficients of the pre-affine
+};
+const VariationInfo& GetVariationInfo(VariationKind kind);
+
 }  // namespace nimbus

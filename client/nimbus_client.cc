@@ -1,0 +1,182 @@
+#include "client/nimbus_client.h"
+
+#include <grpcpp/grpcpp.h>
+
+#include <chrono>
+#include <fstream>
+#include <thread>
+
+#include "absl/strings/str_cat.h"
+#include "core/sha256.h"
+#include "nimbus/v1/nimbus_service.grpc.pb.h"
+
+namespace nimbus::client {
+
+namespace {
+
+absl::Status FromGrpc(const grpc::Status& s) {
+  if (s.ok()) return absl::OkStatus();
+  return absl::Status(static_cast<absl::StatusCode>(s.error_code()), s.error_message());
+}
+
+bool IsTerminal(v1::JobState s) {
+  return s == v1::JOB_STATE_SUCCEEDED || s == v1::JOB_STATE_FAILED || s == v1::JOB_STATE_CANCELLED;
+}
+
+// Transport failures worth retrying: the server is restarting.
+bool Retryable(const grpc::Status& s) {
+  return s.error_code() == grpc::StatusCode::UNAVAILABLE ||
+         s.error_code() == grpc::StatusCode::CANCELLED ||
+         s.error_code() == grpc::StatusCode::UNKNOWN;
+}
+
+}  // namespace
+
+struct NimbusClient::Impl {
+  std::shared_ptr<grpc::Channel> channel;
+  std::unique_ptr<v1::NimbusService::Stub> stub;
+};
+
+NimbusClient::NimbusClient(std::shared_ptr<grpc::Channel> channel) : impl_(std::make_unique<Impl>()) {
+  impl_->channel = std::move(channel);
+  impl_->stub = v1::NimbusService::NewStub(impl_->channel);
+}
+
+NimbusClient::~NimbusClient() = default;
+
+std::unique_ptr<NimbusClient> NimbusClient::Connect(const std::string& target) {
+  grpc::ChannelArguments args;
+  args.SetMaxReceiveMessageSize(64 << 20);
+  // Reconnect quickly after a server restart.
+  args.SetInt(GRPC_ARG_INITIAL_RECONNECT_BACKOFF_MS, 100);
+  args.SetInt(GRPC_ARG_MAX_RECONNECT_BACKOFF_MS, 1000);
+  return std::make_unique<NimbusClient>(
+      grpc::CreateCustomChannel(target, grpc::InsecureChannelCredentials(), args));
+}
+
+absl::Status NimbusClient::WaitForReady(double seconds) {
+  const auto deadline =
+      std::chrono::system_clock::now() + std::chrono::milliseconds(int64_t(seconds * 1000));
+  if (!impl_->channel->WaitForConnected(deadline))
+    return absl::UnavailableError("no Nimbus server answered in time");
+  return absl::OkStatus();
+}
+
+absl::StatusOr<v1::Job> NimbusClient::Submit(const v1::JobSpec& spec, const std::string& request_id) {
+  grpc::ClientContext ctx;
+  v1::SubmitJobRequest req;
+  *req.mutable_spec() = spec;
+  req.set_request_id(request_id);
+  v1::SubmitJobResponse resp;
+  if (auto s = impl_->stub->SubmitJob(&ctx, req, &resp); !s.ok()) return FromGrpc(s);
+  return resp.job();
+}
+
+absl::StatusOr<v1::Job> NimbusClient::Get(const std::string& job_id) {
+  grpc::ClientContext ctx;
+  v1::GetJobRequest req;
+  req.set_job_id(job_id);
+  v1::GetJobResponse resp;
+  if (auto s = impl_->stub->GetJob(&ctx, req, &resp); !s.ok()) return FromGrpc(s);
+  return resp.job();
+}
+
+absl::StatusOr<v1::ListJobsResponse> NimbusClient::List(const v1::ListJobsRequest& request) {
+  grpc::ClientContext ctx;
+  v1::ListJobsResponse resp;
+  if (auto s = impl_->stub->ListJobs(&ctx, request, &resp); !s.ok()) return FromGrpc(s);
+  return resp;
+}
+
+absl::StatusOr<v1::Job> NimbusClient::Cancel(const std::string& job_id) {
+  grpc::ClientContext ctx;
+  v1::CancelJobRequest req;
+  req.set_job_id(job_id);
+  v1::CancelJobResponse resp;
+  if (auto s = impl_->stub->CancelJob(&ctx, req, &resp); !s.ok()) return FromGrpc(s);
+  return resp.job();
+}
+
+absl::StatusOr<v1::Job> NimbusClient::Watch(
+    const std::string& job_id, const WatchOptions& options,
+    const std::function<void(const v1::WatchJobResponse&)>& on_update) {
+  v1::WatchJobRequest req;
+  req.set_job_id(job_id);
+  req.set_preview_resolution(options.preview_resolution);
+  req.set_preview_interval_seconds(options.preview_interval_seconds);
+  v1::Job last;
+  auto give_up_at = std::chrono::steady_clock::now() +
+                    std::chrono::milliseconds(int64_t(options.reconnect_timeout_seconds * 1000));
+  while (true) {
+    grpc::ClientContext ctx;
+    ctx.set_wait_for_ready(true);  // ride out a restarting server
+    auto reader = impl_->stub->WatchJob(&ctx, req);
+    v1::WatchJobResponse resp;
+    bool got_any = false;
+    while (reader->Read(&resp)) {
+      got_any = true;
+      last = resp.job();
+      on_update(resp);
+    }
+    const grpc::Status s = reader->Finish();
+    if (IsTerminal(last.state())) return last;
+    if (!s.ok() && !Retryable(s)) return FromGrpc(s);
+    if (got_any)
+      give_up_at = std::chrono::steady_clock::now() +
+                   std::chrono::milliseconds(int64_t(options.reconnect_timeout_seconds * 1000));
+    if (std::chrono::steady_clock::now() > give_up_at)
+      return absl::UnavailableError(
+          absl::StrCat("lost the server while watching job ", job_id, ": ", s.error_message()));
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  }
+}
+
+absl::Status NimbusClient::Fetch(const std::string& job_id, const std::filesystem::path& path) {
+  const std::filesystem::path part = path.string() + ".part";
+  std::error_code ec;
+  uint64_t offset = std::filesystem::exists(part, ec) ? std::filesystem::file_size(part, ec) : 0;
+  std::string expected_sha;
+  uint64_t total = 0;
+  for (int attempt = 0;; ++attempt) {
+    std::ofstream out(part, std::ios::binary | std::ios::app);
+    if (!out) return absl::PermissionDeniedError(absl::StrCat("cannot write ", part.string()));
+    grpc::ClientContext ctx;
+    ctx.set_wait_for_ready(true);
+    v1::FetchResultRequest req;
+    req.set_job_id(job_id);
+    req.set_offset(offset);
+    auto reader = impl_->stub->FetchResult(&ctx, req);
+    v1::FetchResultResponse chunk;
+    while (reader->Read(&chunk)) {
+      if (!chunk.sha256().empty()) expected_sha = chunk.sha256();
+      if (chunk.total_size()) total = chunk.total_size();
+      if (chunk.offset() != offset)
+        return absl::DataLossError(absl::StrCat("server sent offset ", chunk.offset(),
+                                                ", expected ", offset));
+      out.write(chunk.data().data(), std::streamsize(chunk.data().size()));
+      offset += chunk.data().size();
+    }
+    out.close();
+    const grpc::Status s = reader->Finish();
+    if (s.ok()) break;
+    if (!Retryable(s) || attempt >= 20) {
+      if (s.error_code() == grpc::StatusCode::OUT_OF_RANGE) std::filesystem::remove(part, ec);
+      return FromGrpc(s);
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(250));
+  }
+  if (offset != total)
+    return absl::DataLossError(absl::StrCat("downloaded ", offset, " of ", total, " bytes"));
+  auto sha = Sha256File(part);
+  if (!sha.ok()) return sha.status();
+  if (*sha != expected_sha) {
+    std::filesystem::remove(part, ec);
+    return absl::DataLossError(absl::StrCat("sha256 mismatch for ", path.string(), ": got ", *sha,
+                                            ", server says ", expected_sha));
+  }
+  std::filesystem::rename(part, path, ec);
+  if (ec) return absl::InternalError(absl::StrCat("rename to ", path.string(), ": ", ec.message()));
+  return absl::OkStatus();
+}
+
+}  // namespace nimbus::client

@@ -1,0 +1,59 @@
+// Client library for nimbus.v1.NimbusService. gRPC is hidden behind a pimpl;
+// callers see protobuf messages and absl::Status only.
+#pragma once
+
+#include <filesystem>
+#include <functional>
+#include <memory>
+#include <string>
+
+#include "absl/status/statusor.h"
+#include "nimbus/v1/nimbus_service.pb.h"
+
+namespace grpc {
+class Channel;
+}
+
+namespace nimbus::client {
+
+struct WatchOptions {
+  /// Largest preview axis in voxels; 0 for no previews.
+  uint32_t preview_resolution = 0;
+  double preview_interval_seconds = 1.0;
+  /// How long to keep reconnecting when the server goes away mid-watch.
+  double reconnect_timeout_seconds = 120.0;
+};
+
+/// @brief Blocking client. Thread-compatible; one call at a time per object.
+class NimbusClient {
+ public:
+  explicit NimbusClient(std::shared_ptr<grpc::Channel> channel);
+  /// Connects to host:port over plaintext.
+  static std::unique_ptr<NimbusClient> Connect(const std::string& target);
+  ~NimbusClient();
+
+  absl::StatusOr<v1::Job> Submit(const v1::JobSpec& spec, const std::string& request_id = "");
+  absl::StatusOr<v1::Job> Get(const std::string& job_id);
+  absl::StatusOr<v1::ListJobsResponse> List(const v1::ListJobsRequest& request);
+  absl::StatusOr<v1::Job> Cancel(const std::string& job_id);
+
+  /// Streams updates to `on_update` until the job ends, reconnecting after
+  /// transport failures (a server restart) and resuming the watch. Returns
+  /// the job's final view.
+  absl::StatusOr<v1::Job> Watch(const std::string& job_id, const WatchOptions& options,
+                                const std::function<void(const v1::WatchJobResponse&)>& on_update);
+
+  /// Downloads the result to `path`. An existing `path + ".part"` resumes
+  /// from its size. The SHA-256 is verified before the file is renamed into
+  /// place; a mismatch deletes the partial file and is DATA_LOSS.
+  absl::Status Fetch(const std::string& job_id, const std::filesystem::path& path);
+
+  /// Waits until the server answers, up to `seconds`.
+  absl::Status WaitForReady(double seconds);
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace nimbus::client

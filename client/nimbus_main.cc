@@ -1,0 +1,350 @@
+// nimbus: the command-line client. Without --server it starts an embedded
+// in-process server on a local data folder, so it works with no setup.
+#include <CLI/CLI.hpp>
+#include <google/protobuf/util/json_util.h>
+#include <spdlog/spdlog.h>
+#include <unistd.h>
+
+#include <csignal>
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <iostream>
+#include <thread>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/ascii.h"
+#include "absl/strings/str_format.h"
+#include "client/nimbus_client.h"
+#include "proto/spec_convert.h"
+#include "proto/spec_io.h"
+#include "server/server.h"
+
+namespace {
+
+using nimbus::client::NimbusClient;
+namespace v1 = nimbus::v1;
+
+// Exit codes: 0 success, 1 job failed or was cancelled, 2 bad input,
+// 3 server unreachable or internal error.
+constexpr int kJobFailed = 1, kBadInput = 2, kServerError = 3;
+
+int ExitFor(const absl::Status& s) {
+  std::cerr << "nimbus: " << s.message() << " [" << absl::StatusCodeToString(s.code()) << "]\n";
+  switch (s.code()) {
+    case absl::StatusCode::kInvalidArgument:
+    case absl::StatusCode::kNotFound:
+    case absl::StatusCode::kFailedPrecondition:
+    case absl::StatusCode::kResourceExhausted:
+    case absl::StatusCode::kOutOfRange: return kBadInput;
+    default: return kServerError;
+  }
+}
+
+std::filesystem::path DefaultDataDir() {
+  if (const char* d = std::getenv("NIMBUS_DATA_DIR")) return d;
+  if (const char* x = std::getenv("XDG_CACHE_HOME")) return std::filesystem::path(x) / "nimbus";
+  if (const char* h = std::getenv("HOME")) return std::filesystem::path(h) / ".cache" / "nimbus";
+  return ".nimbus";
+}
+
+struct Connection {
+  std::unique_ptr<nimbus::server::NimbusServer> embedded;
+  std::unique_ptr<NimbusClient> client;
+};
+
+struct GlobalOptions {
+  std::string server;
+  std::string data_dir;
+  int threads = 0;
+  bool verbose = false;
+};
+
+absl::StatusOr<Connection> Connect(const GlobalOptions& g) {
+  Connection c;
+  if (!g.server.empty()) {
+    c.client = NimbusClient::Connect(g.server);
+    if (auto s = c.client->WaitForReady(10); !s.ok())
+      return absl::UnavailableError(absl::StrCat("cannot reach nimbusd at ", g.server));
+    return c;
+  }
+  nimbus::server::ServerOptions o;
+  o.listen = "";
+  o.data_dir = g.data_dir.empty() ? DefaultDataDir() : std::filesystem::path(g.data_dir);
+  o.threads_per_job = g.threads;
+  auto server = nimbus::server::NimbusServer::Start(o);
+  if (!server.ok()) return server.status();
+  c.embedded = std::move(*server);
+  c.client = std::make_unique<NimbusClient>(c.embedded->InProcessChannel());
+  return c;
+}
+
+std::string Human(double v) {
+  const char* units[] = {"", "K", "M", "G", "T"};
+  int u = 0;
+  while (v >= 1000 && u < 4) v /= 1000, ++u;
+  return absl::StrFormat("%.1f%s", v, units[u]);
+}
+
+std::string Duration(double s) {
+  if (s <= 0) return "--";
+  const int64_t t = int64_t(s + 0.5);
+  if (t >= 3600) return absl::StrFormat("%dh%02dm", t / 3600, (t / 60) % 60);
+  if (t >= 60) return absl::StrFormat("%dm%02ds", t / 60, t % 60);
+  return absl::StrFormat("%ds", t);
+}
+
+const char* StateName(v1::JobState s) {
+  switch (s) {
+    case v1::JOB_STATE_QUEUED: return "queued";
+    case v1::JOB_STATE_RUNNING: return "running";
+    case v1::JOB_STATE_SUCCEEDED: return "succeeded";
+    case v1::JOB_STATE_FAILED: return "failed";
+    case v1::JOB_STATE_CANCELLED: return "cancelled";
+    default: return "unknown";
+  }
+}
+
+// Draws a progress bar on a terminal, or a line per 10% otherwise.
+class ProgressView {
+ public:
+  ProgressView() : tty_(::isatty(2)) {}
+  void Update(const v1::Job& job) {
+    const auto& p = job.progress();
+    const double f = p.total() ? double(p.done()) / double(p.total()) : 0;
+    if (tty_) {
+      const int width = 30, filled = int(f * width);
+      std::string bar(filled, '#');
+      bar.resize(width, '.');
+      std::fprintf(stderr, "\r%-9s [%s] %5.1f%%  %s it/s  ETA %s   ", StateName(job.state()),
+                   bar.c_str(), 100 * f, Human(p.rate()).c_str(), Duration(p.eta_seconds()).c_str());
+      std::fflush(stderr);
+      drawn_ = true;
+    } else if (int(f * 10) != last_decile_ || job.state() != last_state_) {
+      last_decile_ = int(f * 10);
+      last_state_ = job.state();
+      std::fprintf(stderr, "%s %5.1f%%  %s it/s  ETA %s\n", StateName(job.state()), 100 * f,
+                   Human(p.rate()).c_str(), Duration(p.eta_seconds()).c_str());
+    }
+  }
+  void Done() {
+    if (drawn_) std::fprintf(stderr, "\n");
+    drawn_ = false;
+  }
+
+ private:
+  bool tty_;
+  bool drawn_ = false;
+  int last_decile_ = -1;
+  v1::JobState last_state_ = v1::JOB_STATE_UNSPECIFIED;
+};
+
+struct WatchArgs {
+  std::string previews;
+  uint32_t preview_resolution = 64;
+  double preview_interval = 1.0;
+};
+
+// Watches a job to its end, saving previews; returns its final view.
+absl::StatusOr<v1::Job> WatchJob(NimbusClient& client, const std::string& id, const WatchArgs& w,
+                                 bool quiet) {
+  nimbus::client::WatchOptions o;
+  if (!w.previews.empty()) {
+    std::error_code ec;
+    std::filesystem::create_directories(w.previews, ec);
+    if (ec) return absl::InvalidArgumentError(absl::StrCat("--previews ", w.previews, ": ", ec.message()));
+    o.preview_resolution = w.preview_resolution;
+    o.preview_interval_seconds = w.preview_interval;
+  }
+  ProgressView view;
+  int saved = 0;
+  auto job = client.Watch(id, o, [&](const v1::WatchJobResponse& r) {
+    if (!quiet) view.Update(r.job());
+    if (r.has_preview() && !w.previews.empty()) {
+      const auto path = std::filesystem::path(w.previews) /
+                        absl::StrFormat("%s.preview.%04d.vdb", r.job().name(), ++saved);
+      std::ofstream(path, std::ios::binary) << r.preview().vdb();
+    }
+  });
+  if (!quiet) view.Done();
+  if (job.ok() && saved > 0)
+    std::cerr << "saved " << saved << " previews in " << w.previews << "\n";
+  return job;
+}
+
+int Finished(const v1::Job& job) {
+  for (const auto& w : job.warnings()) std::cerr << "warning: " << w << "\n";
+  if (job.state() == v1::JOB_STATE_SUCCEEDED) return 0;
+  std::cerr << "nimbus: job " << job.id() << " " << StateName(job.state())
+            << (job.error().empty() ? "" : ": " + job.error()) << "\n";
+  return kJobFailed;
+}
+
+std::atomic<bool> g_interrupted{false};
+void OnSigint(int) { g_interrupted = true; }
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"nimbus: grow fractal volumes (OpenVDB) with a Nimbus server"};
+  app.require_subcommand(1);
+  GlobalOptions g;
+  app.add_option("--server", g.server,
+                 "nimbusd address host:port; without it an embedded server runs in-process");
+  app.add_option("--data-dir", g.data_dir,
+                 "embedded server's data folder (default $NIMBUS_DATA_DIR or ~/.cache/nimbus)");
+  app.add_option("--threads", g.threads, "embedded server: engine threads per job (0: all cores)");
+  app.add_flag("-v,--verbose", g.verbose, "show server logs");
+
+  std::string spec_path, out_path, job_id, state_filter;
+  WatchArgs watch_args;
+  int limit = 20;
+  auto add_watch_flags = [&](CLI::App* c) {
+    c->add_option("--previews", watch_args.previews, "save preview grids in this folder");
+    c->add_option("--preview-resolution", watch_args.preview_resolution,
+                  "largest preview axis, voxels")->capture_default_str();
+    c->add_option("--preview-interval", watch_args.preview_interval,
+                  "seconds between previews")->capture_default_str();
+  };
+
+  auto* render = app.add_subcommand("render", "submit a spec, show progress, fetch the .vdb");
+  render->add_option("spec", spec_path, "spec file (.json or text format)")->required();
+  render->add_option("-o,--output", out_path, "output .vdb path")->required();
+  add_watch_flags(render);
+  auto* submit = app.add_subcommand("submit", "queue a spec and print the job id");
+  submit->add_option("spec", spec_path, "spec file")->required();
+  auto* watch = app.add_subcommand("watch", "follow a job until it ends");
+  watch->add_option("job", job_id)->required();
+  add_watch_flags(watch);
+  auto* fetch = app.add_subcommand("fetch", "download a finished job's .vdb");
+  fetch->add_option("job", job_id)->required();
+  fetch->add_option("-o,--output", out_path, "output .vdb path")->required();
+  auto* get = app.add_subcommand("get", "print a job as JSON");
+  get->add_option("job", job_id)->required();
+  auto* jobs = app.add_subcommand("jobs", "list jobs, newest first");
+  jobs->add_option("--state", state_filter, "queued, running, succeeded, failed or cancelled");
+  jobs->add_option("--limit", limit, "how many")->capture_default_str();
+  auto* cancel = app.add_subcommand("cancel", "cancel a queued or running job");
+  cancel->add_option("job", job_id)->required();
+  auto* validate = app.add_subcommand("validate", "check a spec locally and summarise it");
+  validate->add_option("spec", spec_path, "spec file")->required();
+
+  CLI11_PARSE(app, argc, argv);
+  spdlog::set_level(g.verbose ? spdlog::level::info : spdlog::level::warn);
+  spdlog::set_pattern("%Y-%m-%dT%H:%M:%S.%e %^%l%$ nimbusd %v");
+
+  if (validate->parsed()) {
+    auto spec = nimbus::spec::LoadSpecFile(spec_path);
+    if (!spec.ok()) return ExitFor(spec.status());
+    auto job = nimbus::spec::ConvertSpec(*spec, nimbus::spec::Limits{}, 2);
+    if (!job.ok()) return ExitFor(job.status());
+    const auto r = job->frame.resolution;
+    std::cout << spec_path << ": ok\n"
+              << "  name: " << job->name << "\n"
+              << "  grid: " << r.x << " x " << r.y << " x " << r.z << "\n"
+              << "  maps: " << job->chaos_game.ifs.maps.size() << "\n";
+    for (size_t i = 0; i < job->chaos_game.ifs.maps.size(); ++i)
+      std::cout << absl::StrFormat("    [%d] p=%.4f contraction=%.4f %s\n", i,
+                                   job->chaos_game.ifs.probabilities[i],
+                                   job->contraction_factors[i],
+                                   job->chaos_game.ifs.maps[i].name);
+    std::cout << "  iterations: " << job->chaos_game.iterations << "\n"
+              << absl::StrFormat("  peak memory (estimate): %.1f MiB\n",
+                                 double(job->estimated_memory_bytes) / (1 << 20))
+              << "  spec sha256: " << nimbus::spec::SpecHash(*spec) << "\n";
+    for (const auto& w : job->warnings) std::cout << "  warning: " << w << "\n";
+    return 0;
+  }
+
+  v1::JobSpec spec;
+  if (render->parsed() || submit->parsed()) {
+    auto loaded = nimbus::spec::LoadSpecFile(spec_path);
+    if (!loaded.ok()) return ExitFor(loaded.status());
+    spec = *loaded;
+  }
+  auto conn = Connect(g);
+  if (!conn.ok()) return ExitFor(conn.status());
+  NimbusClient& client = *conn->client;
+
+  if (render->parsed()) {
+    auto job = client.Submit(spec);
+    if (!job.ok()) return ExitFor(job.status());
+    std::cerr << "job " << job->id() << " queued"
+              << (conn->embedded ? " (embedded server)" : " on " + g.server) << "\n";
+    // Ctrl-C cancels the job rather than leaving it queued behind.
+    std::signal(SIGINT, OnSigint);
+    std::thread canceller([&, id = job->id()] {
+      while (!g_interrupted) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(50));
+        if (g_interrupted) (void)client.Cancel(id);
+      }
+    });
+    auto final_job = WatchJob(client, job->id(), watch_args, false);
+    g_interrupted = true;
+    canceller.join();
+    if (!final_job.ok()) return ExitFor(final_job.status());
+    if (int rc = Finished(*final_job); rc != 0) return rc;
+    if (auto s = client.Fetch(job->id(), out_path); !s.ok()) return ExitFor(s);
+    std::cerr << absl::StrFormat("wrote %s (%s bytes, sha256 %s)\n", out_path,
+                                 Human(double(final_job->result().size_bytes())),
+                                 final_job->result().sha256());
+    return 0;
+  }
+  if (submit->parsed()) {
+    auto job = client.Submit(spec);
+    if (!job.ok()) return ExitFor(job.status());
+    std::cout << job->id() << "\n";
+    if (conn->embedded)
+      std::cerr << "note: the embedded server runs jobs only while a nimbus command runs; "
+                   "`nimbus watch "
+                << job->id() << "` runs it to the end\n";
+    return 0;
+  }
+  if (watch->parsed()) {
+    auto job = WatchJob(client, job_id, watch_args, false);
+    if (!job.ok()) return ExitFor(job.status());
+    return Finished(*job);
+  }
+  if (fetch->parsed()) {
+    if (auto s = client.Fetch(job_id, out_path); !s.ok()) return ExitFor(s);
+    std::cerr << "wrote " << out_path << "\n";
+    return 0;
+  }
+  if (get->parsed()) {
+    auto job = client.Get(job_id);
+    if (!job.ok()) return ExitFor(job.status());
+    std::string json;
+    google::protobuf::util::JsonPrintOptions po;
+    po.add_whitespace = true;
+    po.preserve_proto_field_names = true;
+    (void)google::protobuf::util::MessageToJsonString(*job, &json, po);
+    std::cout << json;
+    return 0;
+  }
+  if (jobs->parsed()) {
+    v1::ListJobsRequest req;
+    req.set_page_size(limit);
+    if (!state_filter.empty()) {
+      v1::JobState st;
+      if (!v1::JobState_Parse("JOB_STATE_" + absl::AsciiStrToUpper(state_filter), &st))
+        return ExitFor(absl::InvalidArgumentError("--state: unknown state " + state_filter));
+      req.set_state(st);
+    }
+    auto list = client.List(req);
+    if (!list.ok()) return ExitFor(list.status());
+    std::cout << absl::StrFormat("%-20s %-10s %7s %-24s %s\n", "ID", "STATE", "DONE", "NAME", "ERROR");
+    for (const auto& j : list->jobs()) {
+      const double f = j.progress().total() ? 100.0 * j.progress().done() / j.progress().total() : 0;
+      std::cout << absl::StrFormat("%-20s %-10s %6.1f%% %-24s %s\n", j.id(), StateName(j.state()), f,
+                                   j.name(), j.error());
+    }
+    return 0;
+  }
+  if (cancel->parsed()) {
+    auto job = client.Cancel(job_id);
+    if (!job.ok()) return ExitFor(job.status());
+    std::cout << job->id() << " " << StateName(job->state()) << "\n";
+    return 0;
+  }
+  return 0;
+}

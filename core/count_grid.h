@@ -1,0 +1,100 @@
+// Sparse integer visit counters over a GridFrame: the accumulator of every
+// chaos game and set iteration.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include "core/geometry.h"
+
+namespace nimbus {
+
+/// @brief Sparse uint32 counters on a voxel lattice, stored as lazily
+/// allocated 32^3 tiles (128 KiB, an eighth of this machine's L2), so memory
+/// follows the active region and a binned batch of increments to one tile
+/// stays in cache. Inside a tile, 8^3 leaves are laid out in OpenVDB's
+/// LeafNode order so conversion to a VDB tree copies whole leaves.
+///
+/// Not thread-safe: each thread owns one CountGrid and they are merged.
+class CountGrid {
+ public:
+  static constexpr int kTileLog2 = 5;
+  static constexpr int kTileDim = 1 << kTileLog2;           // 32
+  static constexpr int kTileVoxels = kTileDim * kTileDim * kTileDim;
+  static constexpr int kLeafDim = 8;
+
+  explicit CountGrid(Int3 resolution);
+  CountGrid(CountGrid&&) noexcept;
+  CountGrid& operator=(CountGrid&&) noexcept;
+  ~CountGrid();
+
+  Int3 resolution() const { return res_; }
+  Int3 tiles() const { return tiles_; }
+
+  /// Packs a voxel into a key: tile index << 15 | offset inside the tile.
+  uint64_t Key(int x, int y, int z) const {
+    const uint64_t tile =
+        (uint64_t(x >> kTileLog2) * tiles_.y + uint64_t(y >> kTileLog2)) * tiles_.z +
+        uint64_t(z >> kTileLog2);
+    return (tile << 15) | LocalOffset(x & 31, y & 31, z & 31);
+  }
+  static uint32_t LocalOffset(int lx, int ly, int lz) {
+    // leaf (lx>>3, ly>>3, lz>>3) then OpenVDB's (x<<6 | y<<3 | z) in the leaf.
+    return (uint32_t(((lx >> 3) << 4) | ((ly >> 3) << 2) | (lz >> 3)) << 9) |
+           uint32_t(((lx & 7) << 6) | ((ly & 7) << 3) | (lz & 7));
+  }
+
+  /// Adds `n` visits to the voxel with this key.
+  void AddKey(uint64_t key, uint32_t n = 1) { TileFor(key >> 15)[key & 0x7fff] += n; }
+  void Add(int x, int y, int z, uint32_t n = 1) { AddKey(Key(x, y, z), n); }
+  /// Adds a batch of keys. Keys are binned by tile first so each tile's
+  /// increments run in cache; `scratch` is reused between calls.
+  void AddKeys(const uint64_t* keys, size_t n, std::vector<uint64_t>& scratch);
+
+  uint32_t Get(int x, int y, int z) const;
+
+  /// Adds every counter of `other` (same resolution), saturating at 2^32-1.
+  void Merge(const CountGrid& other);
+  /// Sum of all counters and the largest counter.
+  uint64_t Total() const;
+  uint32_t Max() const;
+  size_t AllocatedTiles() const { return allocated_; }
+  size_t MemoryBytes() const;
+  /// Worst-case bytes for a grid of this resolution (every tile allocated).
+  static uint64_t MaxMemoryBytes(Int3 resolution);
+
+  /// Calls f(tile_origin, const uint32_t* tile) for every allocated tile,
+  /// in tile-index order (deterministic).
+  template <typename F>
+  void ForEachTile(F&& f) const {
+    for (size_t t = 0; t < table_.size(); ++t)
+      if (table_[t]) f(TileOrigin(t), table_[t].get());
+  }
+  Int3 TileOrigin(size_t t) const {
+    const int z = int(t % tiles_.z), y = int((t / tiles_.z) % tiles_.y),
+              x = int(t / (size_t(tiles_.z) * tiles_.y));
+    return {x * kTileDim, y * kTileDim, z * kTileDim};
+  }
+  /// Voxel coordinates (relative to its tile's origin) of a local offset.
+  static Int3 LocalCoord(uint32_t offset) {
+    const uint32_t leaf = offset >> 9, v = offset & 511;
+    return {int(((leaf >> 4) & 3) * 8 + (v >> 6)), int(((leaf >> 2) & 3) * 8 + ((v >> 3) & 7)),
+            int((leaf & 3) * 8 + (v & 7))};
+  }
+
+ private:
+  uint32_t* TileFor(uint64_t tile) {
+    auto& p = table_[tile];
+    if (!p) Allocate(tile);
+    return p.get();
+  }
+  void Allocate(uint64_t tile);
+
+  Int3 res_;
+  Int3 tiles_;
+  std::vector<std::unique_ptr<uint32_t[]>> table_;
+  size_t allocated_ = 0;
+};
+
+}  // namespace nimbus

@@ -1,0 +1,250 @@
+#include "core/vdb_io.h"
+
+#include <openvdb/openvdb.h>
+#include <openvdb/io/Stream.h>
+
+#include <cmath>
+#include <fstream>
+#include <mutex>
+#include <sstream>
+
+#include "absl/strings/str_cat.h"
+
+namespace nimbus {
+
+namespace {
+
+void InitOpenVdb() {
+  static std::once_flag once;
+  std::call_once(once, [] { openvdb::initialize(); });
+}
+
+const char* MappingName(DensityMapping m) {
+  switch (m) {
+    case DensityMapping::kLinear: return "linear";
+    case DensityMapping::kSqrt: return "sqrt";
+    case DensityMapping::kLog: return "log";
+    case DensityMapping::kGamma: return "gamma";
+  }
+  return "linear";
+}
+
+// Maps a count to [0, 1] given the largest count.
+struct Normaliser {
+  DensityMapping mapping;
+  double max, inv_max, inv_log_max, inv_gamma;
+  Normaliser(const DensityOptions& o, uint32_t max_count)
+      : mapping(o.mapping),
+        max(std::max<double>(1, max_count)),
+        inv_max(1.0 / max),
+        inv_log_max(1.0 / std::log1p(max)),
+        inv_gamma(1.0 / (o.gamma > 0 ? o.gamma : 1.0)) {}
+  float operator()(uint32_t c) const {
+    switch (mapping) {
+      case DensityMapping::kLinear: return float(c * inv_max);
+      case DensityMapping::kSqrt: return float(std::sqrt(c * inv_max));
+      case DensityMapping::kLog: return float(std::log1p(double(c)) * inv_log_max);
+      case DensityMapping::kGamma: return float(std::pow(c * inv_max, inv_gamma));
+    }
+    return 0.f;
+  }
+};
+
+openvdb::math::Transform::Ptr FrameTransform(const GridFrame& frame) {
+  const Vec3 h = frame.VoxelSize();
+  openvdb::math::Mat4d m = openvdb::math::Mat4d::identity();
+  m.setToScale(openvdb::Vec3d(h.x, h.y, h.z));
+  // Index-space voxel centres sit at integer coordinates in OpenVDB.
+  m.setTranslation(openvdb::Vec3d(frame.bounds.min.x + 0.5 * h.x, frame.bounds.min.y + 0.5 * h.y,
+                                  frame.bounds.min.z + 0.5 * h.z));
+  return openvdb::math::Transform::createLinearTransform(m);
+}
+
+void AddMeta(openvdb::MetaMap& meta, const std::string& key, const MetaValue& v) {
+  if (auto* s = std::get_if<std::string>(&v)) meta.insertMeta(key, openvdb::StringMetadata(*s));
+  if (auto* i = std::get_if<int64_t>(&v)) meta.insertMeta(key, openvdb::Int64Metadata(*i));
+  if (auto* d = std::get_if<double>(&v)) meta.insertMeta(key, openvdb::DoubleMetadata(*d));
+}
+
+openvdb::FloatGrid::Ptr BuildDensityGrid(const CountGrid& counts, const GridFrame& frame,
+                                         const DensityOptions& options, const Metadata& metadata) {
+  auto grid = openvdb::FloatGrid::create(0.0f);
+  grid->setName(options.grid_name);
+  grid->setGridClass(openvdb::GRID_FOG_VOLUME);
+  grid->setTransform(FrameTransform(frame));
+  const uint32_t max_count = counts.Max();
+  const Normaliser norm(options, max_count);
+  auto& tree = grid->tree();
+  counts.ForEachTile([&](Int3 origin, const uint32_t* tile) {
+    for (int leaf = 0; leaf < 64; ++leaf) {
+      const uint32_t* v = tile + leaf * 512;
+      bool any = false;
+      for (int i = 0; i < 512 && !any; ++i) any = v[i] != 0;
+      if (!any) continue;
+      const openvdb::Coord c(origin.x + ((leaf >> 4) & 3) * 8, origin.y + ((leaf >> 2) & 3) * 8,
+                             origin.z + (leaf & 3) * 8);
+      auto* node = tree.touchLeaf(c);
+      for (int i = 0; i < 512; ++i)
+        if (v[i]) node->setValueOn(i, norm(v[i]));
+    }
+  });
+  const Int3 r = frame.resolution;
+  grid->insertMeta("nimbus_resolution", openvdb::Vec3IMetadata(openvdb::Vec3i(r.x, r.y, r.z)));
+  const Bounds& b = frame.bounds;
+  grid->insertMeta("nimbus_bounds_min",
+                   openvdb::Vec3DMetadata(openvdb::Vec3d(b.min.x, b.min.y, b.min.z)));
+  grid->insertMeta("nimbus_bounds_max",
+                   openvdb::Vec3DMetadata(openvdb::Vec3d(b.max.x, b.max.y, b.max.z)));
+  grid->insertMeta("nimbus_max_count", openvdb::Int64Metadata(int64_t(max_count)));
+  grid->insertMeta("nimbus_density_mapping", openvdb::StringMetadata(MappingName(options.mapping)));
+  for (const auto& [k, v] : metadata) AddMeta(*grid, k, v);
+  return grid;
+}
+
+absl::StatusOr<DenseVolume> ToDense(const openvdb::GridPtrVecPtr& grids, const std::string& name) {
+  openvdb::FloatGrid::Ptr grid;
+  for (const auto& g : *grids)
+    if (g->getName() == name) grid = openvdb::gridPtrCast<openvdb::FloatGrid>(g);
+  if (!grid) return absl::NotFoundError(absl::StrCat("no float grid named '", name, "'"));
+  DenseVolume out;
+  out.name = name;
+  out.grid_class = openvdb::GridBase::gridClassToString(grid->getGridClass());
+  auto res = grid->getMetadata<openvdb::Vec3IMetadata>("nimbus_resolution");
+  auto bmin = grid->getMetadata<openvdb::Vec3DMetadata>("nimbus_bounds_min");
+  auto bmax = grid->getMetadata<openvdb::Vec3DMetadata>("nimbus_bounds_max");
+  if (!res || !bmin || !bmax)
+    return absl::InvalidArgumentError("grid lacks nimbus_resolution/bounds metadata");
+  const openvdb::Vec3i r = res->value();
+  out.frame.resolution = {r.x(), r.y(), r.z()};
+  out.frame.bounds = {{bmin->value().x(), bmin->value().y(), bmin->value().z()},
+                      {bmax->value().x(), bmax->value().y(), bmax->value().z()}};
+  const openvdb::Vec3d o = grid->indexToWorld(openvdb::Vec3d(0, 0, 0));
+  const openvdb::Vec3d vs = grid->voxelSize();
+  out.origin_center = {o.x(), o.y(), o.z()};
+  out.voxel_size = {vs.x(), vs.y(), vs.z()};
+  out.values.assign(size_t(r.x()) * r.y() * r.z(), 0.f);
+  for (auto it = grid->cbeginValueOn(); it; ++it) {
+    const openvdb::Coord c = it.getCoord();
+    if (c.x() < 0 || c.y() < 0 || c.z() < 0 || c.x() >= r.x() || c.y() >= r.y() || c.z() >= r.z())
+      return absl::DataLossError("active voxel outside the recorded resolution");
+    out.values[(size_t(c.x()) * r.y() + c.y()) * r.z() + c.z()] = *it;
+  }
+  for (auto it = grid->beginMeta(); it != grid->endMeta(); ++it) {
+    const auto& m = it->second;
+    if (auto s = openvdb::DynamicPtrCast<openvdb::StringMetadata>(m))
+      out.metadata.emplace_back(it->first, s->value());
+    else if (auto i = openvdb::DynamicPtrCast<openvdb::Int64Metadata>(m))
+      out.metadata.emplace_back(it->first, i->value());
+    else if (auto d = openvdb::DynamicPtrCast<openvdb::DoubleMetadata>(m))
+      out.metadata.emplace_back(it->first, d->value());
+  }
+  return out;
+}
+
+}  // namespace
+
+const MetaValue* DenseVolume::Find(const std::string& key) const {
+  for (const auto& [k, v] : metadata)
+    if (k == key) return &v;
+  return nullptr;
+}
+
+absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid& counts,
+                             const GridFrame& frame, const DensityOptions& options,
+                             const Metadata& metadata) {
+  InitOpenVdb();
+  const std::filesystem::path tmp = path.string() + ".partial";
+  try {
+    openvdb::GridPtrVec grids{BuildDensityGrid(counts, frame, options, metadata)};
+    openvdb::io::File file(tmp.string());
+    file.setCompression(openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK);
+    file.write(grids);
+    file.close();
+  } catch (const std::exception& e) {
+    std::error_code ec;
+    std::filesystem::remove(tmp, ec);
+    return absl::InternalError(absl::StrCat("writing ", path.string(), ": ", e.what()));
+  }
+  std::error_code ec;
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) return absl::InternalError(absl::StrCat("renaming into ", path.string(), ": ", ec.message()));
+  return absl::OkStatus();
+}
+
+absl::StatusOr<std::string> DensityVdbBytes(const CountGrid& counts, const GridFrame& frame,
+                                            const DensityOptions& options,
+                                            const Metadata& metadata) {
+  InitOpenVdb();
+  try {
+    std::ostringstream os(std::ios_base::binary);
+    openvdb::GridPtrVec grids{BuildDensityGrid(counts, frame, options, metadata)};
+    openvdb::io::Stream stream(os);
+    stream.setCompression(openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK);
+    stream.write(grids);
+    return os.str();
+  } catch (const std::exception& e) {
+    return absl::InternalError(absl::StrCat("serialising VDB: ", e.what()));
+  }
+}
+
+absl::StatusOr<DenseVolume> ReadVdbFile(const std::filesystem::path& path,
+                                        const std::string& name) {
+  InitOpenVdb();
+  try {
+    openvdb::io::File file(path.string());
+    file.open();
+    auto grids = file.getGrids();
+    file.close();
+    return ToDense(grids, name);
+  } catch (const std::exception& e) {
+    return absl::InvalidArgumentError(absl::StrCat("reading ", path.string(), ": ", e.what()));
+  }
+}
+
+absl::StatusOr<DenseVolume> ReadVdbBytes(const std::string& bytes, const std::string& name) {
+  InitOpenVdb();
+  try {
+    std::istringstream is(bytes, std::ios_base::binary);
+    openvdb::io::Stream stream(is);
+    return ToDense(stream.getGrids(), name);
+  } catch (const std::exception& e) {
+    return absl::InvalidArgumentError(absl::StrCat("reading VDB bytes: ", e.what()));
+  }
+}
+
+int DownsampleFactor(Int3 r, int max_resolution) {
+  const int largest = std::max({r.x, r.y, r.z});
+  if (max_resolution <= 0) return 1;
+  return std::max(1, (largest + max_resolution - 1) / max_resolution);
+}
+
+GridFrame DownsampleFrame(const GridFrame& frame, int factor) {
+  const Int3 r = frame.resolution;
+  GridFrame out;
+  out.resolution = {(r.x + factor - 1) / factor, (r.y + factor - 1) / factor,
+                    (r.z + factor - 1) / factor};
+  const Vec3 h = frame.VoxelSize();
+  out.bounds.min = frame.bounds.min;
+  out.bounds.max = frame.bounds.min + Vec3{out.resolution.x * factor * h.x,
+                                           out.resolution.y * factor * h.y,
+                                           out.resolution.z * factor * h.z};
+  return out;
+}
+
+CountGrid DownsampleCounts(const std::vector<const CountGrid*>& parts, int factor) {
+  const Int3 r = parts.empty() ? Int3{1, 1, 1} : parts[0]->resolution();
+  CountGrid out(Int3{(r.x + factor - 1) / factor, (r.y + factor - 1) / factor,
+                     (r.z + factor - 1) / factor});
+  for (const CountGrid* part : parts) {
+    part->ForEachTile([&](Int3 o, const uint32_t* tile) {
+      for (uint32_t i = 0; i < uint32_t(CountGrid::kTileVoxels); ++i) {
+        if (!tile[i]) continue;
+        const Int3 l = CountGrid::LocalCoord(i);
+        out.Add((o.x + l.x) / factor, (o.y + l.y) / factor, (o.z + l.z) / factor, tile[i]);
+      }
+    });
+  }
+  return out;
+}
+
+}  // namespace nimbus

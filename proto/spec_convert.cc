@@ -1,0 +1,285 @@
+#include "proto/spec_convert.h"
+
+#include <cmath>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_join.h"
+#include "core/sha256.h"
+
+namespace nimbus::spec {
+
+namespace {
+
+using absl::StrCat;
+
+absl::Status Invalid(const std::string& path, const std::string& what) {
+  return absl::InvalidArgumentError(StrCat(path, ": ", what));
+}
+
+bool Finite(const v1::Vec3& v) {
+  return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z());
+}
+Vec3 ToVec3(const v1::Vec3& v) { return {v.x(), v.y(), v.z()}; }
+
+std::string GiB(uint64_t bytes) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.2f GiB", double(bytes) / double(uint64_t{1} << 30));
+  return buf;
+}
+
+absl::StatusOr<Affine3> ConvertStep(const v1::Step& s, const std::string& path) {
+  switch (s.kind_case()) {
+    case v1::Step::kTranslate:
+      if (!Finite(s.translate())) return Invalid(path + ".translate", "must be finite");
+      return Affine3::Translate(ToVec3(s.translate()));
+    case v1::Step::kRotate: {
+      const Vec3 axis = ToVec3(s.rotate().axis());
+      if (!Finite(s.rotate().axis()) || !std::isfinite(s.rotate().degrees()))
+        return Invalid(path + ".rotate", "axis and degrees must be finite");
+      if (Length(axis) == 0) return Invalid(path + ".rotate.axis", "must not be zero");
+      return Affine3::Rotate(axis, s.rotate().degrees());
+    }
+    case v1::Step::kScale: {
+      const v1::Scale& sc = s.scale();
+      if (sc.has_xyz() == (sc.uniform() != 0))
+        return Invalid(path + ".scale", "set exactly one of uniform or xyz");
+      if (sc.has_xyz()) {
+        if (!Finite(sc.xyz())) return Invalid(path + ".scale.xyz", "must be finite");
+        return Affine3::Scale(ToVec3(sc.xyz()));
+      }
+      if (!std::isfinite(sc.uniform())) return Invalid(path + ".scale.uniform", "must be finite");
+      return Affine3::Scale({sc.uniform(), sc.uniform(), sc.uniform()});
+    }
+    case v1::Step::kShear: {
+      const v1::Shear& h = s.shear();
+      for (double v : {h.xy(), h.xz(), h.yx(), h.yz(), h.zx(), h.zy()})
+        if (!std::isfinite(v)) return Invalid(path + ".shear", "must be finite");
+      return Affine3::Shear(h.xy(), h.xz(), h.yx(), h.yz(), h.zx(), h.zy());
+    }
+    case v1::Step::kMatrix: {
+      const auto& v = s.matrix().values();
+      if (v.size() != 12)
+        return Invalid(path + ".matrix.values",
+                       StrCat("needs 12 numbers (3 rows of 4, row-major), got ", v.size()));
+      Affine3 a;
+      for (int i = 0; i < 12; ++i) {
+        if (!std::isfinite(v[i]))
+          return Invalid(StrCat(path, ".matrix.values[", i, "]"), "must be finite");
+        a.m[i / 4][i % 4] = v[i];
+      }
+      return a;
+    }
+    case v1::Step::KIND_NOT_SET:
+      break;
+  }
+  return Invalid(path, "empty step: set one of translate, rotate, scale, shear, matrix");
+}
+
+absl::StatusOr<GridFrame> ConvertGrid(const v1::JobSpec& spec, const Limits& limits) {
+  if (!spec.has_grid()) return Invalid("grid", "required");
+  const v1::Grid& g = spec.grid();
+  GridFrame f;
+  const auto& r = g.resolution();
+  if (r.size() != 1 && r.size() != 3)
+    return Invalid("grid.resolution", StrCat("give 1 or 3 values, got ", r.size()));
+  for (int i = 0; i < r.size(); ++i) {
+    if (r[i] <= 0)
+      return Invalid(StrCat("grid.resolution[", i, "]"), StrCat("must be positive, got ", r[i]));
+    if (r[i] > limits.max_resolution)
+      return absl::ResourceExhaustedError(
+          StrCat("grid.resolution[", i, "]: ", r[i], " exceeds the server limit of ",
+                 limits.max_resolution, " voxels per axis"));
+  }
+  f.resolution = r.size() == 1 ? Int3{r[0], r[0], r[0]} : Int3{r[0], r[1], r[2]};
+  if (f.resolution.Volume() > limits.max_voxels)
+    return absl::ResourceExhaustedError(StrCat("grid.resolution: ", f.resolution.Volume(),
+                                               " voxels exceed the server limit of ",
+                                               limits.max_voxels));
+  if (!g.has_bounds_min() && !g.has_bounds_max()) {
+    f.bounds = {{-1, -1, -1}, {1, 1, 1}};
+  } else {
+    if (!Finite(g.bounds_min()) || !Finite(g.bounds_max()))
+      return Invalid("grid.bounds_min", "bounds must be finite");
+    f.bounds = {ToVec3(g.bounds_min()), ToVec3(g.bounds_max())};
+    static const char* kAxis[3] = {"x", "y", "z"};
+    for (int a = 0; a < 3; ++a)
+      if (!(f.bounds.max[a] > f.bounds.min[a]))
+        return Invalid(StrCat("grid.bounds_max.", kAxis[a]),
+                       StrCat("must be greater than grid.bounds_min.", kAxis[a]));
+  }
+  return f;
+}
+
+absl::StatusOr<PointMap> ConvertMap(const v1::Map& m, const std::string& path) {
+  PointMap out;
+  out.name = m.name();
+  auto pre = ComposeSteps(m.steps(), path + ".steps");
+  if (!pre.ok()) return pre.status();
+  out.pre = *pre;
+  for (int i = 0; i < m.variations_size(); ++i) {
+    const v1::Variation& v = m.variations(i);
+    const std::string vpath = StrCat(path, ".variations[", i, "]");
+    const auto kind = VariationFromName(v.name());
+    if (!kind) {
+      std::vector<std::string> names;
+      for (VariationKind k : AllVariations()) names.emplace_back(VariationName(k));
+      return Invalid(vpath + ".name", StrCat("unknown variation '", v.name(), "' (known: ",
+                                             absl::StrJoin(names, ", "), ")"));
+    }
+    if (!std::isfinite(v.weight())) return Invalid(vpath + ".weight", "must be finite");
+    if (v.params_size() > 4) return Invalid(vpath + ".params", "at most 4 values");
+    VariationTerm term;
+    term.kind = *kind;
+    term.weight = v.weight() == 0 ? 1.0 : v.weight();
+    for (int p = 0; p < v.params_size(); ++p) {
+      if (!std::isfinite(v.params(p)))
+        return Invalid(StrCat(vpath, ".params[", p, "]"), "must be finite");
+      term.params[p] = v.params(p);
+    }
+    out.variations.push_back(term);
+  }
+  if (m.post_size() > 0) {
+    auto post = ComposeSteps(m.post(), path + ".post");
+    if (!post.ok()) return post.status();
+    out.post = *post;
+  }
+  if (!(m.color() >= 0 && m.color() <= 1)) return Invalid(path + ".color", "must be in [0, 1]");
+  out.color = m.color();
+  return out;
+}
+
+absl::Status ConvertIfs(const v1::Ifs& ifs, const std::string& path, const Limits& limits,
+                        ConvertedJob& job) {
+  Ifs& out = job.chaos_game.ifs;
+  if (ifs.maps_size() == 0) return Invalid(path + ".maps", "needs at least one map");
+  if (ifs.maps_size() > limits.max_maps)
+    return absl::ResourceExhaustedError(StrCat(path, ".maps: ", ifs.maps_size(),
+                                               " maps exceed the server limit of ",
+                                               limits.max_maps));
+  std::vector<std::string> expanding;
+  for (int i = 0; i < ifs.maps_size(); ++i) {
+    const std::string mpath = StrCat(path, ".maps[", i, "]");
+    auto m = ConvertMap(ifs.maps(i), mpath);
+    if (!m.ok()) return m.status();
+    // For nonlinear maps the affine part's factor is only indicative.
+    const double factor = m->pre.ContractionFactor();
+    job.contraction_factors.push_back(factor);
+    if (m->IsAffine() && factor >= 1.0) {
+      char buf[64];
+      std::snprintf(buf, sizeof buf, "%.4g", factor);
+      expanding.push_back(StrCat(mpath, " (factor ", buf, ")"));
+    }
+    out.maps.push_back(std::move(*m));
+  }
+  if (!expanding.empty()) {
+    const std::string msg =
+        StrCat("not a contraction: ", absl::StrJoin(expanding, ", "),
+               "; the chaos game needs every map's largest singular value below 1");
+    if (!ifs.allow_expanding())
+      return Invalid(path + ".maps", StrCat(msg, " (set ", path, ".allow_expanding to run anyway)"));
+    job.warnings.push_back(msg);
+  }
+  double floor = ifs.probability_floor();
+  if (!(floor >= 0 && floor <= 1)) return Invalid(path + ".probability_floor", "must be in [0, 1]");
+  if (floor == 0) floor = 0.01;
+  for (int i = 0; i < ifs.maps_size(); ++i) {
+    const double p = ifs.maps(i).probability();
+    if (!(p >= 0) || !std::isfinite(p))
+      return Invalid(StrCat(path, ".maps[", i, "].probability"), "must be finite and >= 0");
+  }
+  v1::ProbabilityMode mode = ifs.probability_mode();
+  if (mode == v1::PROBABILITY_MODE_UNSPECIFIED) {
+    bool all_set = true;
+    for (const auto& m : ifs.maps()) all_set &= m.probability() > 0;
+    mode = all_set ? v1::PROBABILITY_MODE_EXPLICIT : v1::PROBABILITY_MODE_DETERMINANT;
+  }
+  if (mode == v1::PROBABILITY_MODE_EXPLICIT) {
+    double total = 0;
+    for (const auto& m : ifs.maps()) total += m.probability();
+    if (!(total > 0)) return Invalid(path + ".maps", "explicit probabilities must not all be 0");
+    for (const auto& m : ifs.maps()) out.probabilities.push_back(m.probability() / total);
+  } else {
+    out.probabilities = DeterminantProbabilities(out.maps, floor);
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+absl::StatusOr<Affine3> ComposeSteps(const google::protobuf::RepeatedPtrField<v1::Step>& steps,
+                                     const std::string& path) {
+  Affine3 a;
+  // Right to left: the last step acts first, so compose left to right.
+  for (int i = 0; i < steps.size(); ++i) {
+    auto s = ConvertStep(steps[i], StrCat(path, "[", i, "]"));
+    if (!s.ok()) return s.status();
+    a = a * *s;
+  }
+  return a;
+}
+
+absl::StatusOr<ConvertedJob> ConvertSpec(const v1::JobSpec& spec, const Limits& limits,
+                                         int threads) {
+  ConvertedJob job;
+  job.name = spec.name().empty() ? "nimbus" : spec.name();
+  for (char c : job.name)
+    if (!(std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-' || c == '.'))
+      return Invalid("name", "use letters, digits, '_', '-' and '.' only");
+  auto frame = ConvertGrid(spec, limits);
+  if (!frame.ok()) return frame.status();
+  job.frame = *frame;
+
+  switch (spec.generator_case()) {
+    case v1::JobSpec::kChaosGame: {
+      const v1::ChaosGame& cg = spec.chaos_game();
+      if (!cg.has_ifs()) return Invalid("chaos_game.ifs", "required");
+      if (auto st = ConvertIfs(cg.ifs(), "chaos_game.ifs", limits, job); !st.ok()) return st;
+      if (cg.iterations() == 0) return Invalid("chaos_game.iterations", "must be > 0");
+      if (cg.iterations() > limits.max_iterations)
+        return absl::ResourceExhaustedError(StrCat("chaos_game.iterations: ", cg.iterations(),
+                                                   " exceeds the server limit of ",
+                                                   limits.max_iterations));
+      job.chaos_game.frame = job.frame;
+      job.chaos_game.iterations = cg.iterations();
+      job.chaos_game.warmup = cg.warmup() == 0 ? 100 : cg.warmup();
+      job.chaos_game.seed = cg.seed();
+      job.total_work = cg.iterations();
+      job.estimated_memory_bytes = ChaosGame::EstimateMemoryBytes(job.frame.resolution, threads);
+      break;
+    }
+    case v1::JobSpec::GENERATOR_NOT_SET:
+      return Invalid("generator", "set one of: chaos_game");
+  }
+  // The output float grid can be as large as one full counter grid.
+  job.estimated_memory_bytes += CountGrid::MaxMemoryBytes(job.frame.resolution);
+  if (job.estimated_memory_bytes > limits.max_memory_bytes)
+    return absl::ResourceExhaustedError(
+        StrCat("grid.resolution: the job needs up to ", GiB(job.estimated_memory_bytes),
+               " of memory; the server limit is ", GiB(limits.max_memory_bytes)));
+
+  const v1::Output& o = spec.output();
+  job.density.grid_name = o.grid_name().empty() ? "density" : o.grid_name();
+  switch (o.density_mapping()) {
+    case v1::DENSITY_MAPPING_UNSPECIFIED:
+    case v1::DENSITY_MAPPING_LINEAR: job.density.mapping = DensityMapping::kLinear; break;
+    case v1::DENSITY_MAPPING_SQRT: job.density.mapping = DensityMapping::kSqrt; break;
+    case v1::DENSITY_MAPPING_LOG: job.density.mapping = DensityMapping::kLog; break;
+    case v1::DENSITY_MAPPING_GAMMA: job.density.mapping = DensityMapping::kGamma; break;
+    default: return Invalid("output.density_mapping", "unknown value");
+  }
+  if (o.gamma() < 0 || !std::isfinite(o.gamma())) return Invalid("output.gamma", "must be > 0");
+  job.density.gamma = o.gamma() == 0 ? 2.2 : o.gamma();
+  return job;
+}
+
+std::string SpecHash(const v1::JobSpec& spec) {
+  std::string bytes;
+  google::protobuf::io::StringOutputStream sos(&bytes);
+  google::protobuf::io::CodedOutputStream cos(&sos);
+  cos.SetSerializationDeterministic(true);
+  spec.SerializeToCodedStream(&cos);
+  cos.Trim();
+  return Sha256Hex(bytes);
+}
+
+}  // namespace nimbus::spec

@@ -1,0 +1,54 @@
+// The one place where a nimbus.v1.JobSpec is validated and converted into
+// core objects. Every error names the offending field by its path, e.g.
+// "chaos_game.ifs.maps[2].steps[0].rotate.axis: must not be zero".
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "core/chaos_game.h"
+#include "core/geometry.h"
+#include "core/vdb_io.h"
+#include "nimbus/v1/spec.pb.h"
+
+namespace nimbus::spec {
+
+/// Server-side limits, checked before anything is allocated.
+struct Limits {
+  int32_t max_resolution = 4096;             // per axis
+  int64_t max_voxels = int64_t{2048} * 2048 * 2048;
+  uint64_t max_memory_bytes = uint64_t{16} << 30;
+  uint64_t max_iterations = uint64_t{1} << 40;
+  int32_t max_maps = 4096;
+};
+
+/// @brief A validated job, ready for the engine.
+struct ConvertedJob {
+  std::string name;
+  GridFrame frame;
+  ChaosGameParams chaos_game;
+  DensityOptions density;
+  std::vector<std::string> warnings;
+  /// Largest singular value of each map's affine part.
+  std::vector<double> contraction_factors;
+  uint64_t estimated_memory_bytes = 0;
+  /// Units of progress the job reports in total.
+  uint64_t total_work = 0;
+};
+
+/// Validates `spec` against `limits` for a run on `threads` threads.
+/// INVALID_ARGUMENT for malformed specs, RESOURCE_EXHAUSTED beyond limits.
+absl::StatusOr<ConvertedJob> ConvertSpec(const v1::JobSpec& spec, const Limits& limits,
+                                         int threads);
+
+/// Composes Step messages right to left into one affine map. `path` prefixes
+/// error messages.
+absl::StatusOr<Affine3> ComposeSteps(const google::protobuf::RepeatedPtrField<v1::Step>& steps,
+                                     const std::string& path);
+
+/// Lower-case hex SHA-256 of the spec's deterministic binary serialisation.
+std::string SpecHash(const v1::JobSpec& spec);
+
+}  // namespace nimbus::spec

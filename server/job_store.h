@@ -1,0 +1,126 @@
+// The job store interface: durable job records with claims and leases, so a
+// shared PostgreSQL backend with several replicas can replace the embedded
+// SQLite one without touching the service or the workers.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "absl/status/statusor.h"
+
+namespace nimbus::server {
+
+enum class JobState { kQueued = 1, kRunning = 2, kSucceeded = 3, kFailed = 4, kCancelled = 5 };
+
+inline bool IsTerminal(JobState s) {
+  return s == JobState::kSucceeded || s == JobState::kFailed || s == JobState::kCancelled;
+}
+
+/// Milliseconds since the Unix epoch.
+using TimeMs = int64_t;
+
+struct JobRecord {
+  std::string id;
+  std::string name;
+  JobState state = JobState::kQueued;
+  /// Serialised nimbus.v1.JobSpec (binary protobuf); the store never parses it.
+  std::string spec;
+  /// Client idempotency key; empty when none.
+  std::string request_id;
+  TimeMs create_time = 0;
+  TimeMs start_time = 0;  // last claim
+  TimeMs end_time = 0;
+  uint32_t attempts = 0;
+  bool cancel_requested = false;
+  /// Holder of the current claim and when it lapses (RUNNING jobs only).
+  std::string worker_id;
+  TimeMs lease_expiry = 0;
+  uint64_t progress_done = 0;
+  uint64_t progress_total = 0;
+  std::string error;
+  /// Set when SUCCEEDED.
+  std::string result_key;
+  uint64_t result_size = 0;
+  std::string result_sha256;
+  /// Newline-separated warnings.
+  std::string warnings;
+  uint64_t estimated_memory_bytes = 0;
+};
+
+struct NewJob {
+  std::string id;
+  std::string name;
+  std::string spec;
+  std::string request_id;
+  uint64_t progress_total = 0;
+  std::string warnings;
+  uint64_t estimated_memory_bytes = 0;
+};
+
+struct ListOptions {
+  int page_size = 50;
+  /// Opaque token from a previous page; empty for the first page.
+  std::string page_token;
+  std::optional<JobState> state;
+};
+
+struct ListPage {
+  /// Newest first.
+  std::vector<JobRecord> jobs;
+  std::string next_page_token;
+};
+
+struct Completion {
+  JobState state = JobState::kSucceeded;  // a terminal state
+  std::string error;
+  std::string result_key;
+  uint64_t result_size = 0;
+  std::string result_sha256;
+  std::string warnings;
+};
+
+/// @brief Durable job records. All methods are thread-safe.
+class JobStore {
+ public:
+  virtual ~JobStore() = default;
+
+  /// Inserts a QUEUED job. When `job.request_id` is non-empty and a job with
+  /// that key exists, returns the existing job instead (idempotent submit).
+  virtual absl::StatusOr<JobRecord> Create(const NewJob& job, TimeMs now) = 0;
+  /// NOT_FOUND for an unknown id.
+  virtual absl::StatusOr<JobRecord> Get(const std::string& id) = 0;
+  virtual absl::StatusOr<ListPage> List(const ListOptions& options) = 0;
+
+  /// Atomically claims the oldest QUEUED job, or a RUNNING job whose lease
+  /// has lapsed: it becomes RUNNING, held by `worker_id` until now + lease,
+  /// attempts + 1. nullopt when nothing is claimable.
+  virtual absl::StatusOr<std::optional<JobRecord>> ClaimNext(const std::string& worker_id,
+                                                             TimeMs now, TimeMs lease_ms) = 0;
+  /// Extends the lease and records progress. FAILED_PRECONDITION when the
+  /// worker no longer holds the claim. Returns whether cancel was requested.
+  virtual absl::StatusOr<bool> Heartbeat(const std::string& id, const std::string& worker_id,
+                                         TimeMs now, TimeMs lease_ms, uint64_t progress_done,
+                                         uint64_t progress_total) = 0;
+  /// Moves a claimed job to a terminal state. FAILED_PRECONDITION when the
+  /// worker no longer holds the claim.
+  virtual absl::Status Complete(const std::string& id, const std::string& worker_id,
+                                const Completion& completion, TimeMs now) = 0;
+  /// Gives a claimed job back to the queue (graceful shutdown).
+  virtual absl::Status Release(const std::string& id, const std::string& worker_id) = 0;
+  /// QUEUED jobs become CANCELLED at once; RUNNING ones get cancel_requested
+  /// (their worker finishes the transition); terminal jobs are unchanged.
+  /// Returns the job as it is afterwards. NOT_FOUND for an unknown id.
+  virtual absl::StatusOr<JobRecord> RequestCancel(const std::string& id, TimeMs now) = 0;
+  /// Single-node recovery after a crash: every RUNNING job becomes QUEUED
+  /// again (its lease holder is gone). Returns how many were requeued.
+  virtual absl::StatusOr<int> RequeueRunning() = 0;
+};
+
+/// Opens (creating if needed) the SQLite store at `path`, in WAL mode.
+absl::StatusOr<std::unique_ptr<JobStore>> OpenSqliteJobStore(const std::string& path);
+
+}  // namespace nimbus::server

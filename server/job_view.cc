@@ -1,0 +1,67 @@
+#include "server/job_view.h"
+
+#include <chrono>
+
+#include "absl/strings/str_split.h"
+
+namespace nimbus::server {
+
+namespace {
+void SetTime(TimeMs ms, google::protobuf::Timestamp* t) {
+  t->set_seconds(ms / 1000);
+  t->set_nanos(int32_t(ms % 1000) * 1000000);
+}
+}  // namespace
+
+TimeMs NowMs() {
+  return std::chrono::duration_cast<std::chrono::milliseconds>(
+             std::chrono::system_clock::now().time_since_epoch())
+      .count();
+}
+
+v1::JobState ToProto(JobState s) {
+  switch (s) {
+    case JobState::kQueued: return v1::JOB_STATE_QUEUED;
+    case JobState::kRunning: return v1::JOB_STATE_RUNNING;
+    case JobState::kSucceeded: return v1::JOB_STATE_SUCCEEDED;
+    case JobState::kFailed: return v1::JOB_STATE_FAILED;
+    case JobState::kCancelled: return v1::JOB_STATE_CANCELLED;
+  }
+  return v1::JOB_STATE_UNSPECIFIED;
+}
+
+std::optional<JobState> FromProto(v1::JobState s) {
+  switch (s) {
+    case v1::JOB_STATE_QUEUED: return JobState::kQueued;
+    case v1::JOB_STATE_RUNNING: return JobState::kRunning;
+    case v1::JOB_STATE_SUCCEEDED: return JobState::kSucceeded;
+    case v1::JOB_STATE_FAILED: return JobState::kFailed;
+    case v1::JOB_STATE_CANCELLED: return JobState::kCancelled;
+    default: return std::nullopt;
+  }
+}
+
+v1::Job ToProto(const JobRecord& r, bool with_spec) {
+  v1::Job j;
+  j.set_id(r.id);
+  j.set_name(r.name);
+  j.set_state(ToProto(r.state));
+  if (with_spec) j.mutable_spec()->ParseFromString(r.spec);
+  SetTime(r.create_time, j.mutable_create_time());
+  if (r.start_time) SetTime(r.start_time, j.mutable_start_time());
+  if (r.end_time) SetTime(r.end_time, j.mutable_end_time());
+  j.mutable_progress()->set_done(r.progress_done);
+  j.mutable_progress()->set_total(r.progress_total);
+  j.set_error(r.error);
+  if (r.state == JobState::kSucceeded) {
+    j.mutable_result()->set_size_bytes(r.result_size);
+    j.mutable_result()->set_sha256(r.result_sha256);
+    j.mutable_result()->set_file_name(r.name + ".vdb");
+  }
+  j.set_attempts(r.attempts);
+  for (auto w : absl::StrSplit(r.warnings, '\n', absl::SkipEmpty())) j.add_warnings(std::string(w));
+  j.set_estimated_memory_bytes(r.estimated_memory_bytes);
+  return j;
+}
+
+}  // namespace nimbus::server

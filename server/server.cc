@@ -1,0 +1,112 @@
+#include "server/server.h"
+
+#include <grpcpp/ext/proto_server_reflection_plugin.h>
+#include <grpcpp/grpcpp.h>
+#include <grpcpp/health_check_service_interface.h>
+#include <spdlog/spdlog.h>
+#include <unistd.h>
+
+#include "absl/strings/str_cat.h"
+#include "server/job_hub.h"
+#include "server/job_store.h"
+#include "server/nimbus_service.h"
+#include "server/result_store.h"
+#include "server/worker_pool.h"
+
+namespace nimbus::server {
+
+struct NimbusServer::Impl {
+  std::unique_ptr<JobStore> store;
+  std::unique_ptr<ResultStore> results;
+  JobHub hub;
+  std::unique_ptr<WorkerPool> pool;
+  std::unique_ptr<NimbusServiceImpl> service;
+  std::unique_ptr<grpc::Server> server;
+  int port = 0;
+  std::mutex mu;
+  bool shut_down = false;
+};
+
+NimbusServer::NimbusServer(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+
+NimbusServer::~NimbusServer() { Shutdown(); }
+
+absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOptions& options) {
+  auto impl = std::make_unique<Impl>();
+  std::error_code ec;
+  std::filesystem::create_directories(options.data_dir, ec);
+  if (ec)
+    return absl::InvalidArgumentError(
+        absl::StrCat("--data-dir ", options.data_dir.string(), ": ", ec.message()));
+  auto store = OpenSqliteJobStore((options.data_dir / "jobs.db").string());
+  if (!store.ok()) return store.status();
+  impl->store = std::move(*store);
+  auto results = OpenLocalResultStore(options.data_dir / "results");
+  if (!results.ok()) return results.status();
+  impl->results = std::move(*results);
+
+  // This process is the only user of its SQLite store, so anything still
+  // RUNNING belonged to a process that died: run it again.
+  auto requeued = impl->store->RequeueRunning();
+  if (!requeued.ok()) return requeued.status();
+  if (*requeued > 0) spdlog::warn("event=recovered requeued_jobs={}", *requeued);
+
+  WorkerOptions wo;
+  wo.workers = options.workers;
+  wo.threads_per_job = options.threads_per_job;
+  wo.limits = options.limits;
+  wo.lease_ms = options.lease_ms;
+  wo.heartbeat_ms = options.heartbeat_ms;
+  wo.instance_id = absl::StrCat("nimbusd-", ::getpid());
+  impl->pool = std::make_unique<WorkerPool>(impl->store.get(), impl->results.get(), &impl->hub, wo);
+  impl->service = std::make_unique<NimbusServiceImpl>(impl->store.get(), impl->results.get(),
+                                                      &impl->hub, impl->pool.get(), options.limits);
+
+  grpc::EnableDefaultHealthCheckService(true);
+  grpc::reflection::InitProtoReflectionServerBuilderPlugin();
+  grpc::ServerBuilder builder;
+  if (!options.listen.empty())
+    builder.AddListeningPort(options.listen, grpc::InsecureServerCredentials(), &impl->port);
+  builder.RegisterService(impl->service.get());
+  // Previews and result chunks are a few MiB at most.
+  builder.SetMaxSendMessageSize(64 << 20);
+  builder.SetMaxReceiveMessageSize(64 << 20);
+  impl->server = builder.BuildAndStart();
+  if (!impl->server || (!options.listen.empty() && impl->port == 0))
+    return absl::UnavailableError(absl::StrCat("cannot listen on ", options.listen));
+  if (auto* health = impl->server->GetHealthCheckService()) {
+    health->SetServingStatus("nimbus.v1.NimbusService", true);
+    health->SetServingStatus(true);
+  }
+  impl->pool->Start();
+  spdlog::info("event=started listen={} port={} data_dir={} workers={} threads_per_job={}",
+               options.listen, impl->port, options.data_dir.string(), options.workers,
+               impl->pool->threads_per_job());
+  return std::unique_ptr<NimbusServer>(new NimbusServer(std::move(impl)));
+}
+
+int NimbusServer::port() const { return impl_->port; }
+
+std::shared_ptr<grpc::Channel> NimbusServer::InProcessChannel() {
+  grpc::ChannelArguments args;
+  args.SetMaxReceiveMessageSize(64 << 20);
+  return impl_->server->InProcessChannel(args);
+}
+
+void NimbusServer::Wait() { impl_->server->Wait(); }
+
+void NimbusServer::Shutdown() {
+  {
+    std::lock_guard<std::mutex> lock(impl_->mu);
+    if (impl_->shut_down) return;
+    impl_->shut_down = true;
+  }
+  if (auto* health = impl_->server->GetHealthCheckService()) health->SetServingStatus(false);
+  // Stop workers first so watchers see jobs go back to the queue, then
+  // close the streams.
+  impl_->pool->Stop();
+  impl_->server->Shutdown(std::chrono::system_clock::now() + std::chrono::seconds(2));
+  spdlog::info("event=stopped");
+}
+
+}  // namespace nimbus::server

@@ -1,0 +1,52 @@
+// A whole Nimbus server: job store, result store, worker pool and the gRPC
+// service. Used by nimbusd and, in-process, by the nimbus CLI. gRPC types
+// are only forward-declared here to keep this header cheap to include.
+#pragma once
+
+#include <filesystem>
+#include <memory>
+#include <string>
+
+#include "absl/status/statusor.h"
+#include "proto/spec_convert.h"
+
+namespace grpc {
+class Channel;
+}
+
+namespace nimbus::server {
+
+struct ServerOptions {
+  /// host:port to listen on; empty for in-process use only.
+  std::string listen = "127.0.0.1:50051";
+  std::filesystem::path data_dir = "nimbus-data";
+  int workers = 1;
+  /// Engine threads per job; 0 = hardware threads / workers.
+  int threads_per_job = 0;
+  spec::Limits limits;
+  int64_t lease_ms = 30'000;
+  int64_t heartbeat_ms = 2'000;
+};
+
+/// @brief A running server. Jobs left RUNNING by a previous process are
+/// requeued at start; Shutdown() gives running jobs back to the queue.
+class NimbusServer {
+ public:
+  static absl::StatusOr<std::unique_ptr<NimbusServer>> Start(const ServerOptions& options);
+  ~NimbusServer();
+
+  /// The bound port (useful with ":0"); 0 when not listening.
+  int port() const;
+  /// A channel to this server that never leaves the process.
+  std::shared_ptr<grpc::Channel> InProcessChannel();
+  /// Blocks until Shutdown() is called from another thread.
+  void Wait();
+  void Shutdown();
+
+ private:
+  struct Impl;
+  explicit NimbusServer(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace nimbus::server

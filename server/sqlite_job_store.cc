@@ -1,0 +1,751 @@
+// SQLite implementation of JobStore: one connection per store guarded by a
+// mutex, WAL mode, and BEGIN IMMEDIATE around every read-modify-write so that
+// several processes sharing the file (e.g. two replicas on one volume) still
+// see claims as atomic.
+#include <sqlite3.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdint>
+#include <limits>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <unordered_map>
+#include <utility>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "absl/strings/escaping.h"
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
+#include "server/job_store.h"
+
+namespace nimbus::server {
+namespace {
+
+constexpr int kSchemaVersion = 1;
+// Long enough to ride out another process's short write transactions, short
+// enough that a wedged peer surfaces as UNAVAILABLE instead of a hang.
+constexpr int kBusyTimeoutMs = 10000;
+constexpr int kDefaultPageSize = 50;
+constexpr int kMaxPageSize = 500;
+constexpr char kCancelledByRequest[] = "cancelled by request";
+
+constexpr char kSchemaSql[] = R"sql(
+CREATE TABLE IF NOT EXISTS jobs (
+  id TEXT PRIMARY KEY NOT NULL,
+  name TEXT NOT NULL DEFAULT '',
+  state INTEGER NOT NULL,
+  spec BLOB NOT NULL,
+  request_id TEXT NOT NULL DEFAULT '',
+  create_time INTEGER NOT NULL,
+  start_time INTEGER NOT NULL DEFAULT 0,
+  end_time INTEGER NOT NULL DEFAULT 0,
+  attempts INTEGER NOT NULL DEFAULT 0,
+  cancel_requested INTEGER NOT NULL DEFAULT 0,
+  worker_id TEXT NOT NULL DEFAULT '',
+  lease_expiry INTEGER NOT NULL DEFAULT 0,
+  progress_done INTEGER NOT NULL DEFAULT 0,
+  progress_total INTEGER NOT NULL DEFAULT 0,
+  error TEXT NOT NULL DEFAULT '',
+  result_key TEXT NOT NULL DEFAULT '',
+  result_size INTEGER NOT NULL DEFAULT 0,
+  result_sha256 TEXT NOT NULL DEFAULT '',
+  warnings TEXT NOT NULL DEFAULT '',
+  estimated_memory_bytes INTEGER NOT NULL DEFAULT 0
+);
+-- Claiming (oldest QUEUED) and filtered listing both walk this index.
+CREATE INDEX IF NOT EXISTS jobs_state_create ON jobs (state, create_time, id);
+-- Unfiltered listing, newest first.
+CREATE INDEX IF NOT EXISTS jobs_create ON jobs (create_time, id);
+-- Idempotency keys are unique, but most jobs have none.
+CREATE UNIQUE INDEX IF NOT EXISTS jobs_request_id ON jobs (request_id) WHERE request_id <> '';
+)sql";
+
+// Column order shared by every SELECT that feeds RowToRecord.
+#define NIMBUS_JOB_COLUMNS                                                            \
+  "id, name, state, spec, request_id, create_time, start_time, end_time, attempts, "  \
+  "cancel_requested, worker_id, lease_expiry, progress_done, progress_total, error, " \
+  "result_key, result_size, result_sha256, warnings, estimated_memory_bytes"
+
+absl::StatusCode CodeFor(int rc) {
+  switch (rc & 0xff) {
+    case SQLITE_BUSY:
+    case SQLITE_LOCKED:
+      return absl::StatusCode::kUnavailable;  // Retryable contention.
+    case SQLITE_CONSTRAINT:
+      return absl::StatusCode::kAlreadyExists;
+    case SQLITE_FULL:
+      return absl::StatusCode::kResourceExhausted;
+    case SQLITE_READONLY:
+    case SQLITE_PERM:
+      return absl::StatusCode::kPermissionDenied;
+    default:
+      return absl::StatusCode::kInternal;
+  }
+}
+
+std::string DbPath(sqlite3* db) {
+  const char* name = db == nullptr ? nullptr : sqlite3_db_filename(db, "main");
+  return name == nullptr ? std::string("?") : std::string(name);
+}
+
+// Names the failing step, the database file, and SQLite's own explanation.
+absl::Status SqliteError(sqlite3* db, int rc, const std::string& what) {
+  const char* msg = db != nullptr ? sqlite3_errmsg(db) : sqlite3_errstr(rc);
+  return absl::Status(CodeFor(rc),
+                      absl::StrCat("job store ", DbPath(db), ": ", what, ": ",
+                                   msg == nullptr ? "" : msg, " (sqlite code ", rc, ")"));
+}
+
+std::string StateName(JobState s) {
+  switch (s) {
+    case JobState::kQueued:
+      return "QUEUED";
+    case JobState::kRunning:
+      return "RUNNING";
+    case JobState::kSucceeded:
+      return "SUCCEEDED";
+    case JobState::kFailed:
+      return "FAILED";
+    case JobState::kCancelled:
+      return "CANCELLED";
+  }
+  return absl::StrCat("state ", static_cast<int>(s));
+}
+
+// A cached prepared statement for the span of one use: bind, step, and on
+// destruction reset so the next user starts clean and read locks are dropped.
+class Statement {
+ public:
+  // `what` (the SQL text, for error messages) must outlive the statement.
+  Statement(sqlite3_stmt* stmt, const std::string* what) : stmt_(stmt), what_(what) {}
+  ~Statement() {
+    sqlite3_reset(stmt_);
+    sqlite3_clear_bindings(stmt_);
+  }
+  Statement(const Statement&) = delete;
+  Statement& operator=(const Statement&) = delete;
+
+  Statement& Bind(int index, int64_t v) { return Check(sqlite3_bind_int64(stmt_, index, v)); }
+  Statement& Bind(int index, uint64_t v) {
+    // Stored as the same 64 bits; read back with the inverse cast.
+    return Bind(index, static_cast<int64_t>(v));
+  }
+  Statement& Bind(int index, int v) { return Bind(index, static_cast<int64_t>(v)); }
+  Statement& Bind(int index, JobState v) { return Bind(index, static_cast<int64_t>(v)); }
+  Statement& Bind(int index, const std::string& v) {
+    return Check(
+        sqlite3_bind_text(stmt_, index, v.data(), static_cast<int>(v.size()), SQLITE_TRANSIENT));
+  }
+  Statement& BindBlob(int index, const std::string& v) {
+    // zeroblob keeps an empty spec a zero-length BLOB rather than NULL.
+    if (v.empty()) return Check(sqlite3_bind_zeroblob(stmt_, index, 0));
+    return Check(
+        sqlite3_bind_blob(stmt_, index, v.data(), static_cast<int>(v.size()), SQLITE_TRANSIENT));
+  }
+
+  /// True when a row is available, false when done.
+  absl::StatusOr<bool> Step() {
+    if (bind_rc_ != SQLITE_OK) return Error(bind_rc_);
+    const int rc = sqlite3_step(stmt_);
+    if (rc == SQLITE_ROW) return true;
+    if (rc == SQLITE_DONE) return false;
+    return Error(rc);
+  }
+  /// Runs a statement that returns no rows.
+  absl::Status Run() {
+    absl::StatusOr<bool> r = Step();
+    return r.ok() ? absl::OkStatus() : r.status();
+  }
+
+  int64_t Int(int col) const { return sqlite3_column_int64(stmt_, col); }
+  uint64_t Uint(int col) const { return static_cast<uint64_t>(Int(col)); }
+  std::string Text(int col) const {
+    const auto* p = reinterpret_cast<const char*>(sqlite3_column_text(stmt_, col));
+    return p == nullptr ? std::string() : std::string(p, sqlite3_column_bytes(stmt_, col));
+  }
+  std::string Blob(int col) const {
+    const auto* p = static_cast<const char*>(sqlite3_column_blob(stmt_, col));
+    return p == nullptr ? std::string() : std::string(p, sqlite3_column_bytes(stmt_, col));
+  }
+
+ private:
+  Statement& Check(int rc) {
+    if (rc != SQLITE_OK && bind_rc_ == SQLITE_OK) bind_rc_ = rc;
+    return *this;
+  }
+  absl::Status Error(int rc) const { return SqliteError(sqlite3_db_handle(stmt_), rc, *what_); }
+
+  sqlite3_stmt* stmt_;
+  const std::string* what_;
+  int bind_rc_ = SQLITE_OK;
+};
+
+JobRecord RowToRecord(const Statement& s) {
+  JobRecord r;
+  r.id = s.Text(0);
+  r.name = s.Text(1);
+  r.state = static_cast<JobState>(s.Int(2));
+  r.spec = s.Blob(3);
+  r.request_id = s.Text(4);
+  r.create_time = s.Int(5);
+  r.start_time = s.Int(6);
+  r.end_time = s.Int(7);
+  r.attempts = static_cast<uint32_t>(s.Int(8));
+  r.cancel_requested = s.Int(9) != 0;
+  r.worker_id = s.Text(10);
+  r.lease_expiry = s.Int(11);
+  r.progress_done = s.Uint(12);
+  r.progress_total = s.Uint(13);
+  r.error = s.Text(14);
+  r.result_key = s.Text(15);
+  r.result_size = s.Uint(16);
+  r.result_sha256 = s.Text(17);
+  r.warnings = s.Text(18);
+  r.estimated_memory_bytes = s.Uint(19);
+  return r;
+}
+
+// The page token is opaque to clients; internally it is the (create_time, id)
+// keyset cursor of the last row returned, so pages stay stable while new jobs
+// arrive (they sort before the cursor).
+std::string EncodePageToken(TimeMs create_time, const std::string& id) {
+  return absl::WebSafeBase64Escape(absl::StrCat(create_time, ":", id));
+}
+
+absl::Status DecodePageToken(const std::string& token, TimeMs* create_time, std::string* id) {
+  std::string raw;
+  absl::Status bad = absl::InvalidArgumentError(absl::StrCat("invalid page_token \"", token, "\""));
+  if (!absl::WebSafeBase64Unescape(token, &raw)) return bad;
+  const size_t colon = raw.find(':');
+  if (colon == std::string::npos) return bad;
+  if (!absl::SimpleAtoi(raw.substr(0, colon), create_time)) return bad;
+  *id = raw.substr(colon + 1);
+  return absl::OkStatus();
+}
+
+// RequeueRunning takes no `now`; it runs once at startup, so the wall clock is
+// the honest end time for the jobs it cancels.
+TimeMs WallClockMs() {
+  return std::chrono::duration_cast<std::chrono::milliseconds>(
+             std::chrono::system_clock::now().time_since_epoch())
+      .count();
+}
+
+}  // namespace
+
+class SqliteJobStore final : public JobStore {
+ public:
+  static absl::StatusOr<std::unique_ptr<JobStore>> Open(const std::string& path);
+  ~SqliteJobStore() override;
+  SqliteJobStore(const SqliteJobStore&) = delete;
+  SqliteJobStore& operator=(const SqliteJobStore&) = delete;
+
+  absl::StatusOr<JobRecord> Create(const NewJob& job, TimeMs now) override;
+  absl::StatusOr<JobRecord> Get(const std::string& id) override;
+  absl::StatusOr<ListPage> List(const ListOptions& options) override;
+  absl::StatusOr<std::optional<JobRecord>> ClaimNext(const std::string& worker_id, TimeMs now,
+                                                     TimeMs lease_ms) override;
+  absl::StatusOr<bool> Heartbeat(const std::string& id, const std::string& worker_id, TimeMs now,
+                                 TimeMs lease_ms, uint64_t progress_done,
+                                 uint64_t progress_total) override;
+  absl::Status Complete(const std::string& id, const std::string& worker_id,
+                        const Completion& completion, TimeMs now) override;
+  absl::Status Release(const std::string& id, const std::string& worker_id) override;
+  absl::StatusOr<JobRecord> RequestCancel(const std::string& id, TimeMs now) override;
+  absl::StatusOr<int> RequeueRunning() override;
+
+ private:
+  // Rolls back unless committed, so every early return leaves no open
+  // transaction (and no held write lock) behind.
+  class Transaction {
+   public:
+    explicit Transaction(SqliteJobStore* store) : store_(store) {}
+    ~Transaction() {
+      if (open_) sqlite3_exec(store_->db_, "ROLLBACK", nullptr, nullptr, nullptr);
+    }
+    absl::Status Begin() {
+      // IMMEDIATE takes the write lock up front: a deferred transaction that
+      // upgrades from read to write can fail with SQLITE_BUSY in WAL mode
+      // without the busy handler ever waiting.
+      absl::Status s = store_->Exec("BEGIN IMMEDIATE");
+      open_ = s.ok();
+      return s;
+    }
+    absl::Status Commit() {
+      absl::Status s = store_->Exec("COMMIT");
+      if (s.ok()) open_ = false;
+      return s;
+    }
+
+   private:
+    SqliteJobStore* store_;
+    bool open_ = false;
+  };
+
+  explicit SqliteJobStore(sqlite3* db) : db_(db) {}
+
+  absl::Status Init();
+  absl::Status Exec(const char* sql);
+  absl::StatusOr<Statement> Prepare(const char* sql);
+  absl::StatusOr<std::optional<JobRecord>> LoadLocked(const std::string& id);
+  absl::StatusOr<JobRecord> LoadExistingLocked(const std::string& id);
+  // OK when `worker_id` holds a live claim on `id`; FAILED_PRECONDITION (or
+  // NOT_FOUND) otherwise.
+  absl::Status CheckClaimLocked(const std::string& id, const std::string& worker_id);
+  // A cancel-requested RUNNING job whose worker is gone (lease lapsed or
+  // process restarted) can never be finished by that worker; finish it here.
+  absl::Status CancelOrphansLocked(const char* where_clause_sql, TimeMs now);
+
+  std::mutex mu_;
+  sqlite3* const db_;
+  // Keyed by SQL text; prepared once, reused for the connection's lifetime.
+  std::unordered_map<std::string, sqlite3_stmt*> stmts_;
+};
+
+absl::StatusOr<std::unique_ptr<JobStore>> SqliteJobStore::Open(const std::string& path) {
+  sqlite3* db = nullptr;
+  // NOMUTEX: our own mutex serialises use of the connection.
+  const int rc = sqlite3_open_v2(
+      path.c_str(), &db, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE | SQLITE_OPEN_NOMUTEX, nullptr);
+  if (rc != SQLITE_OK) {
+    const std::string msg = db != nullptr ? sqlite3_errmsg(db) : sqlite3_errstr(rc);
+    sqlite3_close(db);
+    return absl::Status(CodeFor(rc), absl::StrCat("job store ", path, ": cannot open: ", msg,
+                                                  " (sqlite code ", rc, ")"));
+  }
+  std::unique_ptr<SqliteJobStore> store(new SqliteJobStore(db));
+  if (absl::Status s = store->Init(); !s.ok()) return s;
+  return std::unique_ptr<JobStore>(std::move(store));
+}
+
+SqliteJobStore::~SqliteJobStore() {
+  for (auto& [sql, stmt] : stmts_) sqlite3_finalize(stmt);
+  // The last connection to close checkpoints the WAL back into the file.
+  sqlite3_close_v2(db_);
+}
+
+absl::Status SqliteJobStore::Init() {
+  sqlite3_extended_result_codes(db_, 1);
+  // Before anything that may contend with another process opening the file.
+  sqlite3_busy_timeout(db_, kBusyTimeoutMs);
+
+  {
+    absl::StatusOr<Statement> mode = Prepare("PRAGMA journal_mode=WAL");
+    if (!mode.ok()) return mode.status();
+    absl::StatusOr<bool> row = mode->Step();
+    if (!row.ok()) return row.status();
+    const std::string got = *row ? mode->Text(0) : std::string();
+    // ":memory:" databases report "memory" and cannot use WAL; that is fine
+    // for them since they are not shared or durable anyway.
+    if (got != "wal" && got != "memory") {
+      return absl::FailedPreconditionError(absl::StrCat(
+          "job store ", DbPath(db_), ": cannot enable WAL journal mode (got \"", got, "\")"));
+    }
+  }
+  // Durability: in WAL mode a commit appends to the -wal file with write();
+  // NORMAL skips the fsync on each commit and syncs only at checkpoints. Once
+  // write() returns the data is in the OS page cache, so it survives kill -9
+  // (or any crash) of this process; only an OS crash or power loss can roll
+  // back the last few commits, and even then the database stays consistent.
+  // That is the trade we want: acceptance stays cheap and process crashes,
+  // the failure we actually recover from, lose nothing.
+  if (absl::Status s = Exec("PRAGMA synchronous=NORMAL"); !s.ok()) return s;
+
+  int version = 0;
+  {
+    absl::StatusOr<Statement> v = Prepare("PRAGMA user_version");
+    if (!v.ok()) return v.status();
+    absl::StatusOr<bool> row = v->Step();
+    if (!row.ok()) return row.status();
+    if (*row) version = static_cast<int>(v->Int(0));
+  }
+  if (version > kSchemaVersion) {
+    return absl::FailedPreconditionError(
+        absl::StrCat("job store ", DbPath(db_), ": schema version ", version,
+                     " is newer than this binary supports (", kSchemaVersion, ")"));
+  }
+  if (version == kSchemaVersion) return absl::OkStatus();
+
+  // Create under the write lock so two processes opening a fresh file at
+  // once do not race; IF NOT EXISTS makes the loser's pass a no-op.
+  Transaction txn(this);
+  if (absl::Status s = txn.Begin(); !s.ok()) return s;
+  if (absl::Status s = Exec(kSchemaSql); !s.ok()) return s;
+  if (absl::Status s = Exec(absl::StrCat("PRAGMA user_version=", kSchemaVersion).c_str());
+      !s.ok()) {
+    return s;
+  }
+  return txn.Commit();
+}
+
+absl::Status SqliteJobStore::Exec(const char* sql) {
+  char* err = nullptr;
+  const int rc = sqlite3_exec(db_, sql, nullptr, nullptr, &err);
+  sqlite3_free(err);  // sqlite3_errmsg still holds the same text.
+  if (rc != SQLITE_OK) return SqliteError(db_, rc, sql);
+  return absl::OkStatus();
+}
+
+absl::StatusOr<Statement> SqliteJobStore::Prepare(const char* sql) {
+  auto it = stmts_.find(sql);
+  if (it == stmts_.end()) {
+    sqlite3_stmt* stmt = nullptr;
+    const int rc = sqlite3_prepare_v3(db_, sql, -1, SQLITE_PREPARE_PERSISTENT, &stmt, nullptr);
+    if (rc != SQLITE_OK) {
+      sqlite3_finalize(stmt);
+      return SqliteError(db_, rc, absl::StrCat("prepare ", sql));
+    }
+    it = stmts_.emplace(sql, stmt).first;
+  }
+  // Map nodes are stable, so the key can back the statement's error text.
+  return absl::StatusOr<Statement>(absl::in_place, it->second, &it->first);
+}
+
+absl::StatusOr<std::optional<JobRecord>> SqliteJobStore::LoadLocked(const std::string& id) {
+  absl::StatusOr<Statement> s = Prepare("SELECT " NIMBUS_JOB_COLUMNS " FROM jobs WHERE id = ?1");
+  if (!s.ok()) return s.status();
+  s->Bind(1, id);
+  absl::StatusOr<bool> row = s->Step();
+  if (!row.ok()) return row.status();
+  if (!*row) return std::optional<JobRecord>();
+  return std::optional<JobRecord>(RowToRecord(*s));
+}
+
+absl::StatusOr<JobRecord> SqliteJobStore::LoadExistingLocked(const std::string& id) {
+  absl::StatusOr<std::optional<JobRecord>> r = LoadLocked(id);
+  if (!r.ok()) return r.status();
+  if (!r->has_value()) return absl::NotFoundError(absl::StrCat("job \"", id, "\" not found"));
+  return std::move(**r);
+}
+
+absl::Status SqliteJobStore::CheckClaimLocked(const std::string& id, const std::string& worker_id) {
+  absl::StatusOr<JobRecord> r = LoadExistingLocked(id);
+  if (!r.ok()) return r.status();
+  if (r->state != JobState::kRunning) {
+    return absl::FailedPreconditionError(
+        absl::StrCat("job \"", id, "\" is ", StateName(r->state), ", not RUNNING"));
+  }
+  if (r->worker_id != worker_id) {
+    return absl::FailedPreconditionError(absl::StrCat("job \"", id, "\" is claimed by worker \"",
+                                                      r->worker_id, "\", not \"", worker_id, "\""));
+  }
+  return absl::OkStatus();
+}
+
+absl::Status SqliteJobStore::CancelOrphansLocked(const char* sql, TimeMs now) {
+  absl::StatusOr<Statement> s = Prepare(sql);
+  if (!s.ok()) return s.status();
+  s->Bind(1, now).Bind(2, JobState::kCancelled).Bind(3, std::string(kCancelledByRequest));
+  s->Bind(4, JobState::kRunning);
+  return s->Run();
+}
+
+absl::StatusOr<JobRecord> SqliteJobStore::Create(const NewJob& job, TimeMs now) {
+  std::lock_guard<std::mutex> lock(mu_);
+  Transaction txn(this);
+  if (absl::Status s = txn.Begin(); !s.ok()) return s;
+
+  if (!job.request_id.empty()) {
+    absl::StatusOr<Statement> s =
+        Prepare("SELECT " NIMBUS_JOB_COLUMNS " FROM jobs WHERE request_id = ?1");
+    if (!s.ok()) return s.status();
+    s->Bind(1, job.request_id);
+    absl::StatusOr<bool> row = s->Step();
+    if (!row.ok()) return row.status();
+    if (*row) return RowToRecord(*s);  // Idempotent retry: the original job.
+  }
+
+  {
+    absl::StatusOr<Statement> s = Prepare(
+        "INSERT INTO jobs (id, name, state, spec, request_id, create_time, progress_total, "
+        "warnings, estimated_memory_bytes) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)");
+    if (!s.ok()) return s.status();
+    s->Bind(1, job.id).Bind(2, job.name).Bind(3, JobState::kQueued).BindBlob(4, job.spec);
+    s->Bind(5, job.request_id).Bind(6, now).Bind(7, job.progress_total).Bind(8, job.warnings);
+    s->Bind(9, job.estimated_memory_bytes);
+    if (absl::Status st = s->Run(); !st.ok()) {
+      if (st.code() == absl::StatusCode::kAlreadyExists) {
+        return absl::AlreadyExistsError(absl::StrCat("job \"", job.id, "\" already exists"));
+      }
+      return st;
+    }
+  }
+  absl::StatusOr<JobRecord> created = LoadExistingLocked(job.id);
+  if (!created.ok()) return created.status();
+  if (absl::Status s = txn.Commit(); !s.ok()) return s;
+  return created;
+}
+
+absl::StatusOr<JobRecord> SqliteJobStore::Get(const std::string& id) {
+  std::lock_guard<std::mutex> lock(mu_);
+  return LoadExistingLocked(id);
+}
+
+absl::StatusOr<ListPage> SqliteJobStore::List(const ListOptions& options) {
+  int page_size = options.page_size == 0 ? kDefaultPageSize : options.page_size;
+  page_size = std::clamp(page_size, 1, kMaxPageSize);
+
+  const bool has_cursor = !options.page_token.empty();
+  TimeMs cursor_time = 0;
+  std::string cursor_id;
+  if (has_cursor) {
+    if (absl::Status s = DecodePageToken(options.page_token, &cursor_time, &cursor_id); !s.ok()) {
+      return s;
+    }
+  }
+
+  // Four fixed shapes rather than "?1 IS NULL OR ..." so each one can use an
+  // index for both the filter and the order.
+  const char* sql;
+  if (options.state.has_value()) {
+    sql = has_cursor ? "SELECT " NIMBUS_JOB_COLUMNS
+                       " FROM jobs WHERE state = ?1 AND (create_time, id) < (?2, ?3)"
+                       " ORDER BY create_time DESC, id DESC LIMIT ?4"
+                     : "SELECT " NIMBUS_JOB_COLUMNS
+                       " FROM jobs WHERE state = ?1 ORDER BY create_time DESC, id DESC LIMIT ?4";
+  } else {
+    sql = has_cursor ? "SELECT " NIMBUS_JOB_COLUMNS
+                       " FROM jobs WHERE (create_time, id) < (?2, ?3)"
+                       " ORDER BY create_time DESC, id DESC LIMIT ?4"
+                     : "SELECT " NIMBUS_JOB_COLUMNS
+                       " FROM jobs ORDER BY create_time DESC, id DESC LIMIT ?4";
+  }
+
+  std::lock_guard<std::mutex> lock(mu_);
+  absl::StatusOr<Statement> s = Prepare(sql);
+  if (!s.ok()) return s.status();
+  if (options.state.has_value()) s->Bind(1, *options.state);
+  if (has_cursor) s->Bind(2, cursor_time).Bind(3, cursor_id);
+  // One extra row tells whether another page exists, so the last page never
+  // hands out a token that leads to an empty page.
+  s->Bind(4, page_size + 1);
+
+  ListPage page;
+  while (true) {
+    absl::StatusOr<bool> row = s->Step();
+    if (!row.ok()) return row.status();
+    if (!*row) break;
+    if (static_cast<int>(page.jobs.size()) == page_size) {
+      const JobRecord& last = page.jobs.back();
+      page.next_page_token = EncodePageToken(last.create_time, last.id);
+      break;
+    }
+    page.jobs.push_back(RowToRecord(*s));
+  }
+  return page;
+}
+
+absl::StatusOr<std::optional<JobRecord>> SqliteJobStore::ClaimNext(const std::string& worker_id,
+                                                                   TimeMs now, TimeMs lease_ms) {
+  std::lock_guard<std::mutex> lock(mu_);
+  Transaction txn(this);
+  if (absl::Status s = txn.Begin(); !s.ok()) return s;
+
+  if (absl::Status s = CancelOrphansLocked(
+          "UPDATE jobs SET end_time = ?1, state = ?2, error = ?3, worker_id = '', "
+          "lease_expiry = 0 WHERE state = ?4 AND cancel_requested <> 0 AND lease_expiry < ?1",
+          now);
+      !s.ok()) {
+    return s;
+  }
+
+  // Two index-friendly probes instead of one OR: the oldest QUEUED job and the
+  // oldest RUNNING job whose lease lapsed; the older of the two wins.
+  std::optional<std::pair<TimeMs, std::string>> best;
+  auto consider = [&](const char* sql, bool bind_now) -> absl::Status {
+    absl::StatusOr<Statement> s = Prepare(sql);
+    if (!s.ok()) return s.status();
+    if (bind_now) s->Bind(1, now);
+    absl::StatusOr<bool> row = s->Step();
+    if (!row.ok()) return row.status();
+    if (*row) {
+      std::pair<TimeMs, std::string> key(s->Int(0), s->Text(1));
+      if (!best.has_value() || key < *best) best = std::move(key);
+    }
+    return absl::OkStatus();
+  };
+  // State values are inlined: they are fixed by the header's enum.
+  static_assert(static_cast<int>(JobState::kQueued) == 1);
+  static_assert(static_cast<int>(JobState::kRunning) == 2);
+  if (absl::Status s =
+          consider("SELECT create_time, id FROM jobs WHERE state = 1 AND cancel_requested = 0 "
+                   "ORDER BY create_time, id LIMIT 1",
+                   false);
+      !s.ok()) {
+    return s;
+  }
+  if (absl::Status s =
+          consider("SELECT create_time, id FROM jobs WHERE state = 2 AND cancel_requested = 0 "
+                   "AND lease_expiry < ?1 ORDER BY create_time, id LIMIT 1",
+                   true);
+      !s.ok()) {
+    return s;
+  }
+  if (!best.has_value()) {
+    // Still commit: the orphan cancellation above must stick.
+    if (absl::Status s = txn.Commit(); !s.ok()) return s;
+    return std::optional<JobRecord>();
+  }
+
+  {
+    // progress_done restarts with the new attempt; the total is unchanged.
+    absl::StatusOr<Statement> s = Prepare(
+        "UPDATE jobs SET state = ?1, worker_id = ?2, lease_expiry = ?3, start_time = ?4, "
+        "attempts = attempts + 1, progress_done = 0 WHERE id = ?5");
+    if (!s.ok()) return s.status();
+    s->Bind(1, JobState::kRunning).Bind(2, worker_id).Bind(3, now + lease_ms).Bind(4, now);
+    s->Bind(5, best->second);
+    if (absl::Status st = s->Run(); !st.ok()) return st;
+  }
+  absl::StatusOr<JobRecord> claimed = LoadExistingLocked(best->second);
+  if (!claimed.ok()) return claimed.status();
+  if (absl::Status s = txn.Commit(); !s.ok()) return s;
+  return std::optional<JobRecord>(std::move(*claimed));
+}
+
+absl::StatusOr<bool> SqliteJobStore::Heartbeat(const std::string& id, const std::string& worker_id,
+                                               TimeMs now, TimeMs lease_ms, uint64_t progress_done,
+                                               uint64_t progress_total) {
+  std::lock_guard<std::mutex> lock(mu_);
+  Transaction txn(this);
+  if (absl::Status s = txn.Begin(); !s.ok()) return s;
+  if (absl::Status s = CheckClaimLocked(id, worker_id); !s.ok()) return s;
+
+  bool cancel_requested = false;
+  {
+    absl::StatusOr<Statement> s = Prepare(
+        "UPDATE jobs SET lease_expiry = ?1, progress_done = ?2, progress_total = ?3 "
+        "WHERE id = ?4");
+    if (!s.ok()) return s.status();
+    s->Bind(1, now + lease_ms).Bind(2, progress_done).Bind(3, progress_total).Bind(4, id);
+    if (absl::Status st = s->Run(); !st.ok()) return st;
+  }
+  {
+    absl::StatusOr<Statement> s = Prepare("SELECT cancel_requested FROM jobs WHERE id = ?1");
+    if (!s.ok()) return s.status();
+    s->Bind(1, id);
+    absl::StatusOr<bool> row = s->Step();
+    if (!row.ok()) return row.status();
+    cancel_requested = *row && s->Int(0) != 0;
+  }
+  if (absl::Status s = txn.Commit(); !s.ok()) return s;
+  return cancel_requested;
+}
+
+absl::Status SqliteJobStore::Complete(const std::string& id, const std::string& worker_id,
+                                      const Completion& completion, TimeMs now) {
+  if (!IsTerminal(completion.state)) {
+    return absl::InvalidArgumentError(absl::StrCat("cannot complete job \"", id, "\" as ",
+                                                   StateName(completion.state),
+                                                   ": not a terminal state"));
+  }
+  std::lock_guard<std::mutex> lock(mu_);
+  Transaction txn(this);
+  if (absl::Status s = txn.Begin(); !s.ok()) return s;
+  if (absl::Status s = CheckClaimLocked(id, worker_id); !s.ok()) return s;
+
+  {
+    // Empty completion warnings keep the ones recorded at submit time.
+    absl::StatusOr<Statement> s = Prepare(
+        "UPDATE jobs SET state = ?1, end_time = ?2, error = ?3, result_key = ?4, "
+        "result_size = ?5, result_sha256 = ?6, "
+        "warnings = CASE WHEN ?7 = '' THEN warnings ELSE ?7 END, "
+        "worker_id = '', lease_expiry = 0 WHERE id = ?8");
+    if (!s.ok()) return s.status();
+    s->Bind(1, completion.state).Bind(2, now).Bind(3, completion.error);
+    s->Bind(4, completion.result_key).Bind(5, completion.result_size);
+    s->Bind(6, completion.result_sha256).Bind(7, completion.warnings).Bind(8, id);
+    if (absl::Status st = s->Run(); !st.ok()) return st;
+  }
+  return txn.Commit();
+}
+
+absl::Status SqliteJobStore::Release(const std::string& id, const std::string& worker_id) {
+  std::lock_guard<std::mutex> lock(mu_);
+  Transaction txn(this);
+  if (absl::Status s = txn.Begin(); !s.ok()) return s;
+  if (absl::Status s = CheckClaimLocked(id, worker_id); !s.ok()) return s;
+
+  {
+    // A job whose cancel was already requested is not worth requeueing, and
+    // as QUEUED it would never be claimed (or finished) again.
+    absl::StatusOr<Statement> s = Prepare(
+        "UPDATE jobs SET worker_id = '', lease_expiry = 0, "
+        "state = CASE WHEN cancel_requested <> 0 THEN ?1 ELSE ?2 END, "
+        "error = CASE WHEN cancel_requested <> 0 THEN ?3 ELSE error END "
+        "WHERE id = ?4");
+    if (!s.ok()) return s.status();
+    s->Bind(1, JobState::kCancelled).Bind(2, JobState::kQueued);
+    s->Bind(3, std::string(kCancelledByRequest)).Bind(4, id);
+    if (absl::Status st = s->Run(); !st.ok()) return st;
+  }
+  return txn.Commit();
+}
+
+absl::StatusOr<JobRecord> SqliteJobStore::RequestCancel(const std::string& id, TimeMs now) {
+  std::lock_guard<std::mutex> lock(mu_);
+  Transaction txn(this);
+  if (absl::Status s = txn.Begin(); !s.ok()) return s;
+  absl::StatusOr<JobRecord> job = LoadExistingLocked(id);
+  if (!job.ok()) return job.status();
+  if (IsTerminal(job->state)) return job;  // Nothing to do; no write.
+
+  const char* sql =
+      job->state == JobState::kQueued
+          ? "UPDATE jobs SET state = ?1, end_time = ?2, error = ?3, cancel_requested = 1 "
+            "WHERE id = ?4"
+          : "UPDATE jobs SET cancel_requested = 1 WHERE id = ?4";
+  {
+    absl::StatusOr<Statement> s = Prepare(sql);
+    if (!s.ok()) return s.status();
+    if (job->state == JobState::kQueued) {
+      s->Bind(1, JobState::kCancelled).Bind(2, now).Bind(3, std::string(kCancelledByRequest));
+    }
+    s->Bind(4, id);
+    if (absl::Status st = s->Run(); !st.ok()) return st;
+  }
+  job = LoadExistingLocked(id);
+  if (!job.ok()) return job.status();
+  if (absl::Status s = txn.Commit(); !s.ok()) return s;
+  return job;
+}
+
+absl::StatusOr<int> SqliteJobStore::RequeueRunning() {
+  std::lock_guard<std::mutex> lock(mu_);
+  Transaction txn(this);
+  if (absl::Status s = txn.Begin(); !s.ok()) return s;
+
+  // Cancel-requested jobs end as CANCELLED instead: requeued, they could
+  // never be claimed, so they would sit in QUEUED forever.
+  static_assert(static_cast<int>(JobState::kRunning) == 2);
+  if (absl::Status s = CancelOrphansLocked(
+          "UPDATE jobs SET end_time = ?1, state = ?2, error = ?3, worker_id = '', "
+          "lease_expiry = 0 WHERE state = ?4 AND cancel_requested <> 0",
+          WallClockMs());
+      !s.ok()) {
+    return s;
+  }
+  int requeued = 0;
+  {
+    absl::StatusOr<Statement> s =
+        Prepare("UPDATE jobs SET state = ?1, worker_id = '', lease_expiry = 0 WHERE state = ?2");
+    if (!s.ok()) return s.status();
+    s->Bind(1, JobState::kQueued).Bind(2, JobState::kRunning);
+    if (absl::Status st = s->Run(); !st.ok()) return st;
+    requeued = sqlite3_changes(db_);
+  }
+  if (absl::Status s = txn.Commit(); !s.ok()) return s;
+  return requeued;
+}
+
+absl::StatusOr<std::unique_ptr<JobStore>> OpenSqliteJobStore(const std::string& path) {
+  return SqliteJobStore::Open(path);
+}
+
+#undef NIMBUS_JOB_COLUMNS
+
+}  // namespace nimbus::server

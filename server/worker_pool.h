@@ -1,0 +1,66 @@
+// Worker threads that claim jobs from the store and run them. All heavy
+// work (iteration, previews, VDB writing) happens here, never on gRPC threads.
+#pragma once
+
+#include <atomic>
+#include <condition_variable>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "proto/spec_convert.h"
+#include "server/job_hub.h"
+#include "server/job_store.h"
+#include "server/result_store.h"
+
+namespace nimbus::server {
+
+struct WorkerOptions {
+  int workers = 1;
+  /// Engine threads per job; 0 = hardware threads / workers.
+  int threads_per_job = 0;
+  spec::Limits limits;
+  TimeMs lease_ms = 30'000;
+  TimeMs heartbeat_ms = 2'000;
+  /// Identifies this process in leases.
+  std::string instance_id = "nimbusd";
+};
+
+/// @brief A fixed pool of job workers.
+class WorkerPool {
+ public:
+  WorkerPool(JobStore* store, ResultStore* results, JobHub* hub, WorkerOptions options);
+  ~WorkerPool();
+
+  void Start();
+  /// Interrupts running jobs, gives them back to the queue and joins.
+  void Stop();
+  /// A job was queued: wake an idle worker.
+  void Wake();
+  /// Fast path for cancellation of a job running in this process.
+  void Cancel(const std::string& job_id);
+  int threads_per_job() const { return threads_per_job_; }
+
+ private:
+  void Loop(int index);
+  void RunJob(const JobRecord& job, const std::string& worker_id);
+
+  JobStore* store_;
+  ResultStore* results_;
+  JobHub* hub_;
+  WorkerOptions options_;
+  int threads_per_job_;
+
+  std::mutex mu_;
+  std::condition_variable wake_;
+  bool stopping_ = false;
+  uint64_t wake_generation_ = 0;
+  std::map<std::string, std::shared_ptr<std::atomic<bool>>> running_;  // job id -> cancel flag
+  std::atomic<bool> shutdown_{false};
+  std::vector<std::thread> threads_;
+};
+
+}  // namespace nimbus::server

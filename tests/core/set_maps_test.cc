@@ -1,0 +1,392 @@
+#include "core/set_maps.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <deque>
+
+#include "core/feature_transform.h"
+#include "core/random.h"
+#include "core/shapes.h"
+#include "core/voxel_set.h"
+#include "core/voxelize.h"
+#include "tests/support/test_util.h"
+
+namespace nimbus {
+namespace {
+
+GridFrame Cube(int n) { return {{n, n, n}, {{-1, -1, -1}, {1, 1, 1}}}; }
+
+VoxelSet RandomSet(Int3 r, double p, Rng& rng) {
+  VoxelSet s(r);
+  for (int z = 0; z < r.z; ++z)
+    for (int y = 0; y < r.y; ++y)
+      for (int x = 0; x < r.x; ++x)
+        if (rng.Uniform() < p) s.Set(x, y, z);
+  return s;
+}
+
+// Empty voxels not connected (6-neighbourhood) to the lattice border.
+int64_t EnclosedEmptyVoxels(const VoxelSet& s) {
+  const Int3 r = s.resolution();
+  VoxelSet reached(r);
+  std::deque<Int3> queue;
+  for (int z = 0; z < r.z; ++z)
+    for (int y = 0; y < r.y; ++y)
+      for (int x = 0; x < r.x; ++x) {
+        const bool border =
+            x == 0 || y == 0 || z == 0 || x == r.x - 1 || y == r.y - 1 || z == r.z - 1;
+        if (border && !s.Get(x, y, z)) {
+          reached.Set(x, y, z);
+          queue.push_back({x, y, z});
+        }
+      }
+  while (!queue.empty()) {
+    const Int3 v = queue.front();
+    queue.pop_front();
+    const Int3 steps[6] = {{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
+    for (const Int3& d : steps) {
+      const Int3 n{v.x + d.x, v.y + d.y, v.z + d.z};
+      if (!s.InBounds(n) || s.Get(n) || reached.Get(n)) continue;
+      reached.Set(n);
+      queue.push_back(n);
+    }
+  }
+  return r.Volume() - s.Count() - reached.Count();
+}
+
+const VoxelSet& CowAt48() {
+  static const VoxelSet cow = [] {
+    VoxelizeOptions o;
+    o.fit = true;
+    return LoadAndVoxelize(testing::SourcePath("examples/meshes/cow.obj"), Cube(48), o)->interior;
+  }();
+  return cow;
+}
+
+// ---------------------------------------------------------------- VoxelSet
+
+TEST(VoxelSet, CountsBoxesAndAlgebra) {
+  VoxelSet a({70, 5, 4}), b({70, 5, 4});
+  EXPECT_TRUE(a.Empty());
+  EXPECT_FALSE(a.BoundingBox().has_value());
+  a.SetSpan(3, 66, 2, 1);  // crosses a word boundary
+  b.Set(66, 2, 1);
+  b.Set(69, 4, 3);
+  EXPECT_EQ(a.Count(), 64);
+  EXPECT_EQ((a | b).Count(), 65);
+  EXPECT_EQ((a & b).Count(), 1);
+  EXPECT_EQ((a - b).Count(), 63);
+  EXPECT_EQ(*(a | b).BoundingBox(), (VoxelBox{{3, 2, 1}, {69, 4, 3}}));
+  EXPECT_TRUE(a == a);
+  EXPECT_FALSE(a == b);
+  VoxelSet full({70, 5, 4});
+  full.Fill();
+  EXPECT_EQ(full.Count(), 70 * 5 * 4);
+}
+
+TEST(VoxelSet, ShiftAndBoundary) {
+  const GridFrame f = Cube(20);
+  const VoxelSet box = *BoxSet(f, {{-0.5, -0.5, -0.5}, {0.5, 0.5, 0.5}});  // 10^3 voxels
+  EXPECT_EQ(box.Count(), 1000);
+  const VoxelSet moved = ShiftSet(box, {-7, 3, 70});
+  EXPECT_TRUE(moved.Empty());  // pushed off the lattice in z
+  const VoxelSet s = ShiftSet(box, {-7, 3, 1});
+  EXPECT_EQ(s.Count(), 8 * 10 * 10);  // two columns fall off at x < 0
+  EXPECT_EQ(*s.BoundingBox(), (VoxelBox{{0, 8, 6}, {7, 17, 15}}));
+  EXPECT_EQ(BoundaryOf(box).Count(), 1000 - 512);
+}
+
+// ---------------------------------------------------------------- shapes
+
+TEST(Shapes, VolumesMatchFormulas) {
+  const GridFrame f = Cube(64);
+  const double voxel = std::pow(2.0 / 64, 3);
+  const double r = 0.6;
+  EXPECT_NEAR(SphereSet(f, {0.05, -0.1, 0}, r)->Count() * voxel, 4.0 / 3 * M_PI * r * r * r, 0.02);
+  EXPECT_NEAR(TorusSet(f, {0, 0, 0}, {1, 1, 0}, 0.6, 0.2)->Count() * voxel,
+              2 * M_PI * M_PI * 0.6 * 0.04, 0.02);
+  EXPECT_EQ(BoxSet(f, {{-1, -1, -1}, {0, 0, 0}})->Count(), 32 * 32 * 32);
+  EXPECT_FALSE(SphereSet(f, {0, 0, 0}, -1).ok());
+  EXPECT_FALSE(TorusSet(f, {0, 0, 0}, {0, 0, 0}, 1, 0.1).ok());
+}
+
+TEST(Shapes, RandomBallsAreSeededAndInside) {
+  const GridFrame f = Cube(48);
+  const VoxelSet& cow = CowAt48();
+  RandomBallsOptions o;
+  o.count = 12;
+  o.min_radius = 0.05;
+  o.max_radius = 0.1;
+  o.seed = 5;
+  const VoxelSet a = *RandomBallsInside(cow, f, o);
+  EXPECT_EQ(a, *RandomBallsInside(cow, f, o));
+  o.seed = 6;
+  EXPECT_FALSE(a == *RandomBallsInside(cow, f, o));
+  // Centres lie inside the cow (thin at this resolution), so a good part of
+  // every ball does too.
+  EXPECT_GT((a & cow).Count(), a.Count() / 2);
+  o.clip_to_region = true;
+  const VoxelSet clipped = *RandomBallsInside(cow, f, o);
+  EXPECT_EQ((clipped - cow).Count(), 0);
+  EXPECT_FALSE(RandomBallsInside(VoxelSet(f.resolution), f, o).ok());
+}
+
+// ---------------------------------------------------------------- feature transform
+
+TEST(FeatureTransform, MatchesBruteForceOnRandomSets) {
+  Rng rng(11, 0);
+  for (int trial = 0; trial < 25; ++trial) {
+    const Int3 r{1 + int(rng.Next() % 13), 1 + int(rng.Next() % 9), 1 + int(rng.Next() % 11)};
+    VoxelSet s = RandomSet(r, rng.Uniform(0.005, 0.3), rng);
+    if (s.Empty()) s.Set(r.x - 1, 0, r.z / 2);
+    const Vec3 h{rng.Uniform(0.3, 2), rng.Uniform(0.3, 2), rng.Uniform(0.3, 2)};
+    const absl::StatusOr<FeatureField> field = ComputeFeatureTransform(s, h);
+    ASSERT_TRUE(field.ok());
+    for (int z = 0; z < r.z; ++z)
+      for (int y = 0; y < r.y; ++y)
+        for (int x = 0; x < r.x; ++x) {
+          double best = 1e300;
+          s.ForEach([&](int a, int b, int c) {
+            best = std::min(best, SquaredDistance({x, y, z}, {a, b, c}, h));
+          });
+          const Int3 got = UnpackVoxel(field->At(x, y, z));
+          ASSERT_TRUE(s.Contains(got)) << "trial " << trial;
+          ASSERT_NEAR(SquaredDistance({x, y, z}, got, h), best, 1e-9)
+              << "trial " << trial << " at " << x << "," << y << "," << z;
+        }
+  }
+}
+
+TEST(FeatureTransform, RestrictedBoxAgreesWithWholeLattice) {
+  Rng rng(12, 0);
+  const Int3 r{40, 33, 27};
+  const VoxelSet s = RandomSet(r, 0.002, rng);
+  const VoxelSet queries = RandomSet(r, 0.05, rng) - s;
+  const Vec3 h{1, 0.7, 1.6};
+  const FeatureField whole = *ComputeFeatureTransform(s, h);
+  FeatureTransformOptions o;
+  o.box = queries.BoundingBox();
+  o.queries = &queries;
+  FeatureField part;
+  ASSERT_TRUE(ComputeFeatureTransform(s, h, o, part).ok());
+  queries.ForEach([&](int x, int y, int z) { ASSERT_EQ(part.At(x, y, z), whole.At(x, y, z)); });
+}
+
+TEST(FeatureTransform, HausdorffDistance) {
+  const GridFrame f = Cube(32);
+  const Vec3 h = f.VoxelSize();
+  const VoxelSet a = *BoxSet(f, {{-0.5, -0.5, -0.5}, {0.5, 0.5, 0.5}});
+  const VoxelSet b = ShiftSet(a, {3, 0, 0});
+  EXPECT_NEAR(*HausdorffDistance(a, b, h), 3 * h.x, 1e-12);
+  EXPECT_NEAR(*HausdorffDistance(a, a, h), 0, 1e-12);
+  EXPECT_NEAR(*DirectedHausdorff(a & b, a, h), 0, 1e-12);
+}
+
+// ---------------------------------------------------------------- median
+
+TEST(Median, FixesItsCondensationSet) {
+  const GridFrame f = Cube(48);
+  const VoxelSet& cow = CowAt48();
+  EXPECT_EQ(*Median(cow, cow, f), cow);
+  const VoxelSet ball = *SphereSet(f, {0.2, 0.1, -0.3}, 0.4);
+  EXPECT_EQ(*Median(ball, ball, f), ball);
+  EXPECT_EQ(*LeftMedian(cow, cow, f), cow);
+  RotatedMedianOptions ro;
+  ro.degrees_per_unit = 60;
+  EXPECT_EQ(*RotatedMedian(cow, cow, f, ro), cow);
+}
+
+TEST(Median, IsSymmetric) {
+  const GridFrame f = Cube(48);
+  const VoxelSet& cow = CowAt48();
+  const VoxelSet ball = *SphereSet(f, {0.6, 0.6, 0.6}, 0.25);
+  const VoxelSet torus = *TorusSet(f, {-0.2, 0, 0.1}, {0, 1, 1}, 0.5, 0.15);
+  for (uint64_t seed : {0, 1, 2, 3}) {
+    MedianOptions o;
+    o.seed = seed;
+    EXPECT_EQ(*Median(ball, cow, f, o), *Median(cow, ball, f, o));
+    EXPECT_EQ(*Median(torus, ball, f, o), *Median(ball, torus, f, o));
+  }
+}
+
+TEST(Median, LeftMedianOfBoxesIsTheHalfwayBox) {
+  // Two slabs along x: D_A(B) squeezes A to half its distance from B.
+  const GridFrame f{{40, 8, 8}, {{0, 0, 0}, {40, 8, 8}}};
+  const VoxelSet a = *BoxSet(f, {{20, 0, 0}, {30, 8, 8}});  // x = 20..29
+  const VoxelSet b = *BoxSet(f, {{0, 0, 0}, {5, 8, 8}});    // x = 0..4
+  const VoxelSet d = *LeftMedian(a, b, f);
+  const VoxelBox box = *d.BoundingBox();
+  EXPECT_EQ(box.min.x, 12);  // (20 + 4) / 2
+  EXPECT_GE(box.max.x, 16);  // (29 + 4) / 2, rounded either way
+  EXPECT_LE(box.max.x, 17);
+  EXPECT_EQ(box.Size().y, 8);
+  EXPECT_EQ(d.Count(), box.Volume());  // solid
+}
+
+TEST(Median, MapAgreesWithTheFreeFunction) {
+  const GridFrame f = Cube(48);
+  const VoxelSet& cow = CowAt48();
+  const SetMapPtr map = *MakeMedianMap(f, cow);
+  const VoxelSet start = *SphereSet(f, {0.5, -0.4, 0.3}, 0.35);
+  for (uint64_t seed : {0, 7}) {
+    SetMapWorkspace ws;
+    ws.seed = seed;
+    VoxelSet out;
+    ASSERT_TRUE(map->Apply(start, out, ws).ok());
+    MedianOptions o;
+    o.seed = seed;
+    // The map reads C's precomputed transform; the function computes both
+    // transforms over restricted boxes. Same answer.
+    EXPECT_EQ(out, *Median(start, cow, f, o));
+    EXPECT_EQ(ws.stats.applications, 1u);
+  }
+}
+
+TEST(Median, IterationConvergesToTheCondensationSet) {
+  const GridFrame f = Cube(48);
+  const Vec3 h = f.VoxelSize();
+  const VoxelSet& cow = CowAt48();
+  const SetMapPtr map = *MakeMedianMap(f, cow);
+  SetMapWorkspace ws;
+  VoxelSet set = *SphereSet(f, {0.75, 0.75, 0.75}, 0.2), next;
+  double previous = *HausdorffDistance(set, cow, h);
+  ASSERT_GT(previous, 15 * h.x);
+  for (int k = 0; k < 24; ++k) {
+    ws.seed = uint64_t(k);
+    ASSERT_TRUE(map->Apply(set, next, ws).ok());
+    std::swap(set, next);
+    const double d = *HausdorffDistance(set, cow, h);
+    if (k < 4) {
+      EXPECT_LT(d, 0.75 * previous) << "step " << k;  // roughly halves
+    }
+    previous = d;
+  }
+  EXPECT_LE(previous, h.x + 1e-12);
+}
+
+TEST(Median, RotatedMedianConvergesAndDependsOnTheAngle) {
+  const GridFrame f = Cube(48);
+  const Vec3 h = f.VoxelSize();
+  const VoxelSet& cow = CowAt48();
+  const VoxelSet start = *SphereSet(f, {0.7, -0.7, 0.6}, 0.2);
+  RotatedMedianOptions slow, fast;
+  slow.degrees_per_unit = 20;
+  fast.degrees_per_unit = 90;
+  fast.axis = slow.axis = {0, 1, 0};
+  const SetMapPtr a = *MakeRotatedMedianMap(f, cow, slow);
+  const SetMapPtr b = *MakeRotatedMedianMap(f, cow, fast);
+  SetMapWorkspace ws;
+  VoxelSet sa = start, sb = start, next;
+  for (int k = 0; k < 30; ++k) {
+    ws.seed = uint64_t(k);
+    ASSERT_TRUE(a->Apply(sa, next, ws).ok());
+    std::swap(sa, next);
+    ASSERT_TRUE(b->Apply(sb, next, ws).ok());
+    std::swap(sb, next);
+    if (k == 1) {
+      EXPECT_FALSE(sa == sb);  // the paths differ
+    }
+  }
+  EXPECT_LE(*HausdorffDistance(sa, cow, h), 2.5 * h.x);
+  EXPECT_LE(*HausdorffDistance(sb, cow, h), 2.5 * h.x);
+}
+
+TEST(Median, FillsGapsWhereTheNearestPointMapIsContinuous) {
+  // A ball inside a spherical shell: the nearest-point map spreads the ball
+  // over a thick shell, so the forward image alone is porous.
+  const GridFrame f = Cube(48);
+  const VoxelSet shell = *SphereSet(f, {0, 0, 0}, 0.9) - *SphereSet(f, {0, 0, 0}, 0.7);
+  const VoxelSet ball = *SphereSet(f, {0.05, 0.02, 0}, 0.4);
+  MedianOptions none;
+  none.bridge_max_jump = 0;
+  const int64_t sparse = LeftMedian(ball, shell, f, none)->Count();
+  const int64_t filled = LeftMedian(ball, shell, f)->Count();
+  EXPECT_GT(filled, sparse * 3 / 2);
+  // Solid images stay solid: a ball moving toward a torus and a box.
+  const VoxelSet torus = *TorusSet(f, {0, 0, 0.4}, {0, 0, 1}, 0.55, 0.15);
+  const VoxelSet far_ball = *SphereSet(f, {-0.5, -0.5, -0.5}, 0.35);
+  const VoxelSet box = *BoxSet(f, {{0.2, 0.3, 0.1}, {0.8, 0.7, 0.6}});
+  // Halving the distance to a convex set is one-to-one, so solids moving
+  // toward one keep their topology: no pockets may appear.
+  EXPECT_EQ(EnclosedEmptyVoxels(*LeftMedian(far_ball, box, f)), 0);
+  EXPECT_EQ(EnclosedEmptyVoxels(*LeftMedian(torus, far_ball, f)), 0);
+  EXPECT_EQ(EnclosedEmptyVoxels(*LeftMedian(CowAt48(), far_ball, f)), 0);
+}
+
+TEST(Median, RejectsBadInput) {
+  const GridFrame f = Cube(16);
+  const VoxelSet empty(f.resolution);
+  const VoxelSet ball = *SphereSet(f, {0, 0, 0}, 0.5);
+  EXPECT_FALSE(Median(empty, ball, f).ok());
+  EXPECT_FALSE(MakeMedianMap(f, empty).ok());
+  EXPECT_FALSE(MakeMedianMap(Cube(17), ball).ok());
+  RotatedMedianOptions ro;
+  ro.axis = {0, 0, 0};
+  EXPECT_FALSE(MakeRotatedMedianMap(f, ball, ro).ok());
+}
+
+// ---------------------------------------------------------------- other maps
+
+TEST(SetMaps, ConstantMapReturnsItsSet) {
+  const GridFrame f = Cube(16);
+  const VoxelSet ball = *SphereSet(f, {0, 0, 0}, 0.5);
+  SetMapWorkspace ws;
+  VoxelSet out;
+  ASSERT_TRUE((*MakeConstantMap(f, ball))->Apply(*BoxSet(f, {{0, 0, 0}, {1, 1, 1}}), out, ws).ok());
+  EXPECT_EQ(out, ball);
+}
+
+TEST(SetMaps, AffinePointMapsKeepSolidsSolid) {
+  const GridFrame f = Cube(48);
+  const VoxelSet box = *BoxSet(f, {{-0.5, -0.25, -0.25}, {0.5, 0.25, 0.25}});
+  // A rotation is an isometry: same volume, no pinholes.
+  const VoxelSet turned = TransformSet(box, f, Affine3::Rotate({1, 1, 0}, 33));
+  EXPECT_NEAR(double(turned.Count()) / box.Count(), 1.0, 0.05);
+  EXPECT_EQ(EnclosedEmptyVoxels(turned), 0);
+  // Halving shrinks the volume eightfold.
+  PointMap half;
+  half.pre = Affine3::Scale({0.5, 0.5, 0.5});
+  SetMapWorkspace ws;
+  VoxelSet out;
+  ASSERT_TRUE((*MakePointSetMap(f, half))->Apply(box, out, ws).ok());
+  EXPECT_NEAR(double(out.Count()) / box.Count(), 0.125, 0.03);
+  // Doubling (an expansion) leaves no holes.
+  PointMap twice;
+  twice.pre = Affine3::Scale({2, 2, 2});
+  ASSERT_TRUE((*MakePointSetMap(f, twice))->Apply(*SphereSet(f, {0, 0, 0}, 0.3), out, ws).ok());
+  EXPECT_EQ(EnclosedEmptyVoxels(out), 0);
+  EXPECT_NEAR(out.Count() * std::pow(2.0 / 48, 3), 4.0 / 3 * M_PI * 0.216, 0.05);
+}
+
+TEST(SetMaps, NonlinearPointMapIsSeededAndSubdividesStretches) {
+  // The seed's polar doubling: angles double, radii shrink by sqrt 2.
+  const GridFrame f = Cube(48);
+  PointMap polar;
+  polar.variations.push_back({VariationKind::kPolarDoubling, 1.0, {}});
+  const SetMapPtr map = *MakePointSetMap(f, polar);
+  const VoxelSet ring = *TorusSet(f, {0, 0, 0}, {0, 0, 1}, 0.6, 0.12);
+  SetMapWorkspace ws;
+  ws.seed = 3;
+  VoxelSet out;
+  ASSERT_TRUE(map->Apply(ring, out, ws).ok());
+  // A ring of radius 0.6 goes to a ring of radius 0.6 / sqrt 2, covered all
+  // round although each angle doubles.
+  const double s2 = std::sqrt(2.0), h = f.VoxelSize().x;
+  const VoxelSet expected = *TorusSet(f, {0, 0, 0}, {0, 0, 1}, 0.6 / s2, 0.12 / s2);
+  const VoxelSet loose = *TorusSet(f, {0, 0, 0}, {0, 0, 1}, 0.6 / s2, 0.12 / s2 + 1.5 * h);
+  EXPECT_GT((out & expected).Count(), expected.Count() * 9 / 10);
+  EXPECT_LT((out - loose).Count(), out.Count() / 50);
+  // A map with random variations is reproducible for a seed.
+  PointMap blur;
+  blur.pre = Affine3::Scale({0.3, 0.3, 0.3});
+  blur.variations.push_back({VariationKind::kBlur, 0.2, {}});
+  const SetMapPtr blurry = *MakePointSetMap(f, blur);
+  VoxelSet b1, b2;
+  ASSERT_TRUE(blurry->Apply(ring, b1, ws).ok());
+  ASSERT_TRUE(blurry->Apply(ring, b2, ws).ok());
+  EXPECT_EQ(b1, b2);
+}
+
+}  // namespace
+}  // namespace nimbus

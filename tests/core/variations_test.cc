@@ -1,0 +1,406 @@
+#include "core/variations.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <complex>
+#include <functional>
+#include <limits>
+#include <numbers>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace nimbus {
+namespace {
+
+using Complex = std::complex<double>;
+constexpr double kPi = std::numbers::pi;
+constexpr double kEps = 1e-10;  // the guard documented in docs/variations.md
+
+// Points in every octant, on the axes, near the origin and a little further out.
+const std::vector<Vec3>& SamplePoints() {
+  static const std::vector<Vec3> points = {
+      {0.3, -0.7, 0.2},    {-1.2, 0.4, -0.9}, {2.5, 1.5, 0.5},    {-0.05, -0.02, 1.3},
+      {0.9, 0.0, -0.4},    {-2.0, 0.0, 0.1},  {0.0, 1.7, 0.0},    {0.0, -0.6, -2.2},
+      {1e-3, 2e-3, -3e-3}, {-0.8, -1.1, 0.6}, {1.9, -0.35, -1.4}, {-0.45, 2.1, 0.75},
+  };
+  return points;
+}
+
+// A pre-affine with distinct coefficients so that a mix-up shows. In flame
+// notation: b = 0.3, c = 0.25, e = 0.7, f = -0.4.
+Affine3 TestPre() {
+  Affine3 a;
+  a.m = {{{0.8, 0.3, 0.1, 0.25}, {-0.2, 0.7, 0.05, -0.4}, {0.1, 0.2, 0.9, 0.3}}};
+  return a;
+}
+
+VariationTerm Term(VariationKind kind) { return VariationTerm{kind, 1.0, {}}; }
+
+Complex Xy(Vec3 p) { return {p.x, p.y}; }
+Vec3 FromXy(Complex w, double z) { return {w.real(), w.imag(), z}; }
+
+// Relative to the size of the expected vector: near-zero components of a
+// large vector carry the vector's rounding, not their own.
+void ExpectClose(Vec3 got, Vec3 want, Vec3 at, const std::string& what) {
+  const double tol = 1e-12 * std::max(Length(want), 1e-300);
+  const std::string where = what + " at (" + std::to_string(at.x) + ", " + std::to_string(at.y) +
+                            ", " + std::to_string(at.z) + ")";
+  EXPECT_NEAR(got.x, want.x, tol) << where << " x";
+  EXPECT_NEAR(got.y, want.y, tol) << where << " y";
+  EXPECT_NEAR(got.z, want.z, tol) << where << " z";
+}
+
+// Checks a deterministic variation against `formula` at every sample point.
+void ExpectFormula(VariationKind kind, const std::function<Vec3(Vec3)>& formula,
+                   const Affine3& pre = TestPre()) {
+  Rng rng(7, 0);
+  for (Vec3 p : SamplePoints())
+    ExpectClose(EvaluateVariation(Term(kind), p, pre, rng), formula(p), p,
+                std::string(VariationName(kind)));
+}
+
+TEST(Variations, Linear) {
+  ExpectFormula(VariationKind::kLinear, [](Vec3 p) { return p; });
+}
+
+TEST(Variations, Sinusoidal) {
+  ExpectFormula(VariationKind::kSinusoidal, [](Vec3 p) {
+    return Vec3{std::sin(p.x), std::sin(p.y), std::sin(p.z)};
+  });
+}
+
+TEST(Variations, Spherical) {
+  ExpectFormula(VariationKind::kSpherical, [](Vec3 p) {
+    const double r2 = p.x * p.x + p.y * p.y + p.z * p.z;
+    return Vec3{p.x / (r2 + kEps), p.y / (r2 + kEps), p.z / (r2 + kEps)};
+  });
+}
+
+TEST(Variations, Swirl) {
+  // x sin(rho^2) - y cos(rho^2) + i (x cos(rho^2) + y sin(rho^2)) = w * i * e^{-i rho^2}.
+  ExpectFormula(VariationKind::kSwirl, [](Vec3 p) {
+    const Complex w = Xy(p);
+    return FromXy(w * Complex(0, 1) * std::exp(Complex(0, -std::norm(w))), p.z);
+  });
+}
+
+TEST(Variations, Horseshoe) {
+  ExpectFormula(VariationKind::kHorseshoe, [](Vec3 p) {
+    const Complex w = Xy(p);
+    return FromXy(w * w / (std::abs(w) + kEps), p.z);
+  });
+}
+
+TEST(Variations, Polar) {
+  ExpectFormula(VariationKind::kPolar, [](Vec3 p) {
+    const Complex w = Xy(p);
+    return Vec3{std::arg(w) / kPi, std::abs(w) - 1.0, p.z};
+  });
+}
+
+TEST(Variations, Handkerchief) {
+  ExpectFormula(VariationKind::kHandkerchief, [](Vec3 p) {
+    const double rho = std::abs(Xy(p)), t = std::arg(Xy(p));
+    return Vec3{rho * std::sin(t + rho), rho * std::cos(t - rho), p.z};
+  });
+}
+
+TEST(Variations, Heart) {
+  ExpectFormula(VariationKind::kHeart, [](Vec3 p) {
+    const double rho = std::abs(Xy(p)), t = std::arg(Xy(p));
+    return Vec3{rho * std::sin(t * rho), -rho * std::cos(t * rho), p.z};
+  });
+}
+
+TEST(Variations, Disc) {
+  ExpectFormula(VariationKind::kDisc, [](Vec3 p) {
+    const double rho = std::abs(Xy(p)), t = std::arg(Xy(p));
+    return Vec3{t / kPi * std::sin(kPi * rho), t / kPi * std::cos(kPi * rho), p.z};
+  });
+}
+
+TEST(Variations, Spiral) {
+  ExpectFormula(VariationKind::kSpiral, [](Vec3 p) {
+    const double rho = std::abs(Xy(p)), t = std::arg(Xy(p));
+    return Vec3{(std::cos(t) + std::sin(rho)) / (rho + kEps),
+                (std::sin(t) - std::cos(rho)) / (rho + kEps), p.z};
+  });
+}
+
+TEST(Variations, Hyperbolic) {
+  ExpectFormula(VariationKind::kHyperbolic, [](Vec3 p) {
+    const double rho = std::abs(Xy(p)), t = std::arg(Xy(p));
+    return Vec3{std::sin(t) / (rho + kEps), rho * std::cos(t), p.z};
+  });
+}
+
+TEST(Variations, Diamond) {
+  ExpectFormula(VariationKind::kDiamond, [](Vec3 p) {
+    const double rho = std::abs(Xy(p)), t = std::arg(Xy(p));
+    return Vec3{std::sin(t) * std::cos(rho), std::cos(t) * std::sin(rho), p.z};
+  });
+}
+
+TEST(Variations, Ex) {
+  ExpectFormula(VariationKind::kEx, [](Vec3 p) {
+    const double rho = std::abs(Xy(p)), t = std::arg(Xy(p));
+    const double a = std::pow(std::sin(t + rho), 3), b = std::pow(std::cos(t - rho), 3);
+    return Vec3{rho * (a + b), rho * (a - b), p.z};
+  });
+}
+
+TEST(Variations, Bent) {
+  ExpectFormula(VariationKind::kBent, [](Vec3 p) {
+    if (p.x >= 0 && p.y >= 0) return p;
+    if (p.x < 0 && p.y >= 0) return Vec3{2 * p.x, p.y, p.z};
+    if (p.x >= 0 && p.y < 0) return Vec3{p.x, p.y / 2, p.z};
+    return Vec3{2 * p.x, p.y / 2, p.z};
+  });
+}
+
+TEST(Variations, WavesReadsPreCoefficients) {
+  ExpectFormula(VariationKind::kWaves, [](Vec3 p) {
+    return Vec3{p.x + 0.3 * std::sin(p.y / (0.25 * 0.25 + kEps)),
+                p.y + 0.7 * std::sin(p.x / (0.4 * 0.4 + kEps)), p.z};
+  });
+}
+
+TEST(Variations, Fisheye) {
+  ExpectFormula(VariationKind::kFisheye, [](Vec3 p) {
+    const double k = 2.0 / (std::hypot(p.x, p.y) + 1.0);
+    return Vec3{k * p.y, k * p.x, p.z};
+  });
+}
+
+TEST(Variations, PopcornReadsPreTranslation) {
+  ExpectFormula(VariationKind::kPopcorn, [](Vec3 p) {
+    return Vec3{p.x + 0.25 * std::sin(std::tan(3 * p.y)), p.y - 0.4 * std::sin(std::tan(3 * p.x)),
+                p.z};
+  });
+}
+
+TEST(Variations, Exponential) {
+  ExpectFormula(VariationKind::kExponential,
+                [](Vec3 p) { return FromXy(std::exp(Complex(p.x - 1.0, kPi * p.y)), p.z); });
+}
+
+TEST(Variations, Power) {
+  ExpectFormula(VariationKind::kPower, [](Vec3 p) {
+    const double rho = std::abs(Xy(p)), t = std::arg(Xy(p));
+    return FromXy(std::polar(std::pow(rho, std::sin(t)), t), p.z);
+  });
+}
+
+TEST(Variations, Cylinder) {
+  ExpectFormula(VariationKind::kCylinder, [](Vec3 p) { return Vec3{std::sin(p.x), p.y, p.z}; });
+}
+
+TEST(Variations, Bubble) {
+  ExpectFormula(VariationKind::kBubble, [](Vec3 p) {
+    const double k = 4.0 / (p.x * p.x + p.y * p.y + p.z * p.z + 4.0);
+    return Vec3{k * p.x, k * p.y, k * p.z};
+  });
+}
+
+TEST(Variations, PolarDoubling) {
+  ExpectFormula(VariationKind::kPolarDoubling, [](Vec3 p) {
+    const Complex w = Xy(p);
+    return FromXy(std::polar(std::abs(w) / std::sqrt(2.0), 2 * std::arg(w)), p.z / std::sqrt(2.0));
+  });
+}
+
+TEST(Variations, PolarDoublingContractsBySqrt2In3D) {
+  Rng rng(1, 0);
+  for (Vec3 p : SamplePoints()) {
+    const Vec3 q = EvaluateVariation(Term(VariationKind::kPolarDoubling), p, {}, rng);
+    EXPECT_NEAR(Dot(q, q), Dot(p, p) / 2, 1e-12 * Dot(p, p));
+  }
+}
+
+TEST(Variations, JuliaMatchesEitherSquareRootFromSameDraw) {
+  Rng rng(42, 3), twin(42, 3);
+  int flipped = 0;
+  for (int round = 0; round < 20; ++round) {
+    for (Vec3 p : SamplePoints()) {
+      const Vec3 got = EvaluateVariation(Term(VariationKind::kJulia), p, TestPre(), rng);
+      Complex want = std::sqrt(Xy(p));  // principal root
+      if (twin.Next() >> 63) {
+        want = -want;
+        ++flipped;
+      }
+      ExpectClose(got, FromXy(want, p.z), p, "julia");
+    }
+  }
+  // Both branches occur.
+  const int total = 20 * static_cast<int>(SamplePoints().size());
+  EXPECT_GT(flipped, total / 4);
+  EXPECT_LT(flipped, 3 * total / 4);
+}
+
+// The documented draw order: cos(polar angle), azimuth, then the radius or scale.
+Vec3 TwinDirection(Rng& twin) {
+  const double cz = twin.Uniform(-1.0, 1.0);
+  const double phi = twin.Uniform(0.0, 2 * kPi);
+  const double sz = std::sqrt(1 - cz * cz);
+  return {sz * std::cos(phi), sz * std::sin(phi), cz};
+}
+
+TEST(Variations, BlurReproducesDraws) {
+  Rng rng(5, 11), twin(5, 11);
+  for (int round = 0; round < 10; ++round) {
+    for (Vec3 p : SamplePoints()) {
+      const Vec3 got = EvaluateVariation(Term(VariationKind::kBlur), p, TestPre(), rng);
+      const Vec3 d = TwinDirection(twin);
+      const double radius = std::pow(twin.Uniform(), 1.0 / 3.0);
+      ExpectClose(got, radius * d, p, "blur");
+    }
+  }
+}
+
+TEST(Variations, BlurIsUniformInUnitBall) {
+  Rng rng(9, 0);
+  const int n = 200000;
+  int inner = 0;
+  Vec3 mean;
+  for (int i = 0; i < n; ++i) {
+    const Vec3 q = EvaluateVariation(Term(VariationKind::kBlur), {5, -3, 2}, {}, rng);
+    const double r = Length(q);
+    ASSERT_LT(r, 1.0 + 1e-15);
+    if (r < 0.5) ++inner;
+    mean = mean + q;
+  }
+  // A ball of half the radius holds 1/8 of the volume.
+  EXPECT_NEAR(inner / double(n), 0.125, 0.004);
+  mean = (1.0 / n) * mean;
+  EXPECT_LT(Length(mean), 0.01);
+}
+
+TEST(Variations, NoiseReproducesDraws) {
+  Rng rng(8, 2), twin(8, 2);
+  for (int round = 0; round < 10; ++round) {
+    for (Vec3 p : SamplePoints()) {
+      const Vec3 got = EvaluateVariation(Term(VariationKind::kNoise), p, TestPre(), rng);
+      const Vec3 d = TwinDirection(twin);
+      const double s = twin.Uniform();
+      ExpectClose(got, Vec3{s * p.x * d.x, s * p.y * d.y, s * p.z * d.z}, p, "noise");
+    }
+  }
+}
+
+TEST(Variations, NoiseIsBoundedPerAxis) {
+  Rng rng(3, 1);
+  for (int round = 0; round < 2000; ++round) {
+    for (Vec3 p : SamplePoints()) {
+      const Vec3 q = EvaluateVariation(Term(VariationKind::kNoise), p, {}, rng);
+      for (int i = 0; i < 3; ++i) ASSERT_LE(std::abs(q[i]), std::abs(p[i]));
+      ASSERT_LE(Length(q), Length(p));
+    }
+  }
+}
+
+TEST(Variations, WeightIsNotApplied) {
+  // The caller multiplies by the weight (point_map.h), so it must not be applied twice.
+  for (VariationKind kind : AllVariations()) {
+    Rng a(4, 4), b(4, 4);
+    VariationTerm heavy = Term(kind);
+    heavy.weight = 3.5;
+    const Vec3 p{0.4, -0.3, 0.8};
+    const Vec3 x = EvaluateVariation(Term(kind), p, TestPre(), a);
+    const Vec3 y = EvaluateVariation(heavy, p, TestPre(), b);
+    EXPECT_EQ(x, y) << VariationName(kind);
+  }
+}
+
+TEST(Variations, DegenerateInputsStayFinite) {
+  // With the epsilon guards every variation is finite at the origin, on the
+  // z axis, and with pre coefficients of zero (identity pre: c = f = 0).
+  const std::vector<Vec3> points = {{0, 0, 0}, {0, 0, 2}, {0, 0, -1e-300}, {-0.0, 0.0, 0}};
+  for (VariationKind kind : AllVariations()) {
+    Rng rng(1, 1);
+    for (Vec3 p : points) {
+      const Vec3 q = EvaluateVariation(Term(kind), p, Affine3::Identity(), rng);
+      EXPECT_TRUE(IsFinite(q)) << VariationName(kind) << " at z=" << p.z;
+    }
+  }
+}
+
+TEST(Variations, HugeAndNonFiniteInputsDoNotCrash) {
+  const double inf = std::numeric_limits<double>::infinity();
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  const std::vector<Vec3> points = {{1e300, -1e300, 1e300}, {inf, 0, 0}, {nan, 1, 2}};
+  for (VariationKind kind : AllVariations()) {
+    Rng rng(1, 1);
+    for (Vec3 p : points) (void)EvaluateVariation(Term(kind), p, TestPre(), rng);
+  }
+  SUCCEED();
+}
+
+TEST(Variations, PlanarOnesPassZThrough) {
+  Rng rng(2, 2);
+  for (VariationKind kind : AllVariations()) {
+    const VariationInfo& info = GetVariationInfo(kind);
+    if (!info.planar || kind == VariationKind::kPolarDoubling) continue;
+    for (Vec3 p : SamplePoints())
+      EXPECT_EQ(EvaluateVariation(Term(kind), p, TestPre(), rng).z, p.z) << info.name;
+  }
+}
+
+TEST(Variations, InfoFlagsMatchBehaviour) {
+  const Vec3 p{0.6, -0.9, 0.35};
+  Affine3 other_pre = TestPre();
+  other_pre.m[0][1] = -1.3;
+  other_pre.m[0][3] = 0.9;
+  other_pre.m[1][1] = 0.15;
+  other_pre.m[1][3] = 0.6;
+  for (VariationKind kind : AllVariations()) {
+    const VariationInfo& info = GetVariationInfo(kind);
+    EXPECT_EQ(info.name, VariationName(kind));
+    EXPECT_EQ(info.param_count, 0) << info.name;
+    const bool want_random = kind == VariationKind::kJulia || kind == VariationKind::kBlur ||
+                             kind == VariationKind::kNoise;
+    EXPECT_EQ(info.random, want_random) << info.name;
+    if (info.random) continue;
+    // Deterministic ones must leave the stream untouched.
+    Rng rng(6, 6), untouched(6, 6);
+    const Vec3 a = EvaluateVariation(Term(kind), p, TestPre(), rng);
+    EXPECT_EQ(rng.Next(), untouched.Next()) << info.name;
+    // Only the dependent ones look at the pre-affine.
+    const Vec3 b = EvaluateVariation(Term(kind), p, other_pre, rng);
+    EXPECT_EQ(a != b, info.reads_pre) << info.name;
+  }
+}
+
+TEST(VariationNames, CanonicalNamesInEnumOrder) {
+  const std::vector<std::string> names = {
+      "linear", "sinusoidal", "spherical", "swirl",         "horseshoe",   "polar", "handkerchief",
+      "heart",  "disc",       "spiral",    "hyperbolic",    "diamond",     "ex",    "julia",
+      "bent",   "waves",      "fisheye",   "popcorn",       "exponential", "power", "cylinder",
+      "bubble", "blur",       "noise",     "polar_doubling"};
+  const std::vector<VariationKind>& all = AllVariations();
+  ASSERT_EQ(all.size(), 25u);
+  for (size_t i = 0; i < all.size(); ++i) {
+    EXPECT_EQ(static_cast<size_t>(all[i]), i);
+    EXPECT_EQ(VariationName(all[i]), names[i]);
+  }
+  EXPECT_EQ(all.back(), VariationKind::kPolarDoubling);
+}
+
+TEST(VariationNames, RoundTrip) {
+  for (VariationKind kind : AllVariations()) {
+    const std::optional<VariationKind> back = VariationFromName(VariationName(kind));
+    ASSERT_TRUE(back.has_value()) << VariationName(kind);
+    EXPECT_EQ(*back, kind);
+  }
+}
+
+TEST(VariationNames, UnknownOrInexactNamesAreRejected) {
+  for (const char* name : {"", "unknown", "Linear", "SWIRL", "polar-doubling", "polardoubling",
+                           "polar doubling", " linear", "linear ", "julian", "lin"})
+    EXPECT_FALSE(VariationFromName(name).has_value()) << '"' << name << '"';
+}
+
+}  // namespace
+}  // namespace nimbus

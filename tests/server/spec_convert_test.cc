@@ -1,0 +1,192 @@
+#include "proto/spec_convert.h"
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include "proto/spec_io.h"
+#include "tests/support/test_util.h"
+
+namespace nimbus::spec {
+namespace {
+
+using ::testing::HasSubstr;
+
+constexpr char kValid[] = R"({
+  "name": "t",
+  "grid": {"resolution": [32], "bounds_min": {"x": -1, "y": -1, "z": -1},
+           "bounds_max": {"x": 1, "y": 1, "z": 1}},
+  "chaos_game": {
+    "ifs": {"maps": [
+      {"steps": [{"translate": {"x": 0.5}}, {"scale": {"uniform": 0.5}}]},
+      {"steps": [{"rotate": {"axis": {"z": 1}, "degrees": 90}}, {"scale": {"xyz": {"x": 0.5, "y": 0.4, "z": 0.3}}}]}
+    ]},
+    "iterations": "1000"
+  }
+})";
+
+v1::JobSpec Valid() {
+  auto spec = ParseSpec(kValid, SpecFormat::kJson);
+  EXPECT_TRUE(spec.ok()) << spec.status();
+  return *spec;
+}
+
+absl::Status Check(const v1::JobSpec& spec, Limits limits = {}) {
+  return ConvertSpec(spec, limits, 2).status();
+}
+
+TEST(SpecConvert, ValidSpecConverts) {
+  auto job = ConvertSpec(Valid(), {}, 2);
+  ASSERT_TRUE(job.ok()) << job.status();
+  EXPECT_EQ(job->frame.resolution, (Int3{32, 32, 32}));
+  ASSERT_EQ(job->chaos_game.ifs.maps.size(), 2u);
+  // Determinant mode (no probabilities given): 0.125 vs 0.06.
+  EXPECT_NEAR(job->chaos_game.ifs.probabilities[0], 0.125 / 0.185, 1e-12);
+  EXPECT_EQ(job->chaos_game.warmup, 100u);
+  EXPECT_NEAR(job->contraction_factors[0], 0.5, 1e-12);
+  // Steps compose right to left: scale first, then translate.
+  const Vec3 p = job->chaos_game.ifs.maps[0].pre.Apply({1, 0, 0});
+  EXPECT_NEAR(p.x, 1.0, 1e-12);
+}
+
+TEST(SpecConvert, MalformedJsonIsReported) {
+  auto spec = ParseSpec("{\"grid\": {\"resolution\": [32,}", SpecFormat::kJson, "bad.json");
+  ASSERT_FALSE(spec.ok());
+  EXPECT_THAT(std::string(spec.status().message()), HasSubstr("bad.json"));
+  EXPECT_THAT(std::string(spec.status().message()), HasSubstr("malformed JSON"));
+}
+
+TEST(SpecConvert, UnknownStepKindNamesTheField) {
+  auto spec = ParseSpec(R"({"chaos_game": {"ifs": {"maps": [{"steps": [{"twist": {}}]}]}}})",
+                        SpecFormat::kJson);
+  ASSERT_FALSE(spec.ok());
+  EXPECT_THAT(std::string(spec.status().message()), HasSubstr("twist"));
+}
+
+TEST(SpecConvert, EmptyStepNamesItsPath) {
+  v1::JobSpec spec = Valid();
+  spec.mutable_chaos_game()->mutable_ifs()->mutable_maps(1)->add_steps();
+  const absl::Status s = Check(spec);
+  EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_THAT(std::string(s.message()), HasSubstr("chaos_game.ifs.maps[1].steps[2]"));
+}
+
+TEST(SpecConvert, ExpandingIfsIsRejectedWithItsFactors) {
+  v1::JobSpec spec = Valid();
+  auto* step = spec.mutable_chaos_game()->mutable_ifs()->mutable_maps(0)->mutable_steps(1);
+  step->mutable_scale()->set_uniform(1.5);
+  absl::Status s = Check(spec);
+  EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_THAT(std::string(s.message()), HasSubstr("chaos_game.ifs.maps[0] (factor 1.5)"));
+  spec.mutable_chaos_game()->mutable_ifs()->set_allow_expanding(true);
+  auto job = ConvertSpec(spec, {}, 2);
+  ASSERT_TRUE(job.ok());
+  ASSERT_EQ(job->warnings.size(), 1u);
+  EXPECT_THAT(job->warnings[0], HasSubstr("factor 1.5"));
+}
+
+TEST(SpecConvert, ResolutionMustBePositive) {
+  v1::JobSpec spec = Valid();
+  spec.mutable_grid()->clear_resolution();
+  for (int v : {64, 0, 64}) spec.mutable_grid()->add_resolution(v);
+  absl::Status s = Check(spec);
+  EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_THAT(std::string(s.message()), HasSubstr("grid.resolution[1]"));
+  spec.mutable_grid()->set_resolution(1, -3);
+  EXPECT_THAT(std::string(Check(spec).message()), HasSubstr("got -3"));
+}
+
+TEST(SpecConvert, LimitsGiveResourceExhausted) {
+  v1::JobSpec spec = Valid();
+  spec.mutable_grid()->set_resolution(0, 100000);
+  absl::Status s = Check(spec);
+  EXPECT_EQ(s.code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_THAT(std::string(s.message()), HasSubstr("grid.resolution[0]"));
+
+  spec = Valid();
+  spec.mutable_grid()->set_resolution(0, 2048);
+  Limits tight;
+  tight.max_memory_bytes = uint64_t{1} << 30;
+  s = Check(spec, tight);
+  EXPECT_EQ(s.code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_THAT(std::string(s.message()), HasSubstr("memory"));
+
+  spec = Valid();
+  spec.mutable_chaos_game()->set_iterations(uint64_t{1} << 50);
+  s = Check(spec);
+  EXPECT_EQ(s.code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_THAT(std::string(s.message()), HasSubstr("chaos_game.iterations"));
+}
+
+TEST(SpecConvert, OtherFieldErrors) {
+  v1::JobSpec spec = Valid();
+  spec.mutable_grid()->mutable_bounds_max()->set_y(-2);
+  EXPECT_THAT(std::string(Check(spec).message()), HasSubstr("grid.bounds_max.y"));
+
+  spec = Valid();
+  spec.mutable_chaos_game()->set_iterations(0);
+  EXPECT_THAT(std::string(Check(spec).message()), HasSubstr("chaos_game.iterations"));
+
+  spec = Valid();
+  auto* rot = spec.mutable_chaos_game()->mutable_ifs()->mutable_maps(1)->mutable_steps(0);
+  rot->mutable_rotate()->clear_axis();
+  EXPECT_THAT(std::string(Check(spec).message()), HasSubstr("maps[1].steps[0].rotate.axis"));
+
+  spec = Valid();
+  auto* m = spec.mutable_chaos_game()->mutable_ifs()->mutable_maps(0);
+  m->add_steps()->mutable_matrix()->add_values(1);
+  EXPECT_THAT(std::string(Check(spec).message()), HasSubstr("maps[0].steps[2].matrix.values"));
+
+  spec = Valid();
+  spec.mutable_chaos_game()->mutable_ifs()->mutable_maps(0)->add_variations()->set_name("wobble");
+  EXPECT_THAT(std::string(Check(spec).message()), HasSubstr("unknown variation 'wobble'"));
+
+  spec = Valid();
+  spec.clear_chaos_game();
+  EXPECT_THAT(std::string(Check(spec).message()), HasSubstr("generator"));
+}
+
+TEST(SpecConvert, ExplicitProbabilitiesAreNormalised) {
+  v1::JobSpec spec = Valid();
+  spec.mutable_chaos_game()->mutable_ifs()->mutable_maps(0)->set_probability(3);
+  spec.mutable_chaos_game()->mutable_ifs()->mutable_maps(1)->set_probability(1);
+  auto job = ConvertSpec(spec, {}, 2);
+  ASSERT_TRUE(job.ok());
+  EXPECT_DOUBLE_EQ(job->chaos_game.ifs.probabilities[0], 0.75);
+  spec.mutable_chaos_game()->mutable_ifs()->mutable_maps(1)->set_probability(-1);
+  EXPECT_THAT(std::string(Check(spec).message()), HasSubstr("maps[1].probability"));
+}
+
+TEST(SpecConvert, TextFormatAndJsonAgree) {
+  auto text = LoadSpecFile(testing::SourcePath("examples/sierpinski_tetrahedron.txtpb"));
+  ASSERT_TRUE(text.ok()) << text.status();
+  auto json = LoadSpecFile(testing::SourcePath("examples/sierpinski_tetrahedron.json"));
+  ASSERT_TRUE(json.ok()) << json.status();
+  auto a = ConvertSpec(*text, {}, 2), b = ConvertSpec(*json, {}, 2);
+  ASSERT_TRUE(a.ok() && b.ok());
+  for (int i = 0; i < 4; ++i)
+    EXPECT_EQ(a->chaos_game.ifs.maps[i].pre, b->chaos_game.ifs.maps[i].pre);
+  auto bad = ParseSpec("grid { resolution: [1, }", SpecFormat::kText, "x.txtpb");
+  ASSERT_FALSE(bad.ok());
+  EXPECT_THAT(std::string(bad.status().message()), HasSubstr("x.txtpb:1:"));
+}
+
+TEST(SpecConvert, EveryExampleValidates) {
+  for (const auto& entry : std::filesystem::directory_iterator(testing::SourcePath("examples"))) {
+    const auto ext = entry.path().extension();
+    if (ext != ".json" && ext != ".txtpb") continue;
+    auto spec = LoadSpecFile(entry.path());
+    ASSERT_TRUE(spec.ok()) << entry.path() << ": " << spec.status();
+    auto job = ConvertSpec(*spec, {}, 2);
+    EXPECT_TRUE(job.ok()) << entry.path() << ": " << job.status();
+  }
+}
+
+TEST(SpecConvert, HashIsStableAndSensitive) {
+  v1::JobSpec a = Valid(), b = Valid();
+  EXPECT_EQ(SpecHash(a), SpecHash(b));
+  b.mutable_chaos_game()->set_seed(9);
+  EXPECT_NE(SpecHash(a), SpecHash(b));
+}
+
+}  // namespace
+}  // namespace nimbus::spec
