@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -24,11 +25,21 @@ struct Limits {
   int32_t max_maps = 4096;
 };
 
+/// Which generator a job runs; selects the runner in the server.
+enum class Generator { kChaosGame, kSetIfs };
+
+/// The set-IFS plan; defined in proto/convert_set_ifs.h.
+struct SetIfsPlan;
+
 /// @brief A validated job, ready for the engine.
 struct ConvertedJob {
   std::string name;
+  Generator generator = Generator::kChaosGame;
   GridFrame frame;
+  /// Set for Generator::kChaosGame.
   ChaosGameParams chaos_game;
+  /// Set for Generator::kSetIfs.
+  std::shared_ptr<const SetIfsPlan> set_ifs;
   DensityOptions density;
   std::vector<std::string> warnings;
   /// Largest singular value of each map's affine part.

@@ -7,8 +7,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
-#include "core/chaos_game.h"
-#include "core/vdb_io.h"
+#include "server/job_runner.h"
 #include "server/job_view.h"
 
 namespace nimbus::server {
@@ -34,6 +33,105 @@ class JobInterrupter : public Interrupter {
 };
 
 }  // namespace
+
+// The worker's side of a running job: progress to the hub and the store's
+// lease, previews on demand, warnings and stats for the final record.
+class WorkerPool::Context : public JobContext {
+ public:
+  Context(WorkerPool* pool, const JobRecord& record, const std::string& worker_id,
+          std::shared_ptr<std::atomic<bool>> cancel, const v1::JobSpec& spec)
+      : pool_(pool),
+        record_(record),
+        worker_id_(worker_id),
+        cancel_(std::move(cancel)),
+        interrupter_(cancel_.get(), &pool->shutdown_),
+        spec_hash_(spec::SpecHash(spec)),
+        view_(ToProto(record, false)),
+        start_(Clock::now()),
+        last_heartbeat_(start_) {}
+
+  const std::string& job_id() const override { return record_.id; }
+  int threads() const override { return pool_->threads_per_job_; }
+  Interrupter* interrupter() override { return &interrupter_; }
+
+  absl::Status ReportProgress(uint64_t done, uint64_t total) override {
+    const double elapsed = std::max(1e-6, Seconds(Clock::now() - start_));
+    const double rate = double(done) / elapsed;
+    auto* p = view_.mutable_progress();
+    p->set_done(done);
+    p->set_total(total);
+    p->set_rate(rate);
+    p->set_eta_seconds(rate > 0 && total > done ? double(total - done) / rate : 0);
+    view_.set_state(v1::JOB_STATE_RUNNING);
+    pool_->hub_->PublishJob(view_);
+    if (Clock::now() - last_heartbeat_ >= std::chrono::milliseconds(pool_->options_.heartbeat_ms)) {
+      last_heartbeat_ = Clock::now();
+      auto hb = pool_->store_->Heartbeat(record_.id, worker_id_, NowMs(), pool_->options_.lease_ms,
+                                         done, total);
+      if (!hb.ok()) {
+        spdlog::warn("job={} event=lost_claim reason=\"{}\"", record_.id, hb.status().ToString());
+        return absl::AbortedError("lost the job's claim");
+      }
+      if (*hb) *cancel_ = true;
+    }
+    return absl::OkStatus();
+  }
+
+  void MaybePublishPreview(const std::vector<const CountGrid*>& parts, const GridFrame& frame,
+                           const DensityOptions& density, uint64_t done) override {
+    for (const JobHub::PreviewWant& want : pool_->hub_->WantedPreviews(record_.id)) {
+      auto& last = last_preview_[want.resolution];
+      if (last != Clock::time_point{} &&
+          Seconds(Clock::now() - last) < std::max(0.05, want.interval_seconds))
+        continue;
+      last = Clock::now();
+      const int factor = DownsampleFactor(frame.resolution, int(want.resolution));
+      const CountGrid coarse = DownsampleCounts(parts, factor);
+      const GridFrame coarse_frame = DownsampleFrame(frame, factor);
+      auto bytes = DensityVdbBytes(coarse, coarse_frame, density, {});
+      if (!bytes.ok()) continue;
+      v1::Preview preview;
+      preview.set_sequence(++preview_sequence_);
+      preview.set_vdb(std::move(*bytes));
+      preview.add_resolution(coarse_frame.resolution.x);
+      preview.add_resolution(coarse_frame.resolution.y);
+      preview.add_resolution(coarse_frame.resolution.z);
+      preview.set_done(done);
+      pool_->hub_->PublishPreview(record_.id, want.resolution, std::move(preview));
+    }
+  }
+
+  void SetStat(const std::string& key, uint64_t value) override {
+    (*view_.mutable_stats())[key] = value;
+  }
+  void AddWarning(const std::string& warning) override { warnings_.push_back(warning); }
+  std::filesystem::path ResultScratchPath() override {
+    return pool_->results_->ScratchPath(record_.id);
+  }
+  Metadata BaseMetadata() const override {
+    return {{"nimbus_spec_hash", spec_hash_},
+            {"nimbus_version", std::string(NIMBUS_VERSION)},
+            {"nimbus_job_id", record_.id}};
+  }
+
+  const v1::Job& view() const { return view_; }
+  const std::vector<std::string>& warnings() const { return warnings_; }
+  bool cancelled() const { return *cancel_; }
+
+ private:
+  WorkerPool* pool_;
+  const JobRecord& record_;
+  std::string worker_id_;
+  std::shared_ptr<std::atomic<bool>> cancel_;
+  JobInterrupter interrupter_;
+  std::string spec_hash_;
+  v1::Job view_;
+  Clock::time_point start_;
+  Clock::time_point last_heartbeat_;
+  std::map<uint32_t, Clock::time_point> last_preview_;
+  uint64_t preview_sequence_ = 0;
+  std::vector<std::string> warnings_;
+};
 
 WorkerPool::WorkerPool(JobStore* store, ResultStore* results, JobHub* hub, WorkerOptions options)
     : store_(store), results_(results), hub_(hub), options_(std::move(options)) {
@@ -107,169 +205,77 @@ void WorkerPool::RunJob(const JobRecord& record, const std::string& worker_id) {
     running_[id] = cancel;
   }
   spdlog::info("job={} event=start attempt={} worker={}", id, record.attempts, worker_id);
-  v1::Job view = ToProto(record, /*with_spec=*/false);
-  hub_->PublishJob(view);
+
+  v1::JobSpec spec;
+  const bool parsed = spec.ParseFromString(record.spec);
+  Context ctx(this, record, worker_id, cancel, spec);
+  hub_->PublishJob(ctx.view());
+
+  absl::Status status;
+  if (!parsed) {
+    status = absl::DataLossError("the stored spec is unreadable");
+  } else if (auto job = spec::ConvertSpec(spec, options_.limits, threads_per_job_); !job.ok()) {
+    status = job.status();
+  } else {
+    status = RunGenerator(*job, ctx);
+  }
 
   Completion done;
   std::vector<std::string> warnings;
   if (!record.warnings.empty()) warnings.push_back(record.warnings);
-  bool released = false;
-
-  auto finish = [&](JobState state, std::string error) {
-    done.state = state;
-    done.error = std::move(error);
-  };
-
-  v1::JobSpec spec;
-  absl::StatusOr<spec::ConvertedJob> job = absl::InvalidArgumentError("stored spec is unreadable");
-  if (spec.ParseFromString(record.spec)) job = spec::ConvertSpec(spec, options_.limits, threads_per_job_);
-  if (!job.ok()) {
-    finish(JobState::kFailed, std::string(job.status().message()));
-  } else {
-    ChaosGameParams params = job->chaos_game;
-    auto game = ChaosGame::Create(std::move(params), threads_per_job_);
-    if (!game.ok()) {
-      finish(JobState::kFailed, std::string(game.status().message()));
+  warnings.insert(warnings.end(), ctx.warnings().begin(), ctx.warnings().end());
+  done.warnings = absl::StrJoin(warnings, "\n");
+  bool release = false;
+  if (absl::IsAborted(status)) {
+    // Another worker owns the job now: write nothing.
+  } else if (absl::IsCancelled(status)) {
+    if (shutdown_ && !ctx.cancelled()) {
+      release = true;
     } else {
-      JobInterrupter interrupter(cancel.get(), &shutdown_);
-      const uint64_t total = job->chaos_game.iterations;
-      const auto start = Clock::now();
-      auto last_heartbeat = start;
-      std::map<uint32_t, Clock::time_point> last_preview;
-      uint64_t preview_sequence = 0;
-      uint64_t step = ChaosGame::kChunkIterations * threads_per_job_;
-      absl::Status status;
-      while (!(*game)->done()) {
-        const uint64_t before = (*game)->stats().iterations_done;
-        const auto round_start = Clock::now();
-        status = (*game)->RunUntil(before + step, &interrupter);
-        if (!status.ok()) break;
-        const uint64_t now_done = (*game)->stats().iterations_done;
-        // Aim for rounds of ~0.2 s so progress and previews stay fresh.
-        const double round_s = std::max(1e-4, Seconds(Clock::now() - round_start));
-        step = std::clamp<uint64_t>(uint64_t(double(now_done - before) * 0.2 / round_s),
-                                    ChaosGame::kChunkIterations, total);
-        const double elapsed = std::max(1e-6, Seconds(Clock::now() - start));
-        const double rate = double(now_done) / elapsed;
-        auto* p = view.mutable_progress();
-        p->set_done(now_done);
-        p->set_total(total);
-        p->set_rate(rate);
-        p->set_eta_seconds(rate > 0 ? double(total - now_done) / rate : 0);
-        view.set_state(v1::JOB_STATE_RUNNING);
-        hub_->PublishJob(view);
-
-        for (const JobHub::PreviewWant& want : hub_->WantedPreviews(id)) {
-          auto& last = last_preview[want.resolution];
-          if (last != Clock::time_point{} &&
-              Seconds(Clock::now() - last) < std::max(0.05, want.interval_seconds))
-            continue;
-          last = Clock::now();
-          const int factor = DownsampleFactor(job->frame.resolution, int(want.resolution));
-          std::vector<const CountGrid*> parts;
-          for (const CountGrid& g : (*game)->partial_counts()) parts.push_back(&g);
-          const CountGrid coarse = DownsampleCounts(parts, factor);
-          const GridFrame frame = DownsampleFrame(job->frame, factor);
-          auto bytes = DensityVdbBytes(coarse, frame, job->density, {});
-          if (!bytes.ok()) continue;
-          v1::Preview preview;
-          preview.set_sequence(++preview_sequence);
-          preview.set_vdb(std::move(*bytes));
-          preview.add_resolution(frame.resolution.x);
-          preview.add_resolution(frame.resolution.y);
-          preview.add_resolution(frame.resolution.z);
-          preview.set_done(now_done);
-          hub_->PublishPreview(id, want.resolution, std::move(preview));
-        }
-
-        if (Clock::now() - last_heartbeat >= std::chrono::milliseconds(options_.heartbeat_ms)) {
-          last_heartbeat = Clock::now();
-          auto hb = store_->Heartbeat(id, worker_id, NowMs(), options_.lease_ms, now_done, total);
-          if (!hb.ok()) {
-            // Lost the claim (lease lapsed and someone else took it): stop.
-            spdlog::warn("job={} event=lost_claim reason=\"{}\"", id, hb.status().ToString());
-            status = absl::AbortedError("lost the job's claim");
-            break;
-          }
-          if (*hb) *cancel = true;
-        }
-      }
-      const ChaosGameStats stats = (*game)->stats();
-      (*view.mutable_stats())["outside"] = stats.outside;
-      (*view.mutable_stats())["reseeded"] = stats.reseeded;
-      if (stats.iterations_done > 0 && stats.reseeded * 1000 > stats.iterations_done)
-        warnings.push_back(absl::StrCat(
-            "high bad-point rate: ", stats.reseeded, " walkers re-seeded after non-finite points in ",
-            stats.iterations_done, " steps"));
-      if (stats.iterations_done > 0 && stats.outside * 2 > stats.iterations_done)
-        warnings.push_back(absl::StrCat(stats.outside, " of ", stats.iterations_done,
-                                        " points fell outside the grid bounds"));
-      if (absl::IsAborted(status)) {
-        hub_->Forget(id);
-        std::lock_guard<std::mutex> lock(mu_);
-        running_.erase(id);
-        return;  // another worker owns it now; write nothing
-      }
-      if (absl::IsCancelled(status)) {
-        if (shutdown_ && !*cancel) {
-          released = true;
-        } else {
-          finish(JobState::kCancelled, "cancelled by request");
-        }
-      } else if (!status.ok()) {
-        finish(JobState::kFailed, std::string(status.message()));
-      } else {
-        const CountGrid counts = (*game)->TakeCounts();
-        const Metadata meta = {
-            {"nimbus_seed", int64_t(job->chaos_game.seed)},
-            {"nimbus_iterations", int64_t(stats.iterations_done)},
-            {"nimbus_spec_hash", spec::SpecHash(spec)},
-            {"nimbus_version", std::string(NIMBUS_VERSION)},
-            {"nimbus_job_id", id},
-            {"nimbus_outside", int64_t(stats.outside)},
-            {"nimbus_reseeded", int64_t(stats.reseeded)},
-        };
-        const auto scratch = results_->ScratchPath(id);
-        auto st = WriteDensityVdb(scratch, counts, job->frame, job->density, meta);
-        if (!st.ok()) {
-          finish(JobState::kFailed, std::string(st.message()));
-        } else {
-          auto stored = results_->Commit(id, scratch);
-          if (!stored.ok()) {
-            finish(JobState::kFailed, std::string(stored.status().message()));
-          } else {
-            finish(JobState::kSucceeded, "");
-            done.result_key = stored->key;
-            done.result_size = stored->size;
-            done.result_sha256 = stored->sha256;
-          }
-        }
-      }
+      done.state = JobState::kCancelled;
+      done.error = "cancelled by request";
     }
+  } else if (!status.ok()) {
+    done.state = JobState::kFailed;
+    done.error = std::string(status.message());
+  } else if (auto stored = results_->Commit(id, ctx.ResultScratchPath()); !stored.ok()) {
+    done.state = JobState::kFailed;
+    done.error = std::string(stored.status().message());
+  } else {
+    done.state = JobState::kSucceeded;
+    done.result_key = stored->key;
+    done.result_size = stored->size;
+    done.result_sha256 = stored->sha256;
   }
 
-  if (released) {
+  if (absl::IsAborted(status)) {
+    spdlog::warn("job={} event=abandoned", id);
+  } else if (release) {
     auto st = store_->Release(id, worker_id);
     spdlog::info("job={} event=released status=\"{}\"", id, st.ToString());
   } else {
-    done.warnings = absl::StrJoin(warnings, "\n");
     auto st = store_->Complete(id, worker_id, done, NowMs());
     if (!st.ok()) spdlog::error("job={} event=complete_failed error=\"{}\"", id, st.ToString());
-    spdlog::info("job={} event=end state={} error=\"{}\"", id, v1::JobState_Name(ToProto(done.state)),
-                 done.error);
+    spdlog::info("job={} event=end state={} error=\"{}\"", id,
+                 v1::JobState_Name(ToProto(done.state)), done.error);
   }
-  auto final_record = store_->Get(id);
-  if (final_record.ok()) {
+  if (auto final_record = store_->Get(id); final_record.ok()) {
     v1::Job final_view = ToProto(*final_record, false);
-    *final_view.mutable_stats() = view.stats();
-    if (final_record->state == JobState::kSucceeded) {
-      final_view.mutable_progress()->set_rate(view.progress().rate());
-    }
+    *final_view.mutable_stats() = ctx.view().stats();
+    final_view.mutable_progress()->set_rate(ctx.view().progress().rate());
     hub_->PublishJob(final_view);
   }
   hub_->Forget(id);
   std::lock_guard<std::mutex> lock(mu_);
   running_.erase(id);
+}
+
+absl::Status WorkerPool::RunGenerator(const spec::ConvertedJob& job, JobContext& ctx) {
+  switch (job.generator) {
+    case spec::Generator::kChaosGame: return RunChaosGameJob(job, ctx);
+    case spec::Generator::kSetIfs: return RunSetIfsJob(job, ctx);
+  }
+  return absl::UnimplementedError("unknown generator");
 }
 
 }  // namespace nimbus::server

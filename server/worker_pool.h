@@ -13,6 +13,7 @@
 
 #include "proto/spec_convert.h"
 #include "server/job_hub.h"
+#include "server/job_runner.h"
 #include "server/job_store.h"
 #include "server/result_store.h"
 
@@ -45,8 +46,10 @@ class WorkerPool {
   int threads_per_job() const { return threads_per_job_; }
 
  private:
+  class Context;
   void Loop(int index);
   void RunJob(const JobRecord& job, const std::string& worker_id);
+  absl::Status RunGenerator(const spec::ConvertedJob& job, JobContext& ctx);
 
   JobStore* store_;
   ResultStore* results_;

@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# Installs the Debian packages Nimbus builds and runs with. Skips apt when
+# everything is already present, so repeated runs are fast.
+set -euo pipefail
+
+PACKAGES=(
+  build-essential cmake ninja-build pkg-config
+  libgrpc++-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
+  libopenvdb-dev libboost-iostreams-dev libtbb-dev libblosc-dev
+  libspdlog-dev libcli11-dev libsqlite3-dev libssl-dev libabsl-dev
+  libgtest-dev libgmock-dev libbenchmark-dev
+  python3-openvdb libopenvdb-tools
+)
+
+missing=()
+for p in "${PACKAGES[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -eq 0 ]; then
+  echo "install_deps: all ${#PACKAGES[@]} packages present"
+  exit 0
+fi
+echo "install_deps: installing ${missing[*]}"
+SUDO=""
+[ "$(id -u)" -ne 0 ] && SUDO="sudo"
+$SUDO apt-get update -qq
+DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
