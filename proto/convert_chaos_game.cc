@@ -103,8 +103,12 @@ absl::Status ConvertIfs(const v1::Ifs& ifs, const std::string& path, const Limit
 
 absl::Status ConvertChaosGame(const v1::ChaosGame& cg, const Limits& limits, int threads,
                               ConvertedJob& job) {
+  if (cg.has_matrices()) {
+    if (cg.has_ifs()) return Invalid("chaos_game", "set exactly one of ifs or matrices");
+    return ConvertMatrixChaosGame(cg, limits, threads, job);
+  }
   job.generator = Generator::kChaosGame;
-  if (!cg.has_ifs()) return Invalid("chaos_game.ifs", "required");
+  if (!cg.has_ifs()) return Invalid("chaos_game.ifs", "required (or give matrices)");
   if (auto st = ConvertIfs(cg.ifs(), "chaos_game.ifs", limits, job); !st.ok()) return st;
   if (cg.iterations() == 0) return Invalid("chaos_game.iterations", "must be > 0");
   if (cg.iterations() > limits.max_iterations)

@@ -26,6 +26,9 @@ absl::StatusOr<PointMap> ConvertMap(const v1::Map& m, const std::string& path);
 /// (job.frame) is already converted.
 absl::Status ConvertChaosGame(const v1::ChaosGame& cg, const Limits& limits, int threads,
                               ConvertedJob& job);
+/// chaos_game.matrices: called by ConvertChaosGame when matrices are set.
+absl::Status ConvertMatrixChaosGame(const v1::ChaosGame& cg, const Limits& limits, int threads,
+                                    ConvertedJob& job);
 absl::Status ConvertSetIfs(const v1::SetIfs& s, const Limits& limits, int threads,
                            ConvertedJob& job);
 

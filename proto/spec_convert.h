@@ -26,10 +26,12 @@ struct Limits {
 };
 
 /// Which generator a job runs; selects the runner in the server.
-enum class Generator { kChaosGame, kSetIfs };
+enum class Generator { kChaosGame, kSetIfs, kIfsMatrix };
 
 /// The set-IFS plan; defined in proto/convert_set_ifs.h.
 struct SetIfsPlan;
+/// The IFS-matrix plan; defined in proto/convert_matrix.h.
+struct IfsMatrixPlan;
 
 /// @brief A validated job, ready for the engine.
 struct ConvertedJob {
@@ -40,6 +42,8 @@ struct ConvertedJob {
   ChaosGameParams chaos_game;
   /// Set for Generator::kSetIfs.
   std::shared_ptr<const SetIfsPlan> set_ifs;
+  /// Set for Generator::kIfsMatrix (chaos_game.matrices).
+  std::shared_ptr<const IfsMatrixPlan> ifs_matrix;
   DensityOptions density;
   std::vector<std::string> warnings;
   /// Largest singular value of each map's affine part.

@@ -47,6 +47,8 @@ class JobContext {
 
 /// Runs a chaos-game job (plain or recurrent IFS) into ResultScratchPath().
 absl::Status RunChaosGameJob(const spec::ConvertedJob& job, JobContext& ctx);
+/// Runs a recurrent-IFS (IFS matrix) job into ResultScratchPath().
+absl::Status RunIfsMatrixJob(const spec::ConvertedJob& job, JobContext& ctx);
 /// Runs a set-IFS job (random iteration or book) into ResultScratchPath().
 absl::Status RunSetIfsJob(const spec::ConvertedJob& job, JobContext& ctx);
 

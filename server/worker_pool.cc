@@ -274,6 +274,7 @@ absl::Status WorkerPool::RunGenerator(const spec::ConvertedJob& job, JobContext&
   switch (job.generator) {
     case spec::Generator::kChaosGame: return RunChaosGameJob(job, ctx);
     case spec::Generator::kSetIfs: return RunSetIfsJob(job, ctx);
+    case spec::Generator::kIfsMatrix: return RunIfsMatrixJob(job, ctx);
   }
   return absl::UnimplementedError("unknown generator");
 }
