@@ -263,6 +263,9 @@ void WorkerPool::RunJob(const JobRecord& record, const std::string& worker_id) {
     v1::Job final_view = ToProto(*final_record, false);
     *final_view.mutable_stats() = ctx.view().stats();
     final_view.mutable_progress()->set_rate(ctx.view().progress().rate());
+    // The store holds progress as of the last heartbeat; a finished job did it all.
+    if (final_record->state == JobState::kSucceeded)
+      final_view.mutable_progress()->set_done(final_view.progress().total());
     hub_->PublishJob(final_view);
   }
   hub_->Forget(id);
