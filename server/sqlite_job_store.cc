@@ -654,8 +654,6 @@ absl::Status SqliteJobStore::Complete(const std::string& id, const std::string& 
         "UPDATE jobs SET state = ?1, end_time = ?2, error = ?3, result_key = ?4, "
         "result_size = ?5, result_sha256 = ?6, "
         "warnings = CASE WHEN ?7 = '' THEN warnings ELSE ?7 END, "
-        // A job that succeeded did all its work, whatever the last heartbeat said.
-        "progress_done = CASE WHEN ?1 = 3 THEN progress_total ELSE progress_done END, "
         "worker_id = '', lease_expiry = 0 WHERE id = ?8");
     if (!s.ok()) return s.status();
     s->Bind(1, completion.state).Bind(2, now).Bind(3, completion.error);

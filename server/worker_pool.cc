@@ -254,6 +254,11 @@ void WorkerPool::RunJob(const JobRecord& record, const std::string& worker_id) {
     auto st = store_->Release(id, worker_id);
     spdlog::info("job={} event=released status=\"{}\"", id, st.ToString());
   } else {
+    if (done.state == JobState::kSucceeded) {
+      // Record the finished progress; heartbeats only sample it.
+      const auto& p = ctx.view().progress();
+      (void)store_->Heartbeat(id, worker_id, NowMs(), options_.lease_ms, p.total(), p.total());
+    }
     auto st = store_->Complete(id, worker_id, done, NowMs());
     if (!st.ok()) spdlog::error("job={} event=complete_failed error=\"{}\"", id, st.ToString());
     spdlog::info("job={} event=end state={} error=\"{}\"", id,
@@ -263,9 +268,6 @@ void WorkerPool::RunJob(const JobRecord& record, const std::string& worker_id) {
     v1::Job final_view = ToProto(*final_record, false);
     *final_view.mutable_stats() = ctx.view().stats();
     final_view.mutable_progress()->set_rate(ctx.view().progress().rate());
-    // The store holds progress as of the last heartbeat; a finished job did it all.
-    if (final_record->state == JobState::kSucceeded)
-      final_view.mutable_progress()->set_done(final_view.progress().total());
     hub_->PublishJob(final_view);
   }
   hub_->Forget(id);
