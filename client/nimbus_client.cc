@@ -2,13 +2,16 @@
 
 #include <grpcpp/grpcpp.h>
 
+#include <algorithm>
 #include <chrono>
 #include <fstream>
+#include <map>
 #include <thread>
 
 #include "absl/strings/str_cat.h"
 #include "core/sha256.h"
 #include "nimbus/v1/nimbus_service.grpc.pb.h"
+#include "proto/convert_set_ifs.h"
 
 namespace nimbus::client {
 
@@ -131,7 +134,8 @@ absl::StatusOr<v1::Job> NimbusClient::Watch(
   }
 }
 
-absl::Status NimbusClient::Fetch(const std::string& job_id, const std::filesystem::path& path) {
+absl::Status NimbusClient::Fetch(const std::string& job_id, const std::filesystem::path& path,
+                                 const std::string& file_name) {
   const std::filesystem::path part = path.string() + ".part";
   std::error_code ec;
   uint64_t offset = std::filesystem::exists(part, ec) ? std::filesystem::file_size(part, ec) : 0;
@@ -145,6 +149,7 @@ absl::Status NimbusClient::Fetch(const std::string& job_id, const std::filesyste
     v1::FetchResultRequest req;
     req.set_job_id(job_id);
     req.set_offset(offset);
+    req.set_file_name(file_name);
     auto reader = impl_->stub->FetchResult(&ctx, req);
     v1::FetchResultResponse chunk;
     while (reader->Read(&chunk)) {
@@ -177,6 +182,68 @@ absl::Status NimbusClient::Fetch(const std::string& job_id, const std::filesyste
   std::filesystem::rename(part, path, ec);
   if (ec) return absl::InternalError(absl::StrCat("rename to ", path.string(), ": ", ec.message()));
   return absl::OkStatus();
+}
+
+absl::StatusOr<v1::UploadAssetResponse> NimbusClient::UploadBytes(const std::string& file_name,
+                                                                  const std::string& data,
+                                                                  const std::string& sha256,
+                                                                  uint64_t size) {
+  constexpr size_t kChunk = size_t{1} << 20;
+  grpc::ClientContext ctx;
+  ctx.set_wait_for_ready(true);
+  v1::UploadAssetResponse resp;
+  auto writer = impl_->stub->UploadAsset(&ctx, &resp);
+  v1::UploadAssetRequest req;
+  req.set_sha256(sha256);
+  req.set_size_bytes(size);
+  req.set_file_name(file_name);
+  size_t pos = 0;
+  do {
+    const size_t n = std::min(kChunk, data.size() - pos);
+    req.set_data(data.substr(pos, n));
+    pos += n;
+    // A failed write means the server already ended the call; Finish says why.
+    if (!writer->Write(req)) break;
+    req.Clear();
+  } while (pos < data.size());
+  writer->WritesDone();
+  if (auto s = writer->Finish(); !s.ok()) return FromGrpc(s);
+  return resp;
+}
+
+absl::StatusOr<std::string> NimbusClient::UploadFile(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return absl::NotFoundError(absl::StrCat(path.string(), ": cannot read the file"));
+  std::string data((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string sha = Sha256Hex(data);
+  auto resp = UploadBytes(path.filename().string(), data, sha, data.size());
+  if (!resp.ok())
+    return absl::Status(resp.status().code(),
+                        absl::StrCat("upload of ", path.string(), ": ", resp.status().message()));
+  return resp->sha256();
+}
+
+absl::Status NimbusClient::UploadSpecAssets(v1::JobSpec& spec,
+                                            const std::filesystem::path& base_dir) {
+  spec::ResolveAssetPaths(spec, base_dir);
+  absl::Status status;
+  // The same file named twice is uploaded once.
+  std::map<std::string, std::string> uploaded;
+  spec::ForEachAsset(spec, [&](const std::string& field, v1::Asset& asset) {
+    if (!status.ok() || asset.source_case() != v1::Asset::kPath) return;
+    auto it = uploaded.find(asset.path());
+    if (it == uploaded.end()) {
+      auto sha = UploadFile(asset.path());
+      if (!sha.ok()) {
+        status = absl::Status(sha.status().code(),
+                              absl::StrCat(field, ".path: ", sha.status().message()));
+        return;
+      }
+      it = uploaded.emplace(asset.path(), *sha).first;
+    }
+    asset.set_sha256(it->second);
+  });
+  return status;
 }
 
 }  // namespace nimbus::client

@@ -9,6 +9,7 @@
 
 #include "absl/status/statusor.h"
 #include "nimbus/v1/nimbus_service.pb.h"
+#include "nimbus/v1/spec.pb.h"
 
 namespace grpc {
 class Channel;
@@ -46,7 +47,22 @@ class NimbusClient {
   /// Downloads the result to `path`. An existing `path + ".part"` resumes
   /// from its size. The SHA-256 is verified before the file is renamed into
   /// place; a mismatch deletes the partial file and is DATA_LOSS.
-  absl::Status Fetch(const std::string& job_id, const std::filesystem::path& path);
+  /// `file_name` picks one of Job.result.files (a book page) instead of
+  /// the main file; a running job's listed files can already be fetched.
+  absl::Status Fetch(const std::string& job_id, const std::filesystem::path& path,
+                     const std::string& file_name = "");
+
+  /// Uploads a local mesh or grid file (docs/assets.md); returns its sha256.
+  absl::StatusOr<std::string> UploadFile(const std::filesystem::path& path);
+  /// Uploads `data` announcing `sha256` and `size` (normally the data's own:
+  /// tests announce others to see the server refuse). `file_name`'s
+  /// extension tells the server the format.
+  absl::StatusOr<v1::UploadAssetResponse> UploadBytes(const std::string& file_name,
+                                                      const std::string& data,
+                                                      const std::string& sha256, uint64_t size);
+  /// Uploads every asset the spec names by local path and replaces the
+  /// path by the sha256. Relative paths resolve against `base_dir`.
+  absl::Status UploadSpecAssets(v1::JobSpec& spec, const std::filesystem::path& base_dir);
 
   /// Waits until the server answers, up to `seconds`.
   absl::Status WaitForReady(double seconds);

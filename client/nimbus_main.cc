@@ -10,12 +10,15 @@
 #include <cstdlib>
 #include <fstream>
 #include <iostream>
+#include <functional>
+#include <set>
 #include <thread>
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_format.h"
 #include "client/nimbus_client.h"
+#include "proto/convert_set_ifs.h"
 #include "proto/spec_convert.h"
 #include "proto/spec_io.h"
 #include "server/server.h"
@@ -146,8 +149,9 @@ struct WatchArgs {
 };
 
 // Watches a job to its end, saving previews; returns its final view.
-absl::StatusOr<v1::Job> WatchJob(NimbusClient& client, const std::string& id, const WatchArgs& w,
-                                 bool quiet) {
+absl::StatusOr<v1::Job> WatchJob(
+    NimbusClient& client, const std::string& id, const WatchArgs& w, bool quiet,
+    const std::function<void(const v1::Job&)>& on_job = nullptr) {
   nimbus::client::WatchOptions o;
   if (!w.previews.empty()) {
     std::error_code ec;
@@ -160,6 +164,7 @@ absl::StatusOr<v1::Job> WatchJob(NimbusClient& client, const std::string& id, co
   int saved = 0;
   auto job = client.Watch(id, o, [&](const v1::WatchJobResponse& r) {
     if (!quiet) view.Update(r.job());
+    if (on_job) on_job(r.job());
     if (r.has_preview() && !w.previews.empty()) {
       const auto path = std::filesystem::path(w.previews) /
                         absl::StrFormat("%s.preview.%04d.vdb", r.job().name(), ++saved);
@@ -171,6 +176,42 @@ absl::StatusOr<v1::Job> WatchJob(NimbusClient& client, const std::string& id, co
     std::cerr << "saved " << saved << " previews in " << w.previews << "\n";
   return job;
 }
+
+// Downloads a job's further files (book pages) as they are listed, named
+// after the output: NAME.0007.vdb from the server becomes OUT.0007.vdb next
+// to -o, or in --frames.
+class FrameFetcher {
+ public:
+  FrameFetcher(NimbusClient& client, std::string job_id, std::filesystem::path folder,
+               std::string stem)
+      : client_(client), job_id_(std::move(job_id)), folder_(std::move(folder)),
+        stem_(std::move(stem)) {}
+
+  absl::Status FetchNew(const v1::Job& job) {
+    for (const v1::ResultFile& f : job.result().files()) {
+      if (done_.count(f.file_name())) continue;
+      const std::filesystem::path out = folder_ / LocalName(job.name(), f.file_name());
+      if (auto s = client_.Fetch(job_id_, out, f.file_name()); !s.ok()) return s;
+      done_.insert(f.file_name());
+      last_ = out;
+    }
+    return absl::OkStatus();
+  }
+  size_t count() const { return done_.size(); }
+  const std::filesystem::path& last() const { return last_; }
+
+ private:
+  std::string LocalName(const std::string& job_name, const std::string& file) const {
+    if (file.starts_with(job_name + ".")) return stem_ + file.substr(job_name.size());
+    return file;
+  }
+  NimbusClient& client_;
+  std::string job_id_;
+  std::filesystem::path folder_;
+  std::string stem_;
+  std::set<std::string> done_;
+  std::filesystem::path last_;
+};
 
 int Finished(const v1::Job& job) {
   for (const auto& w : job.warnings()) std::cerr << "warning: " << w << "\n";
@@ -210,6 +251,10 @@ int main(int argc, char** argv) {
   auto* render = app.add_subcommand("render", "submit a spec, show progress, fetch the .vdb");
   render->add_option("spec", spec_path, "spec file (.json or text format)")->required();
   render->add_option("-o,--output", out_path, "output .vdb path")->required();
+  std::string frames_dir;
+  render->add_option("--frames", frames_dir,
+                     "folder for further result files (book pages, OUT.0001.vdb ...); "
+                     "default: next to -o");
   add_watch_flags(render);
   auto* submit = app.add_subcommand("submit", "queue a spec and print the job id");
   submit->add_option("spec", spec_path, "spec file")->required();
@@ -219,6 +264,8 @@ int main(int argc, char** argv) {
   auto* fetch = app.add_subcommand("fetch", "download a finished job's .vdb");
   fetch->add_option("job", job_id)->required();
   fetch->add_option("-o,--output", out_path, "output .vdb path")->required();
+  std::string fetch_file;
+  fetch->add_option("--file", fetch_file, "one of the job's further files (e.g. NAME.0003.vdb)");
   auto* get = app.add_subcommand("get", "print a job as JSON");
   get->add_option("job", job_id)->required();
   auto* jobs = app.add_subcommand("jobs", "list jobs, newest first");
@@ -236,13 +283,31 @@ int main(int argc, char** argv) {
   if (validate->parsed()) {
     auto spec = nimbus::spec::LoadSpecFile(spec_path);
     if (!spec.ok()) return ExitFor(spec.status());
+    nimbus::spec::ResolveAssetPaths(*spec, std::filesystem::path(spec_path).parent_path());
     auto job = nimbus::spec::ConvertSpec(*spec, nimbus::spec::Limits{}, 2);
     if (!job.ok()) return ExitFor(job.status());
     const auto r = job->frame.resolution;
     std::cout << spec_path << ": ok\n"
               << "  name: " << job->name << "\n"
-              << "  grid: " << r.x << " x " << r.y << " x " << r.z << "\n"
-              << "  maps: " << job->chaos_game.ifs.maps.size() << "\n";
+              << "  grid: " << r.x << " x " << r.y << " x " << r.z << "\n";
+    if (job->set_ifs) {
+      const nimbus::spec::SetIfsPlan& p = *job->set_ifs;
+      static const char* kKinds[] = {"median", "rotated median", "constant", "point"};
+      std::cout << "  set maps: " << p.maps.size() << "\n";
+      for (size_t i = 0; i < p.maps.size(); ++i)
+        std::cout << absl::StrFormat("    [%s] p=%.4f %s\n", p.labels[i], p.probabilities[i],
+                                     kKinds[int(p.maps[i].kind)]);
+      if (p.book)
+        std::cout << "  book: depth " << p.depth << ", " << p.pages << " pages\n";
+      else
+        std::cout << "  set iterations: " << p.iterations << " after " << p.warmup
+                  << " warm-up\n";
+      std::cout << absl::StrFormat("  peak memory (estimate): %.1f MiB\n",
+                                   double(job->estimated_memory_bytes) / (1 << 20));
+      for (const auto& w : job->warnings) std::cout << "  warning: " << w << "\n";
+      return 0;
+    }
+    std::cout << "  maps: " << job->chaos_game.ifs.maps.size() << "\n";
     for (size_t i = 0; i < job->chaos_game.ifs.maps.size(); ++i)
       std::cout << absl::StrFormat("    [%d] p=%.4f contraction=%.4f %s\n", i,
                                    job->chaos_game.ifs.probabilities[i],
@@ -266,6 +331,13 @@ int main(int argc, char** argv) {
   if (!conn.ok()) return ExitFor(conn.status());
   NimbusClient& client = *conn->client;
 
+  // Local mesh and grid files named in the spec go to the server first.
+  if (render->parsed() || submit->parsed()) {
+    if (auto s = client.UploadSpecAssets(spec, std::filesystem::path(spec_path).parent_path());
+        !s.ok())
+      return ExitFor(s);
+  }
+
   if (render->parsed()) {
     auto job = client.Submit(spec);
     if (!job.ok()) return ExitFor(job.status());
@@ -279,15 +351,39 @@ int main(int argc, char** argv) {
         if (g_interrupted) (void)client.Cancel(id);
       }
     });
-    auto final_job = WatchJob(client, job->id(), watch_args, false);
+    const std::filesystem::path out(out_path);
+    if (out.has_parent_path()) {
+      std::error_code ec;
+      std::filesystem::create_directories(out.parent_path(), ec);
+    }
+    const std::filesystem::path folder =
+        frames_dir.empty() ? out.parent_path() : std::filesystem::path(frames_dir);
+    if (!frames_dir.empty()) {
+      std::error_code ec;
+      std::filesystem::create_directories(folder, ec);
+      if (ec) return ExitFor(absl::InvalidArgumentError(absl::StrCat("--frames ", frames_dir, ": ",
+                                                                     ec.message())));
+    }
+    // Book pages are downloaded while later ones are still being made. A
+    // failure here is retried from the final list (downloads resume).
+    FrameFetcher frames(client, job->id(), folder, out.stem().string());
+    auto final_job = WatchJob(client, job->id(), watch_args, false, [&](const v1::Job& j) {
+      if (j.state() == v1::JOB_STATE_RUNNING) (void)frames.FetchNew(j);
+    });
     g_interrupted = true;
     canceller.join();
     if (!final_job.ok()) return ExitFor(final_job.status());
     if (int rc = Finished(*final_job); rc != 0) return rc;
+    // The final list carries every file with its committed hash.
+    if (auto full = client.Get(job->id()); full.ok())
+      if (auto s = frames.FetchNew(*full); !s.ok()) return ExitFor(s);
     if (auto s = client.Fetch(job->id(), out_path); !s.ok()) return ExitFor(s);
     std::cerr << absl::StrFormat("wrote %s (%s bytes, sha256 %s)\n", out_path,
                                  Human(double(final_job->result().size_bytes())),
                                  final_job->result().sha256());
+    if (frames.count() > 0)
+      std::cerr << absl::StrFormat("wrote %d frames, the last %s\n", frames.count(),
+                                   frames.last().string());
     return 0;
   }
   if (submit->parsed()) {
@@ -306,7 +402,7 @@ int main(int argc, char** argv) {
     return Finished(*job);
   }
   if (fetch->parsed()) {
-    if (auto s = client.Fetch(job_id, out_path); !s.ok()) return ExitFor(s);
+    if (auto s = client.Fetch(job_id, out_path, fetch_file); !s.ok()) return ExitFor(s);
     std::cerr << "wrote " << out_path << "\n";
     return 0;
   }

@@ -41,6 +41,40 @@ struct MarkovChain {
 
 namespace nimbus {
 
+/// Where a walker's colour coordinate comes from (docs/chaos_game.md).
+enum class ColorMode {
+  kNone,     // no colour accumulated
+  kAddress,  // the point's address addr <- (i + addr) / N, blended
+  kMap,      // the colour index of the map just applied (flame-style), blended
+};
+
+/// @brief Per-walker colour: c <- (1 - blend) c + blend * new, where `new` is
+/// the address or the map's colour index. Each visit adds c (16-bit fixed
+/// point) to its voxel's colour sum; the output colour is the palette at the
+/// voxel's mean c.
+struct ColorParams {
+  ColorMode mode = ColorMode::kNone;
+  double blend = 0.05;  // weight of the new value, in (0, 1]
+};
+
+/// @brief Optional early stop: the runner compares normalised coarse
+/// densities at fixed checkpoints (every `check_every` plotted steps, whole
+/// chunks) and stops when their L1 distance is below `tolerance`. Fixed
+/// checkpoints keep the stopping point independent of threads and timing.
+struct ConvergenceParams {
+  double tolerance = 0;  // 0: off
+  uint64_t check_every = uint64_t{1} << 26;
+};
+
+/// L1 distance between the normalised densities of two count sets, each
+/// summed over its parts and downsampled to at most `max_resolution` per
+/// axis; in [0, 2]. Deterministic.
+double DensityChange(const std::vector<uint64_t>& a, const std::vector<uint64_t>& b);
+/// Coarse totals of `parts` for DensityChange: cells of at most
+/// `max_resolution` per axis, x slowest.
+std::vector<uint64_t> CoarseCounts(const std::vector<const CountGrid*>& parts,
+                                   int max_resolution);
+
 /// What to iterate and where to count it.
 struct ChaosGameParams {
   Ifs ifs;
@@ -53,13 +87,32 @@ struct ChaosGameParams {
   /// Unplotted steps each walker takes first, and again after a re-seed.
   uint32_t warmup = 100;
   uint64_t seed = 0;
+  ColorParams color;
+  ConvergenceParams convergence;
+  /// Trilinear splatting: each plotted point spreads over the 8 voxels
+  /// whose centres surround it, with per-axis weights quantised to quarters,
+  /// so counts are in units of 1/kSplatScale visit.
+  bool splat = false;
 };
+
+/// Count units per plotted point when splatting (4 x 4 x 4).
+inline constexpr uint32_t kSplatScale = 64;
 
 /// Counters a run reports; all exact and independent of the thread count.
 struct ChaosGameStats {
   uint64_t iterations_done = 0;  // plotted-or-outside steps finished
   uint64_t outside = 0;          // steps whose point fell outside the grid bounds
   uint64_t reseeded = 0;         // walkers restarted after a non-finite point
+  uint64_t final_nonfinite = 0;  // plotted points the final transform made non-finite
+};
+
+/// @brief Honest memory bounds of a chaos-game job, in bytes. Each plotted
+/// step touches one tile, so allocated tiles are bounded by both the grid
+/// and the number of iterations.
+struct ChaosGameMemory {
+  uint64_t accumulation = 0;  // all threads' counters and key buffers
+  uint64_t output = 0;        // merged counters plus the output VDB grids
+  uint64_t peak() const { return accumulation > output ? accumulation : output; }
 };
 
 /// @brief The chaos game, split into fixed chunks of work so that any number
@@ -98,13 +151,26 @@ class ChaosGame {
   /// spent afterwards.
   CountGrid TakeCounts();
 
-  /// Bytes this game may need at most: one full CountGrid per thread.
-  static uint64_t EstimateMemoryBytes(Int3 resolution, int threads);
+  /// Worst-case memory of a run of `params` on `threads` threads;
+  /// `output_bytes_per_voxel` is what the output grids add per active voxel.
+  static ChaosGameMemory EstimateMemory(const ChaosGameParams& params, int threads,
+                                        uint64_t output_bytes_per_voxel);
+  /// Keys buffered per thread before a binned flush: scaled with the tiles
+  /// the job can reach, capped by its budget.
+  static size_t KeyBatch(const ChaosGameParams& params);
+  /// Bytes currently held by the per-thread accumulators and buffers.
+  uint64_t MemoryBytes() const;
 
  private:
   ChaosGame(ChaosGameParams params, int threads);
   struct Worker;
   void RunChunk(uint64_t chunk, Worker& worker);
+  // The hot path for plain affine IFS without chain or final transform:
+  // same random stream and arithmetic as RunChunk, so the same counts, but
+  // with walkers and the key buffer in locals the compiler keeps in
+  // registers.
+  template <bool kColor>
+  void RunChunkAffine(uint64_t chunk, Worker& worker);
 
   ChaosGameParams params_;
   int threads_;

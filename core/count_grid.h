@@ -16,6 +16,10 @@ namespace nimbus {
 /// stays in cache. Inside a tile, 8^3 leaves are laid out in OpenVDB's
 /// LeafNode order so conversion to a VDB tree copies whole leaves.
 ///
+/// Optionally each voxel also carries a colour sum: the exact integer sum
+/// of the 16-bit fixed-point colour coordinates of its visits, so colour
+/// adds up order-independently (bitwise reproducible for any thread count).
+///
 /// Not thread-safe: each thread owns one CountGrid and they are merged.
 class CountGrid {
  public:
@@ -24,7 +28,16 @@ class CountGrid {
   static constexpr int kTileVoxels = kTileDim * kTileDim * kTileDim;
   static constexpr int kLeafDim = 8;
 
-  explicit CountGrid(Int3 resolution);
+  /// Colour coordinates are quantised to this many levels (16 bits).
+  static constexpr uint32_t kColorScale = 65535;
+  static constexpr int kColorShift = 48;
+  /// Keys may carry a weight (for trilinear splatting) in bits 40..45,
+  /// stored as weight - 1 so plain keys weigh 1.
+  static constexpr int kWeightShift = 40;
+  static constexpr uint32_t kMaxWeight = 64;
+  static constexpr uint64_t kVoxelMask = (uint64_t{1} << kWeightShift) - 1;
+
+  explicit CountGrid(Int3 resolution, bool with_color = false);
   CountGrid(CountGrid&&) noexcept;
   CountGrid& operator=(CountGrid&&) noexcept;
   ~CountGrid();
@@ -45,14 +58,36 @@ class CountGrid {
            uint32_t(((lx & 7) << 6) | ((ly & 7) << 3) | (lz & 7));
   }
 
-  /// Adds `n` visits to the voxel with this key.
-  void AddKey(uint64_t key, uint32_t n = 1) { TileFor(key >> 15)[key & 0x7fff] += n; }
+  /// A key with a quantised colour coordinate (0..kColorScale) attached.
+  static uint64_t WithColor(uint64_t key, uint32_t color16) {
+    return key | (uint64_t(color16) << kColorShift);
+  }
+  bool has_color() const { return with_color_; }
+  /// A key with a weight in 1..kMaxWeight attached.
+  static uint64_t WithWeight(uint64_t key, uint32_t weight) {
+    return key | (uint64_t(weight - 1) << kWeightShift);
+  }
+  static uint32_t WeightOf(uint64_t key) { return uint32_t((key >> kWeightShift) & 63) + 1; }
+
+  /// Adds `n` times the key's weight to the voxel with this key (and as
+  /// many times its colour).
+  void AddKey(uint64_t key, uint32_t n = 1) {
+    const uint64_t tile = (key & kVoxelMask) >> 15;
+    const uint32_t off = uint32_t(key & 0x7fff);
+    const uint32_t add = n * WeightOf(key);
+    TileFor(tile)[off] += add;
+    if (with_color_) color_[tile][off] += uint64_t(add) * (key >> kColorShift);
+  }
   void Add(int x, int y, int z, uint32_t n = 1) { AddKey(Key(x, y, z), n); }
   /// Adds a batch of keys. Keys are binned by tile first so each tile's
-  /// increments run in cache; `scratch` is reused between calls.
-  void AddKeys(const uint64_t* keys, size_t n, std::vector<uint64_t>& scratch);
+  /// increments run in cache; `scratch` is reused between calls. Pass
+  /// `weighted` if any key carries a weight or colour.
+  void AddKeys(const uint64_t* keys, size_t n, std::vector<uint64_t>& scratch,
+               bool weighted = true);
 
   uint32_t Get(int x, int y, int z) const;
+  /// Sum of the colour coordinates (units of 1/kColorScale); 0 without colour.
+  uint64_t GetColorSum(int x, int y, int z) const;
 
   /// Adds every counter of `other` (same resolution), saturating at 2^32-1.
   void Merge(const CountGrid& other);
@@ -63,6 +98,12 @@ class CountGrid {
   size_t MemoryBytes() const;
   /// Worst-case bytes for a grid of this resolution (every tile allocated).
   static uint64_t MaxMemoryBytes(Int3 resolution);
+  /// Bytes of one allocated tile (counts, plus colour sums if enabled).
+  static uint64_t TileBytes(bool with_color) {
+    return uint64_t(kTileVoxels) * (sizeof(uint32_t) + (with_color ? sizeof(uint64_t) : 0));
+  }
+  /// Bytes for a grid whose allocated tiles are bounded by `max_tiles`.
+  static uint64_t BoundedMemoryBytes(Int3 resolution, uint64_t max_tiles, bool with_color);
 
   /// Calls f(tile_origin, const uint32_t* tile) for every allocated tile,
   /// in tile-index order (deterministic).
@@ -70,6 +111,12 @@ class CountGrid {
   void ForEachTile(F&& f) const {
     for (size_t t = 0; t < table_.size(); ++t)
       if (table_[t]) f(TileOrigin(t), table_[t].get());
+  }
+  /// Same, with the tile's colour sums (nullptr without colour).
+  template <typename F>
+  void ForEachTileWithColor(F&& f) const {
+    for (size_t t = 0; t < table_.size(); ++t)
+      if (table_[t]) f(TileOrigin(t), table_[t].get(), with_color_ ? color_[t].get() : nullptr);
   }
   Int3 TileOrigin(size_t t) const {
     const int z = int(t % tiles_.z), y = int((t / tiles_.z) % tiles_.y),
@@ -93,7 +140,10 @@ class CountGrid {
 
   Int3 res_;
   Int3 tiles_;
+  bool with_color_ = false;
   std::vector<std::unique_ptr<uint32_t[]>> table_;
+  std::vector<std::unique_ptr<uint64_t[]>> color_;  // parallel to table_ when with_color_
+  std::vector<uint32_t> offsets_, cursor_;          // AddKeys binning, reused
   size_t allocated_ = 0;
 };
 

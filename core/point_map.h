@@ -1,6 +1,7 @@
 // Point maps and the point IFS they form.
 #pragma once
 
+#include <cmath>
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -46,7 +47,10 @@ class AliasTable {
   explicit AliasTable(const std::vector<double>& weights);
   uint32_t Sample(uint64_t r) const {
     const uint32_t i = static_cast<uint32_t>(((r >> 32) * n_) >> 32);
-    return (static_cast<uint32_t>(r) < threshold_[i]) ? i : alias_[i];
+    // Branch-free select: with unequal weights the comparison is a coin
+    // flip the branch predictor would miss half the time.
+    const uint32_t keep = 0u - static_cast<uint32_t>(static_cast<uint32_t>(r) < threshold_[i]);
+    return (i & keep) | (alias_[i] & ~keep);
   }
   size_t size() const { return n_; }
 
@@ -54,6 +58,25 @@ class AliasTable {
   uint64_t n_ = 0;
   std::vector<uint32_t> threshold_;  // scaled to 2^32
   std::vector<uint32_t> alias_;
+};
+
+/// @brief The seed's "arcs" final transform (ALGORITHMS.md section 5): a
+/// rotation about the z axis by theta = angle_per_unit * x + amplitude *
+/// sin(frequency * n), where x is the point's signed distance from the
+/// x = 0 plane and n the index of the plotted step. The sinusoidal term
+/// changes every step, which thickens the arcs that the x-proportional
+/// rotation draws. Angles are in radians.
+struct ArcsTransform {
+  double angle_per_unit = 0;  // radians per world unit of x
+  double amplitude = 0;       // radians
+  double frequency = 0;       // radians per step
+
+  Vec3 Apply(Vec3 p, uint64_t step) const {
+    const double theta =
+        angle_per_unit * p.x + amplitude * std::sin(frequency * static_cast<double>(step));
+    const double c = std::cos(theta), s = std::sin(theta);
+    return {c * p.x - s * p.y, s * p.x + c * p.y, p.z};
+  }
 };
 
 /// @brief A point IFS with probabilities.
@@ -64,6 +87,8 @@ struct Ifs {
   /// Optional final transform: applied to the plotted point only, outside the
   /// feedback loop (ALGORITHMS.md section 5).
   std::optional<PointMap> final_map;
+  /// Optional arcs rotation, applied to the plotted point after final_map.
+  std::optional<ArcsTransform> arcs;
 
   bool AllAffine() const;
 };

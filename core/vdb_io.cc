@@ -66,16 +66,37 @@ void AddMeta(openvdb::MetaMap& meta, const std::string& key, const MetaValue& v)
   if (auto* d = std::get_if<double>(&v)) meta.insertMeta(key, openvdb::DoubleMetadata(*d));
 }
 
-openvdb::FloatGrid::Ptr BuildDensityGrid(const CountGrid& counts, const GridFrame& frame,
-                                         const DensityOptions& options, const Metadata& metadata) {
-  auto grid = openvdb::FloatGrid::create(0.0f);
-  grid->setName(options.grid_name);
-  grid->setGridClass(openvdb::GRID_FOG_VOLUME);
+template <typename GridT>
+typename GridT::Ptr NewGrid(const std::string& name, const GridFrame& frame,
+                            openvdb::GridClass cls) {
+  auto grid = GridT::create();
+  grid->setName(name);
+  grid->setGridClass(cls);
   grid->setTransform(FrameTransform(frame));
+  return grid;
+}
+
+// The density grid plus the optional Cd / address / counts grids, all with
+// the same active voxels. Built leaf by leaf straight from the count tiles.
+openvdb::GridPtrVec BuildGrids(const CountGrid& counts, const GridFrame& frame,
+                               const DensityOptions& options, const Metadata& metadata) {
+  auto grid = NewGrid<openvdb::FloatGrid>(options.grid_name, frame, openvdb::GRID_FOG_VOLUME);
+  const bool color = options.color && counts.has_color();
+  const bool address = options.address_grid && counts.has_color();
+  openvdb::Vec3SGrid::Ptr cd;
+  openvdb::FloatGrid::Ptr addr, raw_f;
+  openvdb::Int64Grid::Ptr raw_i;
+  if (color) cd = NewGrid<openvdb::Vec3SGrid>("Cd", frame, openvdb::GRID_UNKNOWN);
+  if (address) addr = NewGrid<openvdb::FloatGrid>("address", frame, openvdb::GRID_UNKNOWN);
+  if (options.raw_counts == RawCounts::kFloat)
+    raw_f = NewGrid<openvdb::FloatGrid>("counts", frame, openvdb::GRID_UNKNOWN);
+  if (options.raw_counts == RawCounts::kInteger)
+    raw_i = NewGrid<openvdb::Int64Grid>("counts", frame, openvdb::GRID_UNKNOWN);
   const uint32_t max_count = counts.Max();
   const Normaliser norm(options, max_count);
   auto& tree = grid->tree();
-  counts.ForEachTile([&](Int3 origin, const uint32_t* tile) {
+  const double inv_scale = 1.0 / CountGrid::kColorScale;
+  counts.ForEachTileWithColor([&](Int3 origin, const uint32_t* tile, const uint64_t* csum) {
     for (int leaf = 0; leaf < 64; ++leaf) {
       const uint32_t* v = tile + leaf * 512;
       bool any = false;
@@ -86,6 +107,30 @@ openvdb::FloatGrid::Ptr BuildDensityGrid(const CountGrid& counts, const GridFram
       auto* node = tree.touchLeaf(c);
       for (int i = 0; i < 512; ++i)
         if (v[i]) node->setValueOn(i, norm(v[i]));
+      if (color || address) {
+        const uint64_t* cs = csum + leaf * 512;
+        auto* cd_node = color ? cd->tree().touchLeaf(c) : nullptr;
+        auto* a_node = address ? addr->tree().touchLeaf(c) : nullptr;
+        for (int i = 0; i < 512; ++i) {
+          if (!v[i]) continue;
+          const double t = double(cs[i]) * inv_scale / double(v[i]);
+          if (cd_node) {
+            const Vec3 rgb = options.palette.Eval(t);
+            cd_node->setValueOn(i, openvdb::Vec3s(float(rgb.x), float(rgb.y), float(rgb.z)));
+          }
+          if (a_node) a_node->setValueOn(i, float(t));
+        }
+      }
+      if (raw_f) {
+        auto* n = raw_f->tree().touchLeaf(c);
+        for (int i = 0; i < 512; ++i)
+          if (v[i]) n->setValueOn(i, float(v[i]));
+      }
+      if (raw_i) {
+        auto* n = raw_i->tree().touchLeaf(c);
+        for (int i = 0; i < 512; ++i)
+          if (v[i]) n->setValueOn(i, int64_t(v[i]));
+      }
     }
   });
   const Int3 r = frame.resolution;
@@ -96,9 +141,24 @@ openvdb::FloatGrid::Ptr BuildDensityGrid(const CountGrid& counts, const GridFram
   grid->insertMeta("nimbus_bounds_max",
                    openvdb::Vec3DMetadata(openvdb::Vec3d(b.max.x, b.max.y, b.max.z)));
   grid->insertMeta("nimbus_max_count", openvdb::Int64Metadata(int64_t(max_count)));
+  grid->insertMeta("nimbus_total_count", openvdb::Int64Metadata(int64_t(counts.Total())));
   grid->insertMeta("nimbus_density_mapping", openvdb::StringMetadata(MappingName(options.mapping)));
+  if (options.mapping == DensityMapping::kGamma)
+    grid->insertMeta("nimbus_density_gamma", openvdb::DoubleMetadata(options.gamma));
+  if (color)
+    grid->insertMeta("nimbus_palette",
+                     openvdb::StringMetadata(options.palette.is_sine() ? "sine" : "stops"));
   for (const auto& [k, v] : metadata) AddMeta(*grid, k, v);
-  return grid;
+  openvdb::GridPtrVec out{grid};
+  if (cd) out.push_back(cd);
+  if (addr) out.push_back(addr);
+  if (raw_f) out.push_back(raw_f);
+  if (raw_i) out.push_back(raw_i);
+  // Every grid carries the frame, so each reads back on its own.
+  for (size_t i = 1; i < out.size(); ++i)
+    for (const char* key : {"nimbus_resolution", "nimbus_bounds_min", "nimbus_bounds_max"})
+      out[i]->insertMeta(key, *grid->operator[](key));
+  return out;
 }
 
 absl::StatusOr<DenseVolume> ToDense(const openvdb::GridPtrVecPtr& grids, const std::string& name) {
@@ -155,7 +215,7 @@ absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid&
   InitOpenVdb();
   const std::filesystem::path tmp = path.string() + ".partial";
   try {
-    openvdb::GridPtrVec grids{BuildDensityGrid(counts, frame, options, metadata)};
+    openvdb::GridPtrVec grids = BuildGrids(counts, frame, options, metadata);
     openvdb::io::File file(tmp.string());
     file.setCompression(openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK);
     file.write(grids);
@@ -177,7 +237,7 @@ absl::StatusOr<std::string> DensityVdbBytes(const CountGrid& counts, const GridF
   InitOpenVdb();
   try {
     std::ostringstream os(std::ios_base::binary);
-    openvdb::GridPtrVec grids{BuildDensityGrid(counts, frame, options, metadata)};
+    openvdb::GridPtrVec grids = BuildGrids(counts, frame, options, metadata);
     openvdb::io::Stream stream(os);
     stream.setCompression(openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK);
     stream.write(grids);
@@ -209,6 +269,52 @@ absl::StatusOr<DenseVolume> ReadVdbBytes(const std::string& bytes, const std::st
     return ToDense(stream.getGrids(), name);
   } catch (const std::exception& e) {
     return absl::InvalidArgumentError(absl::StrCat("reading VDB bytes: ", e.what()));
+  }
+}
+
+uint64_t OutputBytesPerVoxel(const DensityOptions& o) {
+  uint64_t bytes = sizeof(float);
+  if (o.color) bytes += 3 * sizeof(float);
+  if (o.address_grid) bytes += sizeof(float);
+  if (o.raw_counts == RawCounts::kFloat) bytes += sizeof(float);
+  if (o.raw_counts == RawCounts::kInteger) bytes += sizeof(int64_t);
+  return bytes;
+}
+
+absl::StatusOr<DenseVec3Volume> ReadVec3VdbFile(const std::filesystem::path& path,
+                                                const std::string& name) {
+  InitOpenVdb();
+  try {
+    openvdb::io::File file(path.string());
+    file.open();
+    auto grids = file.getGrids();
+    file.close();
+    openvdb::Vec3SGrid::Ptr grid;
+    openvdb::GridBase::Ptr any;
+    for (const auto& g : *grids) {
+      if (g->getName() == name) grid = openvdb::gridPtrCast<openvdb::Vec3SGrid>(g);
+      if (!any && g->getMetadata<openvdb::Vec3IMetadata>("nimbus_resolution")) any = g;
+    }
+    if (!grid) return absl::NotFoundError(absl::StrCat("no Vec3f grid named '", name, "'"));
+    if (!any) return absl::InvalidArgumentError("no grid carries nimbus_resolution");
+    const openvdb::Vec3i r = any->getMetadata<openvdb::Vec3IMetadata>("nimbus_resolution")->value();
+    DenseVec3Volume out;
+    out.resolution = {r.x(), r.y(), r.z()};
+    const size_t n = size_t(r.x()) * r.y() * r.z();
+    out.values.assign(n, Vec3{});
+    out.active.assign(n, false);
+    for (auto it = grid->cbeginValueOn(); it; ++it) {
+      const openvdb::Coord c = it.getCoord();
+      if (c.x() < 0 || c.y() < 0 || c.z() < 0 || c.x() >= r.x() || c.y() >= r.y() ||
+          c.z() >= r.z())
+        return absl::DataLossError("active voxel outside the recorded resolution");
+      const size_t i = (size_t(c.x()) * r.y() + c.y()) * r.z() + c.z();
+      out.values[i] = {(*it).x(), (*it).y(), (*it).z()};
+      out.active[i] = true;
+    }
+    return out;
+  } catch (const std::exception& e) {
+    return absl::InvalidArgumentError(absl::StrCat("reading ", path.string(), ": ", e.what()));
   }
 }
 

@@ -12,6 +12,7 @@
 #include "absl/status/statusor.h"
 #include "core/count_grid.h"
 #include "core/geometry.h"
+#include "core/palette.h"
 
 namespace nimbus {
 
@@ -23,11 +24,29 @@ enum class DensityMapping {
   kGamma,   // (c / max)^(1 / gamma)
 };
 
+/// Unnormalised visit counts written next to the density, for compositing
+/// shards (sum the count grids, then map).
+enum class RawCounts {
+  kNone,
+  kFloat,    // FloatGrid "counts" (exact up to 2^24 per voxel)
+  kInteger,  // Int64Grid "counts" (exact uint32 counts)
+};
+
 struct DensityOptions {
   DensityMapping mapping = DensityMapping::kLinear;
   double gamma = 2.2;
   std::string grid_name = "density";
+  /// Write a Vec3f grid "Cd" = palette(mean colour coordinate) for counts
+  /// that carry colour sums.
+  bool color = false;
+  Palette palette;
+  /// Write a float grid "address" with the mean colour coordinate in [0, 1].
+  bool address_grid = false;
+  RawCounts raw_counts = RawCounts::kNone;
 };
+
+/// Bytes per active voxel the output grids of `options` take in memory.
+uint64_t OutputBytesPerVoxel(const DensityOptions& options);
 
 using MetaValue = std::variant<std::string, int64_t, double>;
 using Metadata = std::vector<std::pair<std::string, MetaValue>>;
@@ -36,7 +55,9 @@ using Metadata = std::vector<std::pair<std::string, MetaValue>>;
 /// maps voxels onto `frame.bounds`, Blosc-compressed, through a temporary
 /// file renamed into place so readers never see a partial file. The grid
 /// also records nimbus_resolution / nimbus_bounds_min / nimbus_bounds_max and
-/// the normalisation (nimbus_max_count, nimbus_density_mapping).
+/// the normalisation (nimbus_max_count, nimbus_total_count,
+/// nimbus_density_mapping, nimbus_density_gamma). Optional grids: "Cd",
+/// "address" and "counts" (see DensityOptions), on the same voxels.
 absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid& counts,
                              const GridFrame& frame, const DensityOptions& options,
                              const Metadata& metadata);
@@ -63,6 +84,19 @@ struct DenseVolume {
   }
   const MetaValue* Find(const std::string& key) const;
 };
+
+/// @brief A Vec3f grid read back densely (x slowest, z fastest).
+struct DenseVec3Volume {
+  Int3 resolution;
+  std::vector<Vec3> values;
+  std::vector<bool> active;
+  const Vec3& At(int x, int y, int z) const {
+    return values[(size_t(x) * resolution.y + y) * resolution.z + z];
+  }
+};
+/// Reads Vec3f grid `name` (e.g. "Cd"), using the density grid's frame.
+absl::StatusOr<DenseVec3Volume> ReadVec3VdbFile(const std::filesystem::path& path,
+                                                const std::string& name = "Cd");
 
 /// Reads grid `name` of a Nimbus VDB file (or stream bytes) into a DenseVolume.
 absl::StatusOr<DenseVolume> ReadVdbFile(const std::filesystem::path& path,

@@ -1,6 +1,7 @@
 #include "core/voxelize.h"
 
 #include <openvdb/openvdb.h>
+#include <openvdb/io/File.h>
 #include <openvdb/tools/MeshToVolume.h>
 #include <openvdb/util/NullInterrupter.h>
 
@@ -362,6 +363,92 @@ absl::StatusOr<VoxelizeResult> LoadAndVoxelize(const std::filesystem::path& path
     return absl::Status(r.status().code(), absl::StrCat(path.string(), ": ", r.status().message()));
   }
   return r;
+}
+
+absl::Status SaveMeshLevelSet(const TriangleMesh& mesh, const GridFrame& frame,
+                              const std::filesystem::path& path, const std::string& grid_name) {
+  if (absl::Status s = ValidateSetFrame(frame); !s.ok()) return s;
+  if (absl::Status s = ValidateMesh(mesh, "mesh"); !s.ok()) return s;
+  const std::vector<Vec3> pts = IndexSpacePoints(mesh, Affine3::Identity(), frame);
+  absl::StatusOr<openvdb::FloatGrid::Ptr> grid =
+      MeshToVdb(mesh, pts, frame, 3.0f, 0, OrNull(nullptr));
+  if (!grid.ok()) return grid.status();
+  try {
+    // meshToVolume already scales distances to world units.
+    (*grid)->setGridClass(openvdb::GRID_LEVEL_SET);
+    (*grid)->setName(grid_name);
+    openvdb::io::File file(path.string());
+    file.write({*grid});
+    file.close();
+  } catch (const std::exception& e) {
+    return absl::InternalError(absl::StrCat(path.string(), ": cannot write: ", e.what()));
+  }
+  return absl::OkStatus();
+}
+
+absl::StatusOr<VoxelSet> LoadGridSet(const std::filesystem::path& path, const GridFrame& frame,
+                                     const GridSetOptions& options, Interrupter* interrupter) {
+  if (absl::Status s = ValidateSetFrame(frame); !s.ok()) return s;
+  Interrupter& intr = OrNull(interrupter);
+  const std::string name = path.string();
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(path, ec))
+    return absl::NotFoundError(absl::StrCat(name, ": no such file"));
+  openvdb::FloatGrid::Ptr grid;
+  // Core never lets an exception out: OpenVDB's become statuses here.
+  try {
+    openvdb::initialize();
+    openvdb::io::File file(name);
+    file.open();
+    std::string chosen = options.grid_name;
+    if (chosen.empty()) {
+      openvdb::GridPtrVecPtr metas = file.readAllGridMetadata();
+      for (const openvdb::GridBase::Ptr& g : *metas)
+        if (g->isType<openvdb::FloatGrid>()) {
+          chosen = g->getName();
+          break;
+        }
+      if (chosen.empty()) {
+        file.close();
+        return absl::InvalidArgumentError(absl::StrCat(name, ": holds no float grid"));
+      }
+    } else if (!file.hasGrid(chosen)) {
+      file.close();
+      return absl::InvalidArgumentError(absl::StrCat(name, ": no grid named '", chosen, "'"));
+    }
+    grid = openvdb::gridPtrCast<openvdb::FloatGrid>(file.readGrid(chosen));
+    file.close();
+    if (!grid)
+      return absl::InvalidArgumentError(
+          absl::StrCat(name, ": grid '", chosen, "' is not a float grid"));
+  } catch (const std::exception& e) {
+    return absl::InvalidArgumentError(absl::StrCat(name, ": not a readable VDB file: ", e.what()));
+  }
+  const bool level_set = grid->getGridClass() == openvdb::GRID_LEVEL_SET;
+  const float threshold = float(options.threshold);
+  VoxelSet set(frame.resolution);
+  const Int3 r = frame.resolution;
+  intr.Start("sample grid");
+  auto acc = grid->getConstAccessor();
+  const openvdb::math::Transform& xform = grid->transform();
+  for (int z = 0; z < r.z; ++z) {
+    if (intr.WasInterrupted(uint64_t(z), uint64_t(r.z))) {
+      intr.End();
+      return absl::CancelledError("grid sampling interrupted");
+    }
+    for (int y = 0; y < r.y; ++y)
+      for (int x = 0; x < r.x; ++x) {
+        const Vec3 c = frame.VoxelCenter({x, y, z});
+        const openvdb::Coord ijk = xform.worldToIndexCellCentered(openvdb::Vec3d(c.x, c.y, c.z));
+        const float v = acc.getValue(ijk);
+        if (level_set ? v < 0.0f : v > threshold) set.Set(x, y, z);
+      }
+  }
+  intr.End();
+  if (set.Empty())
+    return absl::InvalidArgumentError(
+        absl::StrCat(name, ": the grid has no inside voxels within the job's grid bounds"));
+  return set;
 }
 
 }  // namespace nimbus

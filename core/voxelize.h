@@ -5,6 +5,7 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <string>
 
 #include "absl/status/statusor.h"
 #include "core/geometry.h"
@@ -85,5 +86,28 @@ absl::StatusOr<VoxelizeResult> LoadAndVoxelize(const std::filesystem::path& path
                                                const GridFrame& frame,
                                                const VoxelizeOptions& options = {},
                                                Interrupter* interrupter = nullptr);
+
+/// Writes a watertight mesh's signed distance on `frame` (narrow band of 3
+/// voxels, grid class "level set", name `grid_name`) as a .vdb file: how a
+/// sketch becomes a grid asset, and the round trip LoadGridSet reads back.
+absl::Status SaveMeshLevelSet(const TriangleMesh& mesh, const GridFrame& frame,
+                              const std::filesystem::path& path,
+                              const std::string& grid_name = "surface");
+
+struct GridSetOptions {
+  /// Grid to read; empty: the first float grid of the file.
+  std::string grid_name;
+  /// Fog volumes: voxels whose density exceeds this are inside.
+  double threshold = 0.5;
+};
+
+/// @brief A .vdb file's float grid as a set on `frame`: each voxel centre
+/// is looked up in world space (nearest grid voxel). Level sets (grid class
+/// "level set") are inside where the value is negative, other grids where
+/// it exceeds the threshold. Errors name the file; an empty result is
+/// INVALID_ARGUMENT (the grid misses the frame).
+absl::StatusOr<VoxelSet> LoadGridSet(const std::filesystem::path& path, const GridFrame& frame,
+                                     const GridSetOptions& options = {},
+                                     Interrupter* interrupter = nullptr);
 
 }  // namespace nimbus

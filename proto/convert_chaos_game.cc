@@ -101,6 +101,57 @@ absl::Status ConvertIfs(const v1::Ifs& ifs, const std::string& path, const Limit
 }
 
 
+namespace {
+
+absl::Status ConvertFinal(const v1::Ifs& ifs, const std::string& path, Ifs& out) {
+  if (ifs.has_final()) {
+    auto m = ConvertMap(ifs.final(), path + ".final");
+    if (!m.ok()) return m.status();
+    out.final_map = std::move(*m);
+  }
+  if (ifs.has_arcs()) {
+    const v1::Arcs& a = ifs.arcs();
+    for (auto [v, name] : {std::pair{a.angle_per_unit(), "angle_per_unit"},
+                           std::pair{a.amplitude(), "amplitude"},
+                           std::pair{a.frequency(), "frequency"}})
+      if (!std::isfinite(v)) return Invalid(StrCat(path, ".arcs.", name), "must be finite");
+    out.arcs = ArcsTransform{a.angle_per_unit(), a.amplitude(), a.frequency()};
+  }
+  return absl::OkStatus();
+}
+
+absl::Status ConvertColor(const v1::ChaosGame& cg, ConvertedJob& job) {
+  if (!cg.has_color()) return absl::OkStatus();
+  const v1::ChaosColor& c = cg.color();
+  const std::string path = "chaos_game.color";
+  ColorParams& p = job.chaos_game.color;
+  switch (c.mode()) {
+    case v1::COLOR_MODE_UNSPECIFIED:
+    case v1::COLOR_MODE_ADDRESS: p.mode = ColorMode::kAddress; break;
+    case v1::COLOR_MODE_MAP: p.mode = ColorMode::kMap; break;
+    default: return Invalid(path + ".mode", "unknown value");
+  }
+  if (!(c.blend() >= 0 && c.blend() <= 1)) return Invalid(path + ".blend", "must be in (0, 1]");
+  p.blend = c.blend() == 0 ? 0.05 : c.blend();
+  std::vector<PaletteStop> stops;
+  for (int i = 0; i < c.palette().stops_size(); ++i) {
+    const v1::PaletteStop& s = c.palette().stops(i);
+    const std::string spath = StrCat(path, ".palette.stops[", i, "]");
+    if (!(s.position() >= 0 && s.position() <= 1))
+      return Invalid(spath + ".position", "must be in [0, 1]");
+    if (i > 0 && !(s.position() >= stops.back().position))
+      return Invalid(spath + ".position", "stops must be in increasing order");
+    if (!Finite(s.rgb())) return Invalid(spath + ".rgb", "must be finite");
+    stops.push_back({s.position(), ToVec3(s.rgb())});
+  }
+  job.density.color = true;
+  job.density.palette = stops.empty() ? Palette() : Palette(std::move(stops));
+  job.density.address_grid = c.address_grid();
+  return absl::OkStatus();
+}
+
+}  // namespace
+
 absl::Status ConvertChaosGame(const v1::ChaosGame& cg, const Limits& limits, int threads,
                               ConvertedJob& job) {
   if (cg.has_matrices()) {
@@ -119,8 +170,38 @@ absl::Status ConvertChaosGame(const v1::ChaosGame& cg, const Limits& limits, int
   job.chaos_game.iterations = cg.iterations();
   job.chaos_game.warmup = cg.warmup() == 0 ? 100 : cg.warmup();
   job.chaos_game.seed = cg.seed();
+  if (auto st = ConvertFinal(cg.ifs(), "chaos_game.ifs", job.chaos_game.ifs); !st.ok()) return st;
+  if (auto st = ConvertColor(cg, job); !st.ok()) return st;
+  switch (cg.raw_counts()) {
+    case v1::RAW_COUNTS_NONE: job.density.raw_counts = RawCounts::kNone; break;
+    case v1::RAW_COUNTS_FLOAT: job.density.raw_counts = RawCounts::kFloat; break;
+    case v1::RAW_COUNTS_UINT32: job.density.raw_counts = RawCounts::kInteger; break;
+    default: return Invalid("chaos_game.raw_counts", "unknown value");
+  }
+  if (cg.has_convergence()) {
+    const v1::Convergence& c = cg.convergence();
+    if (!(c.tolerance() > 0 && c.tolerance() <= 2))
+      return Invalid("chaos_game.convergence.tolerance", "must be in (0, 2]");
+    job.chaos_game.convergence.tolerance = c.tolerance();
+    if (c.check_every() > 0) {
+      const uint64_t chunk = ChaosGame::kChunkIterations;
+      job.chaos_game.convergence.check_every = (c.check_every() + chunk - 1) / chunk * chunk;
+    }
+  }
+  job.chaos_game.splat = cg.splat();
   job.total_work = cg.iterations();
-  job.estimated_memory_bytes = ChaosGame::EstimateMemoryBytes(job.frame.resolution, threads);
+  // The honest worst case: sparse tiles bounded by the grid and by the
+  // iterations (docs/chaos_game.md). Checked here, before anything is
+  // allocated, so an oversized job never starts.
+  const ChaosGameMemory mem =
+      ChaosGame::EstimateMemory(job.chaos_game, threads, OutputBytesPerVoxel(job.density));
+  job.estimated_memory_bytes = mem.peak();
+  if (mem.peak() > limits.max_memory_bytes)
+    return absl::ResourceExhaustedError(
+        StrCat("grid.resolution: the chaos game needs up to ", GiB(mem.peak()),
+               " of memory (", GiB(mem.accumulation), " to accumulate on ", threads,
+               " threads, ", GiB(mem.output), " to write); the server limit is ",
+               GiB(limits.max_memory_bytes)));
   return absl::OkStatus();
 }
 

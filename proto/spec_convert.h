@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cstdint>
+#include <filesystem>
 #include <memory>
 #include <string>
 #include <vector>
@@ -23,6 +24,11 @@ struct Limits {
   uint64_t max_memory_bytes = uint64_t{16} << 30;
   uint64_t max_iterations = uint64_t{1} << 40;
   int32_t max_maps = 4096;
+  /// Uploaded assets (meshes, grids) by sha256; see docs/assets.md.
+  std::filesystem::path asset_dir;
+  /// Accept assets given by local path. Only in-process servers do: a
+  /// network server must not read its host's files on a client's word.
+  bool allow_local_paths = true;
 };
 
 /// Which generator a job runs; selects the runner in the server.

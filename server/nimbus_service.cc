@@ -34,13 +34,31 @@ bool IsTerminal(v1::JobState s) {
   return s == v1::JOB_STATE_SUCCEEDED || s == v1::JOB_STATE_FAILED || s == v1::JOB_STATE_CANCELLED;
 }
 
+// Adds the result's further files (book pages) to a job view: the committed
+// list once it succeeded, the pages finished so far while it runs.
+void AddResultFiles(ResultStore* results, v1::Job& job) {
+  const bool running = job.state() == v1::JOB_STATE_RUNNING;
+  if (!running && job.state() != v1::JOB_STATE_SUCCEEDED) return;
+  std::vector<StoredFile> files = results->ListFiles(job.id(), running);
+  if (files.empty()) return;
+  v1::ResultInfo* r = job.mutable_result();
+  r->clear_files();
+  for (const StoredFile& f : files) {
+    v1::ResultFile* out = r->add_files();
+    out->set_file_name(f.name);
+    out->set_size_bytes(f.size);
+    out->set_sha256(f.sha256);
+  }
+}
+
 // Streams job snapshots to one watcher. Holds only the newest snapshot, so a
 // slow client skips intermediate states instead of queueing them.
 class WatchReactor : public grpc::ServerWriteReactor<v1::WatchJobResponse> {
  public:
-  WatchReactor(JobHub* hub, JobStore* store, const v1::WatchJobRequest& req,
-               const v1::Job& initial)
+  WatchReactor(JobHub* hub, JobStore* store, ResultStore* results,
+               const v1::WatchJobRequest& req, const v1::Job& initial)
       : hub_(hub),
+        results_(results),
         job_id_(req.job_id()),
         interval_(req.preview_interval_seconds() > 0 ? req.preview_interval_seconds() : 1.0) {
     latest_.job = std::make_shared<v1::Job>(initial);
@@ -112,6 +130,7 @@ class WatchReactor : public grpc::ServerWriteReactor<v1::WatchJobResponse> {
     if (!job_changed && !send_preview) return;
     resp_.Clear();
     *resp_.mutable_job() = job;
+    AddResultFiles(results_, *resp_.mutable_job());
     if (send_preview) {
       *resp_.mutable_preview() = *latest_.preview;
       sent_preview_seq_ = latest_.preview->sequence();
@@ -132,6 +151,7 @@ class WatchReactor : public grpc::ServerWriteReactor<v1::WatchJobResponse> {
   }
 
   JobHub* hub_;
+  ResultStore* results_;
   std::string job_id_;
   double interval_;
   uint64_t subscription_ = 0;
@@ -152,9 +172,16 @@ class WatchReactor : public grpc::ServerWriteReactor<v1::WatchJobResponse> {
 // Streams a result file in chunks from the requested offset.
 class FetchReactor : public grpc::ServerWriteReactor<v1::FetchResultResponse> {
  public:
-  FetchReactor(ResultStore* results, std::string key, uint64_t offset, uint64_t size,
-               std::string sha256)
-      : results_(results), key_(std::move(key)), offset_(offset), size_(size) {
+  // `file_name` empty: the main file; otherwise one of the further files,
+  // read from the running job's folder when `running`.
+  FetchReactor(ResultStore* results, std::string key, std::string file_name, bool running,
+               uint64_t offset, uint64_t size, std::string sha256)
+      : results_(results),
+        key_(std::move(key)),
+        file_name_(std::move(file_name)),
+        running_(running),
+        offset_(offset),
+        size_(size) {
     resp_.set_total_size(size_);
     resp_.set_sha256(std::move(sha256));
     Next();
@@ -169,7 +196,9 @@ class FetchReactor : public grpc::ServerWriteReactor<v1::FetchResultResponse> {
  private:
   void Next() {
     if (offset_ >= size_ && sent_any_) return Finish(grpc::Status::OK);
-    auto data = results_->Read(key_, offset_, kFetchChunk);
+    auto data = file_name_.empty()
+                    ? results_->Read(key_, offset_, kFetchChunk)
+                    : results_->ReadFile(key_, file_name_, running_, offset_, kFetchChunk);
     if (!data.ok()) return Finish(ToGrpc(data.status()));
     resp_.set_offset(offset_);
     offset_ += data->size();
@@ -180,6 +209,8 @@ class FetchReactor : public grpc::ServerWriteReactor<v1::FetchResultResponse> {
 
   ResultStore* results_;
   std::string key_;
+  std::string file_name_;
+  bool running_;
   uint64_t offset_;
   uint64_t size_;
   bool sent_any_ = false;
@@ -193,9 +224,14 @@ grpc::Status ToGrpc(const absl::Status& s) {
   return grpc::Status(static_cast<grpc::StatusCode>(s.code()), std::string(s.message()));
 }
 
-NimbusServiceImpl::NimbusServiceImpl(JobStore* store, ResultStore* results, JobHub* hub,
-                                     WorkerPool* pool, spec::Limits limits)
-    : store_(store), results_(results), hub_(hub), pool_(pool), limits_(limits) {}
+NimbusServiceImpl::NimbusServiceImpl(JobStore* store, ResultStore* results, AssetStore* assets,
+                                     JobHub* hub, WorkerPool* pool, spec::Limits limits)
+    : store_(store),
+      results_(results),
+      assets_(assets),
+      hub_(hub),
+      pool_(pool),
+      limits_(std::move(limits)) {}
 
 grpc::ServerUnaryReactor* NimbusServiceImpl::SubmitJob(grpc::CallbackServerContext* ctx,
                                                        const v1::SubmitJobRequest* req,
@@ -232,6 +268,7 @@ grpc::ServerUnaryReactor* NimbusServiceImpl::GetJob(grpc::CallbackServerContext*
     *resp->mutable_job()->mutable_progress() = live->progress();
     *resp->mutable_job()->mutable_stats() = live->stats();
   }
+  AddResultFiles(results_, *resp->mutable_job());
   return Done(ctx, grpc::Status::OK);
 }
 
@@ -275,7 +312,7 @@ grpc::ServerWriteReactor<v1::WatchJobResponse>* NimbusServiceImpl::WatchJob(
   v1::Job initial = ToProto(*rec, false);
   if (auto live = hub_->Latest(req->job_id()); live && live->state() == initial.state())
     initial = *live;
-  return new WatchReactor(hub_, store_, *req, initial);
+  return new WatchReactor(hub_, store_, results_, *req, initial);
 }
 
 grpc::ServerWriteReactor<v1::FetchResultResponse>* NimbusServiceImpl::FetchResult(
@@ -286,17 +323,105 @@ grpc::ServerWriteReactor<v1::FetchResultResponse>* NimbusServiceImpl::FetchResul
   };
   auto rec = store_->Get(req->job_id());
   if (!rec.ok()) return new Fail(ToGrpc(rec.status()));
-  if (rec->state != JobState::kSucceeded)
+  // Further files (book pages) of a running job can be fetched as soon as
+  // they are listed; everything else waits for success.
+  const bool running = rec->state == JobState::kRunning;
+  if (rec->state != JobState::kSucceeded && !(running && !req->file_name().empty()))
     return new Fail(grpc::Status(
         grpc::StatusCode::FAILED_PRECONDITION,
         absl::StrCat("job ", rec->id, " is ", v1::JobState_Name(ToProto(rec->state)),
                      "; results exist only for JOB_STATE_SUCCEEDED")));
-  if (req->offset() > rec->result_size)
+  uint64_t size = rec->result_size;
+  std::string sha256 = rec->result_sha256;
+  if (!req->file_name().empty()) {
+    bool found = false;
+    for (const StoredFile& f : results_->ListFiles(rec->id, running))
+      if (f.name == req->file_name()) {
+        size = f.size;
+        sha256 = f.sha256;
+        found = true;
+      }
+    if (!found)
+      return new Fail(grpc::Status(grpc::StatusCode::NOT_FOUND,
+                                   absl::StrCat("job ", rec->id, " has no result file '",
+                                                req->file_name(), "'")));
+  }
+  if (req->offset() > size)
     return new Fail(grpc::Status(grpc::StatusCode::OUT_OF_RANGE,
                                  absl::StrCat("offset ", req->offset(), " is past the end (",
-                                              rec->result_size, " bytes)")));
-  return new FetchReactor(results_, rec->result_key, req->offset(), rec->result_size,
-                          rec->result_sha256);
+                                              size, " bytes)")));
+  // Committed further files live under the job id (the result key).
+  return new FetchReactor(results_, req->file_name().empty() ? rec->result_key : rec->id,
+                          req->file_name(), running, req->offset(), size, sha256);
+}
+
+namespace {
+
+// Receives one asset upload. The first message announces hash, size and
+// name; bytes are hashed while they arrive and the file is stored only when
+// both match at the end of the stream.
+class UploadReactor : public grpc::ServerReadReactor<v1::UploadAssetRequest> {
+ public:
+  UploadReactor(AssetStore* assets, v1::UploadAssetResponse* resp) : assets_(assets), resp_(resp) {
+    StartRead(&req_);
+  }
+
+  void OnReadDone(bool ok) override {
+    if (!ok) {
+      // The client closed its side: the upload is complete or truncated.
+      if (!upload_) return Finish(grpc::Status(grpc::StatusCode::INVALID_ARGUMENT,
+                                               "empty upload: the first message must name "
+                                               "sha256, size_bytes and file_name"));
+      auto info = upload_->Finish();
+      if (!info.ok()) {
+        spdlog::warn("event=upload_rejected sha256={} reason=\"{}\"", sha256_,
+                     std::string(info.status().message()));
+        return Finish(ToGrpc(info.status()));
+      }
+      resp_->set_sha256(info->sha256);
+      resp_->set_size_bytes(info->size);
+      resp_->set_already_present(info->already_present);
+      spdlog::info("event=asset_stored sha256={} size={} new={}", info->sha256, info->size,
+                   !info->already_present);
+      return Finish(grpc::Status::OK);
+    }
+    if (!upload_) {
+      sha256_ = req_.sha256();
+      auto u = assets_->Begin(req_.sha256(), req_.size_bytes(), req_.file_name());
+      if (!u.ok()) return Finish(ToGrpc(u.status()));
+      upload_ = std::move(*u);
+    } else if (!req_.sha256().empty() && req_.sha256() != sha256_) {
+      return Finish(grpc::Status(grpc::StatusCode::INVALID_ARGUMENT,
+                                 "sha256 changed in the middle of an upload"));
+    }
+    if (auto st = upload_->Append(req_.data()); !st.ok()) return Finish(ToGrpc(st));
+    req_.Clear();
+    StartRead(&req_);
+  }
+
+  void OnCancel() override {}
+  void OnDone() override { delete this; }
+
+ private:
+  AssetStore* assets_;
+  v1::UploadAssetResponse* resp_;
+  v1::UploadAssetRequest req_;
+  std::string sha256_;
+  std::unique_ptr<AssetStore::Upload> upload_;
+};
+
+}  // namespace
+
+grpc::ServerReadReactor<v1::UploadAssetRequest>* NimbusServiceImpl::UploadAsset(
+    grpc::CallbackServerContext* ctx, v1::UploadAssetResponse* resp) {
+  if (!assets_) {
+    struct Fail : grpc::ServerReadReactor<v1::UploadAssetRequest> {
+      Fail() { Finish(grpc::Status(grpc::StatusCode::UNIMPLEMENTED, "no asset store")); }
+      void OnDone() override { delete this; }
+    };
+    return new Fail();
+  }
+  return new UploadReactor(assets_, resp);
 }
 
 }  // namespace nimbus::server

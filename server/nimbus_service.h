@@ -4,6 +4,7 @@
 
 #include "nimbus/v1/nimbus_service.grpc.pb.h"
 #include "proto/spec_convert.h"
+#include "server/asset_store.h"
 #include "server/job_hub.h"
 #include "server/job_store.h"
 #include "server/result_store.h"
@@ -13,8 +14,8 @@ namespace nimbus::server {
 
 class NimbusServiceImpl final : public v1::NimbusService::CallbackService {
  public:
-  NimbusServiceImpl(JobStore* store, ResultStore* results, JobHub* hub, WorkerPool* pool,
-                    spec::Limits limits);
+  NimbusServiceImpl(JobStore* store, ResultStore* results, AssetStore* assets, JobHub* hub,
+                    WorkerPool* pool, spec::Limits limits);
 
   grpc::ServerUnaryReactor* SubmitJob(grpc::CallbackServerContext* ctx,
                                       const v1::SubmitJobRequest* req,
@@ -31,10 +32,13 @@ class NimbusServiceImpl final : public v1::NimbusService::CallbackService {
       grpc::CallbackServerContext* ctx, const v1::WatchJobRequest* req) override;
   grpc::ServerWriteReactor<v1::FetchResultResponse>* FetchResult(
       grpc::CallbackServerContext* ctx, const v1::FetchResultRequest* req) override;
+  grpc::ServerReadReactor<v1::UploadAssetRequest>* UploadAsset(
+      grpc::CallbackServerContext* ctx, v1::UploadAssetResponse* resp) override;
 
  private:
   JobStore* store_;
   ResultStore* results_;
+  AssetStore* assets_;
   JobHub* hub_;
   WorkerPool* pool_;
   spec::Limits limits_;

@@ -7,6 +7,7 @@
 #include <unistd.h>
 
 #include "absl/strings/str_cat.h"
+#include "server/asset_store.h"
 #include "server/job_hub.h"
 #include "server/job_store.h"
 #include "server/nimbus_service.h"
@@ -18,6 +19,7 @@ namespace nimbus::server {
 struct NimbusServer::Impl {
   std::unique_ptr<JobStore> store;
   std::unique_ptr<ResultStore> results;
+  std::unique_ptr<AssetStore> assets;
   JobHub hub;
   std::unique_ptr<WorkerPool> pool;
   std::unique_ptr<NimbusServiceImpl> service;
@@ -44,6 +46,14 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
   auto results = OpenLocalResultStore(options.data_dir / "results");
   if (!results.ok()) return results.status();
   impl->results = std::move(*results);
+  auto assets = AssetStore::Open(options.data_dir / "assets");
+  if (!assets.ok()) return assets.status();
+  impl->assets = std::move(*assets);
+  // Specs name uploaded assets by hash; only an in-process server (the CLI's
+  // own) may also read local paths, since its client is this process.
+  spec::Limits limits = options.limits;
+  limits.asset_dir = impl->assets->dir();
+  limits.allow_local_paths = options.listen.empty();
 
   // This process is the only user of its SQLite store, so anything still
   // RUNNING belonged to a process that died: run it again.
@@ -54,13 +64,14 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
   WorkerOptions wo;
   wo.workers = options.workers;
   wo.threads_per_job = options.threads_per_job;
-  wo.limits = options.limits;
+  wo.limits = limits;
   wo.lease_ms = options.lease_ms;
   wo.heartbeat_ms = options.heartbeat_ms;
   wo.instance_id = absl::StrCat("nimbusd-", ::getpid());
   impl->pool = std::make_unique<WorkerPool>(impl->store.get(), impl->results.get(), &impl->hub, wo);
-  impl->service = std::make_unique<NimbusServiceImpl>(impl->store.get(), impl->results.get(),
-                                                      &impl->hub, impl->pool.get(), options.limits);
+  impl->service = std::make_unique<NimbusServiceImpl>(
+      impl->store.get(), impl->results.get(), impl->assets.get(), &impl->hub, impl->pool.get(),
+      limits);
 
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();

@@ -3,6 +3,7 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include "proto/convert_set_ifs.h"
 #include "proto/spec_io.h"
 #include "tests/support/test_util.h"
 
@@ -176,6 +177,8 @@ TEST(SpecConvert, EveryExampleValidates) {
     if (ext != ".json" && ext != ".txtpb") continue;
     auto spec = LoadSpecFile(entry.path());
     ASSERT_TRUE(spec.ok()) << entry.path() << ": " << spec.status();
+    // Asset paths are relative to the spec file, as the CLI reads them.
+    ResolveAssetPaths(*spec, entry.path().parent_path());
     auto job = ConvertSpec(*spec, {}, 2);
     EXPECT_TRUE(job.ok()) << entry.path() << ": " << job.status();
   }

@@ -1,0 +1,122 @@
+// Chaos-game throughput in point updates per second (items_per_second),
+// against two baselines: a naive loop writing through an OpenVDB accessor
+// and a flat-array single-walker loop. The attractors are those of the
+// examples (core/attractors.h).
+#include <benchmark/benchmark.h>
+#include <openvdb/openvdb.h>
+#include <sys/resource.h>
+
+#include <memory>
+#include <vector>
+
+#include "core/attractors.h"
+#include "core/chaos_game.h"
+
+namespace nimbus {
+namespace {
+
+uint64_t PeakRssBytes() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return uint64_t(u.ru_maxrss) * 1024;
+}
+
+// One full engine run per benchmark iteration: allocation, walk, merge.
+void RunEngine(benchmark::State& state, const ChaosGameParams& params) {
+  const int threads = int(state.range(0));
+  uint64_t engine_bytes = 0;
+  for (auto _ : state) {
+    auto game = ChaosGame::Create(params, threads);
+    if (!game.ok()) {
+      state.SkipWithError(std::string(game.status().message()).c_str());
+      return;
+    }
+    (void)(*game)->Run(nullptr);
+    engine_bytes = std::max(engine_bytes, (*game)->MemoryBytes());
+    CountGrid counts = (*game)->TakeCounts();
+    benchmark::DoNotOptimize(counts.AllocatedTiles());
+  }
+  state.SetItemsProcessed(int64_t(state.iterations() * params.iterations));
+  state.counters["engine_bytes"] = double(engine_bytes);
+  state.counters["estimate_bytes"] =
+      double(ChaosGame::EstimateMemory(params, threads, sizeof(float)).peak());
+  state.counters["peak_rss_bytes"] = double(PeakRssBytes());
+}
+
+void BM_SierpinskiTetrahedron256(benchmark::State& state) {
+  RunEngine(state, SierpinskiTetrahedronParams(256, uint64_t{1} << 27));
+}
+BENCHMARK(BM_SierpinskiTetrahedron256)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+void BM_OctantCloud256(benchmark::State& state) {
+  RunEngine(state, OctantCloudParams(256, uint64_t{1} << 28));
+}
+BENCHMARK(BM_OctantCloud256)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+void BM_FernVolume1024(benchmark::State& state) {
+  RunEngine(state, FernVolumeParams(1024, uint64_t{1} << 30));
+}
+BENCHMARK(BM_FernVolume1024)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime()
+    ->Iterations(1);
+
+// Baseline: one walker, each point written through an OpenVDB accessor.
+void BM_NaiveOpenVdbAccessor256(benchmark::State& state) {
+  openvdb::initialize();
+  const ChaosGameParams p = SierpinskiTetrahedronParams(256, uint64_t{1} << 24);
+  const AliasTable table(p.ifs.probabilities);
+  const double inv = 256 / 2.0;
+  for (auto _ : state) {
+    auto grid = openvdb::Int32Grid::create(0);
+    auto acc = grid->getAccessor();
+    Rng rng(1, 0);
+    Vec3 q{0.1, 0.2, 0.3};
+    for (uint64_t i = 0; i < p.iterations; ++i) {
+      q = p.ifs.maps[table.Sample(rng.Next())].pre.Apply(q);
+      const openvdb::Coord c(int((q.x + 1) * inv), int((q.y + 1) * inv), int((q.z + 1) * inv));
+      acc.setValue(c, acc.getValue(c) + 1);
+    }
+    benchmark::DoNotOptimize(grid->activeVoxelCount());
+  }
+  state.SetItemsProcessed(int64_t(state.iterations() * p.iterations));
+}
+BENCHMARK(BM_NaiveOpenVdbAccessor256)->Unit(benchmark::kMillisecond);
+
+// Baseline: one walker, a dense uint32 array, no batching.
+template <int kRes>
+void FlatArray(benchmark::State& state, const ChaosGameParams& p) {
+  const AliasTable table(p.ifs.probabilities);
+  const Bounds& b = p.frame.bounds;
+  const Vec3 vs = p.frame.VoxelSize();
+  const double ix = 1 / vs.x, iy = 1 / vs.y, iz = 1 / vs.z;
+  std::vector<uint32_t> counts(static_cast<size_t>(kRes) * kRes * kRes);
+  for (auto _ : state) {
+    Rng rng(1, 0);
+    Vec3 q = 0.5 * (b.min + b.max);
+    for (uint64_t i = 0; i < p.iterations; ++i) {
+      q = p.ifs.maps[table.Sample(rng.Next())].pre.Apply(q);
+      const double fx = (q.x - b.min.x) * ix, fy = (q.y - b.min.y) * iy,
+                   fz = (q.z - b.min.z) * iz;
+      if (!(fx >= 0 && fx < kRes && fy >= 0 && fy < kRes && fz >= 0 && fz < kRes)) continue;
+      ++counts[(size_t(fx) * kRes + size_t(fy)) * kRes + size_t(fz)];
+    }
+    benchmark::DoNotOptimize(counts.data());
+  }
+  state.SetItemsProcessed(int64_t(state.iterations() * p.iterations));
+}
+void BM_FlatArraySingleWalkerSierpinski256(benchmark::State& state) {
+  FlatArray<256>(state, SierpinskiTetrahedronParams(256, uint64_t{1} << 26));
+}
+BENCHMARK(BM_FlatArraySingleWalkerSierpinski256)->Unit(benchmark::kMillisecond);
+void BM_FlatArraySingleWalkerOctantCloud256(benchmark::State& state) {
+  FlatArray<256>(state, OctantCloudParams(256, uint64_t{1} << 26));
+}
+BENCHMARK(BM_FlatArraySingleWalkerOctantCloud256)->Unit(benchmark::kMillisecond);
+void BM_FlatArraySingleWalkerFern1024(benchmark::State& state) {
+  FlatArray<1024>(state, FernVolumeParams(1024, uint64_t{1} << 26));
+}
+BENCHMARK(BM_FlatArraySingleWalkerFern1024)->Unit(benchmark::kMillisecond)->Iterations(1);
+
+}  // namespace
+}  // namespace nimbus
+
+BENCHMARK_MAIN();

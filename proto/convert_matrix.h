@@ -1,0 +1,39 @@
+// The IFS-matrix plan: what proto/convert_matrix.cc makes of
+// chaos_game.matrices and server/matrix_runner.cc runs.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "core/chaos_game.h"
+#include "core/component_grid.h"
+#include "core/ifs_matrix.h"
+
+namespace nimbus::spec {
+
+/// @brief A validated IFS-matrix job. ConvertedJob::chaos_game already holds
+/// the whole object's run (maps, chain, frame, budget), so a runner that
+/// ignores the plan still renders the right density; the plan adds what the
+/// component grid and the reports need.
+struct IfsMatrixPlan {
+  /// Every map of the expanded expression (base maps, then composed ones).
+  std::vector<PointMap> maps;
+  /// The rendered (expanded) matrix, indexing `maps`.
+  IfsMatrix matrix;
+  /// Selected components; a component's label is its index here.
+  std::vector<Component> selection;
+  /// Expansion report: every named expression and the render expression.
+  std::vector<ExpansionStep> expansion;
+  /// Size of the chain of the whole selection (0 for the 1x1 fast path,
+  /// which runs as a plain IFS).
+  size_t chain_states = 0;
+  /// Component grid requested (kNone: density only).
+  ComponentGridType component_grid = ComponentGridType::kNone;
+  /// With a component grid: one engine run per selected component, each
+  /// plotting only that component (same frame, iterations split evenly,
+  /// seeds derived from the job's seed). Empty otherwise.
+  std::vector<ChaosGameParams> component_runs;
+};
+
+}  // namespace nimbus::spec

@@ -1,0 +1,385 @@
+// Colour, final transforms, reproducibility and memory bounds of the chaos
+// game (issue 3).
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstring>
+
+#include "core/attractors.h"
+#include "core/chaos_game.h"
+#include "core/palette.h"
+#include "core/vdb_io.h"
+#include "tests/support/test_util.h"
+
+namespace nimbus {
+namespace {
+
+// A volume-filling IFS: eight half-size copies at the octants of [-1, 1]^3,
+// each slightly rotated so the maps are not axis-aligned.
+ChaosGameParams OctantCloud(uint64_t iterations, int resolution, double degrees = 7.0) {
+  ChaosGameParams p;
+  for (int i = 0; i < 8; ++i) {
+    PointMap m;
+    const Vec3 o{(i & 1) ? 0.5 : -0.5, (i & 2) ? 0.5 : -0.5, (i & 4) ? 0.5 : -0.5};
+    m.pre = Affine3::Translate(o) * Affine3::Rotate({1, 1, 1}, degrees * i) *
+            Affine3::Scale({0.5, 0.5, 0.5});
+    m.color = i / 7.0;
+    p.ifs.maps.push_back(m);
+  }
+  p.ifs.probabilities.assign(8, 1.0 / 8);
+  p.frame.resolution = {resolution, resolution, resolution};
+  p.frame.bounds = {{-1.2, -1.2, -1.2}, {1.2, 1.2, 1.2}};
+  p.iterations = iterations;
+  p.seed = 11;
+  return p;
+}
+
+CountGrid RunGame(const ChaosGameParams& params, int threads, ChaosGameStats* stats = nullptr) {
+  auto game = ChaosGame::Create(params, threads);
+  EXPECT_TRUE(game.ok()) << game.status();
+  EXPECT_TRUE((*game)->Run(nullptr).ok());
+  if (stats) *stats = (*game)->stats();
+  return (*game)->TakeCounts();
+}
+
+void ExpectSameGrids(const CountGrid& a, const CountGrid& b) {
+  ASSERT_EQ(a.AllocatedTiles(), b.AllocatedTiles());
+  const Int3 r = a.resolution();
+  for (int x = 0; x < r.x; ++x)
+    for (int y = 0; y < r.y; ++y)
+      for (int z = 0; z < r.z; ++z) {
+        ASSERT_EQ(a.Get(x, y, z), b.Get(x, y, z)) << x << "," << y << "," << z;
+        ASSERT_EQ(a.GetColorSum(x, y, z), b.GetColorSum(x, y, z)) << x << "," << y << "," << z;
+      }
+}
+
+TEST(ChaosGameColor, SinePaletteMatchesTheSeedFormula) {
+  const Palette p;
+  for (double t : {0.0, 0.1, 0.37, 0.5, 0.99, 1.0}) {
+    const double a = 2 * M_PI * t;
+    const Vec3 c = p.Eval(t);
+    EXPECT_DOUBLE_EQ(c.x, 0.4 + 0.25 * std::sin(0.5 + a));
+    EXPECT_DOUBLE_EQ(c.y, 0.6 + 0.25 * std::sin(0.9 + a));
+    EXPECT_DOUBLE_EQ(c.z, 0.7 + 0.25 * std::sin(1.3 + a));
+  }
+}
+
+TEST(ChaosGameColor, GradientStopsInterpolateAndClamp) {
+  const Palette p({{0.2, {1, 0, 0}}, {0.6, {0, 1, 0}}, {1.0, {0, 0, 1}}});
+  auto near = [](Vec3 a, Vec3 b) { return Length(a - b) < 1e-12; };
+  EXPECT_TRUE(near(p.Eval(0.0), {1, 0, 0}));
+  EXPECT_TRUE(near(p.Eval(0.4), {0.5, 0.5, 0}));
+  EXPECT_TRUE(near(p.Eval(0.8), {0, 0.5, 0.5}));
+  EXPECT_TRUE(near(p.Eval(1.0), {0, 0, 1}));
+  EXPECT_EQ(p.MinColor(), (Vec3{0, 0, 0}));
+  EXPECT_EQ(p.MaxColor(), (Vec3{1, 1, 1}));
+}
+
+TEST(ChaosGameColor, IdentityFinalTransformMatchesNoneBitwise) {
+  ChaosGameParams params = OctantCloud(3'000'000, 48);
+  params.color.mode = ColorMode::kAddress;
+  const CountGrid none = RunGame(params, 2);
+  params.ifs.final_map = PointMap{};  // identity pre, no variations
+  const CountGrid identity = RunGame(params, 2);
+  ExpectSameGrids(none, identity);
+  // An arcs transform with all-zero parameters is the identity too.
+  params.ifs.final_map.reset();
+  params.ifs.arcs = ArcsTransform{};
+  ExpectSameGrids(none, RunGame(params, 2));
+}
+
+TEST(ChaosGameColor, FinalTransformOnlyMovesPlottedPoints) {
+  // A translation by +1 in x as final map shifts the whole density by the
+  // matching number of voxels but leaves the walk (and total) alone.
+  ChaosGameParams params = OctantCloud(2'000'000, 32);
+  params.frame.bounds = {{-1.5, -1.5, -1.5}, {3.3, 1.5, 1.5}};  // voxel 0.15
+  params.frame.resolution = {32, 20, 20};
+  const CountGrid plain = RunGame(params, 1);
+  PointMap shift;
+  shift.pre = Affine3::Translate({0.15 * 4, 0, 0});
+  params.ifs.final_map = shift;
+  const CountGrid moved = RunGame(params, 1);
+  EXPECT_EQ(plain.Total(), moved.Total());
+  int differing = 0;
+  for (int x = 0; x + 4 < 32; ++x)
+    for (int y = 0; y < 20; ++y)
+      for (int z = 0; z < 20; ++z)
+        differing += plain.Get(x, y, z) != moved.Get(x + 4, y, z);
+  // Rounding at voxel boundaries may move a handful of points.
+  EXPECT_LT(differing, 20);
+}
+
+TEST(ChaosGameColor, ArcsRotateAboutZ) {
+  const ArcsTransform arcs{0.5, 0.2, 0.3};
+  const Vec3 p{1.0, 0.5, -0.25};
+  const Vec3 q = arcs.Apply(p, 7);
+  const double theta = 0.5 * 1.0 + 0.2 * std::sin(0.3 * 7);
+  EXPECT_NEAR(q.x, std::cos(theta) * 1.0 - std::sin(theta) * 0.5, 1e-15);
+  EXPECT_NEAR(q.y, std::sin(theta) * 1.0 + std::cos(theta) * 0.5, 1e-15);
+  EXPECT_EQ(q.z, -0.25);
+  EXPECT_NEAR(Length(q - Vec3{0, 0, q.z}), Length(p - Vec3{0, 0, p.z}), 1e-15);
+}
+
+TEST(ChaosGameColor, OneAndTwoThreadsGiveIdenticalCountsAndColour) {
+  for (ColorMode mode : {ColorMode::kAddress, ColorMode::kMap}) {
+    ChaosGameParams params = OctantCloud(5'000'000, 40);
+    params.color.mode = mode;
+    params.ifs.arcs = ArcsTransform{0.3, 0.05, 0.01};
+    ExpectSameGrids(RunGame(params, 1), RunGame(params, 2));
+  }
+}
+
+TEST(ChaosGameColor, WholeVdbIdenticalForOneAndTwoThreads) {
+  testing::TempDir dir;
+  ChaosGameParams params = OctantCloud(4'000'000, 40);
+  params.color.mode = ColorMode::kAddress;
+  DensityOptions opt;
+  opt.mapping = DensityMapping::kSqrt;
+  opt.color = true;
+  opt.address_grid = true;
+  opt.raw_counts = RawCounts::kFloat;
+  std::vector<std::filesystem::path> files;
+  for (int threads : {1, 2}) {
+    files.push_back(dir / ("t" + std::to_string(threads) + ".vdb"));
+    ASSERT_TRUE(WriteDensityVdb(files.back(), RunGame(params, threads), params.frame, opt, {}).ok());
+  }
+  for (const char* name : {"density", "address", "counts"}) {
+    auto a = ReadVdbFile(files[0], name), b = ReadVdbFile(files[1], name);
+    ASSERT_TRUE(a.ok() && b.ok()) << name;
+    ASSERT_EQ(a->values.size(), b->values.size());
+    EXPECT_EQ(0, std::memcmp(a->values.data(), b->values.data(), a->values.size() * 4)) << name;
+    EXPECT_EQ(a->metadata, b->metadata) << name;
+  }
+  auto ca = ReadVec3VdbFile(files[0]), cb = ReadVec3VdbFile(files[1]);
+  ASSERT_TRUE(ca.ok() && cb.ok());
+  EXPECT_EQ(ca->values, cb->values);
+  EXPECT_EQ(ca->active, cb->active);
+}
+
+TEST(ChaosGameColor, CdLiesInsideThePaletteRange) {
+  testing::TempDir dir;
+  ChaosGameParams params = OctantCloud(2'000'000, 32);
+  params.color.mode = ColorMode::kAddress;
+  const CountGrid counts = RunGame(params, 2);
+  for (const Palette& palette :
+       {Palette(), Palette({{0, {0.1, 0.2, 0.3}}, {0.5, {0.9, 0.1, 0.5}}, {1, {0.3, 0.8, 0.2}}})}) {
+    DensityOptions opt;
+    opt.color = true;
+    opt.palette = palette;
+    const auto path = dir / "cd.vdb";
+    ASSERT_TRUE(WriteDensityVdb(path, counts, params.frame, opt, {}).ok());
+    auto cd = ReadVec3VdbFile(path);
+    ASSERT_TRUE(cd.ok()) << cd.status();
+    auto density = ReadVdbFile(path);
+    ASSERT_TRUE(density.ok());
+    const Vec3 lo = palette.MinColor(), hi = palette.MaxColor();
+    size_t active = 0;
+    std::vector<double> seen;
+    for (size_t i = 0; i < cd->values.size(); ++i) {
+      // Cd is active exactly where the density is.
+      ASSERT_EQ(cd->active[i], density->values[i] > 0);
+      if (!cd->active[i]) continue;
+      ++active;
+      for (int a = 0; a < 3; ++a) {
+        ASSERT_GE(cd->values[i][a], lo[a] - 1e-6);
+        ASSERT_LE(cd->values[i][a], hi[a] + 1e-6);
+      }
+      seen.push_back(cd->values[i].x);
+    }
+    ASSERT_GT(active, 1000u);
+    // Addresses spread over the palette: the red channel is not constant.
+    const auto [mn, mx] = std::minmax_element(seen.begin(), seen.end());
+    EXPECT_GT(*mx - *mn, 0.1);
+  }
+}
+
+TEST(ChaosGameColor, MapColourModeFollowsTheMaps) {
+  // With blend 1 the colour is that of the last map applied, and each
+  // octant's voxels are reached last by the map of that octant.
+  ChaosGameParams params = OctantCloud(1'000'000, 16, 0.0);
+  params.color = {ColorMode::kMap, 1.0};
+  const CountGrid counts = RunGame(params, 2);
+  int checked = 0;
+  for (int x = 0; x < 16; ++x)
+    for (int y = 0; y < 16; ++y)
+      for (int z = 0; z < 16; ++z) {
+        const uint32_t c = counts.Get(x, y, z);
+        if (c == 0 || x == 8 || y == 8 || z == 8 || x == 7 || y == 7 || z == 7) continue;
+        const int octant = (x >= 8) + 2 * (y >= 8) + 4 * (z >= 8);
+        const double mean = double(counts.GetColorSum(x, y, z)) / c / CountGrid::kColorScale;
+        EXPECT_NEAR(mean, octant / 7.0, 1e-4) << x << "," << y << "," << z;
+        ++checked;
+      }
+  EXPECT_GT(checked, 500);
+}
+
+TEST(ChaosGameColor, SparseAccumulationMatchesAReferenceLoop) {
+  // The engine's binned, deferred, per-thread accumulation against a plain
+  // dense array filled by the same walk written the simple way.
+  ChaosGameParams params = OctantCloud(ChaosGame::kChunkIterations * 3 + 12345, 24);
+  params.color.mode = ColorMode::kAddress;
+  params.warmup = 20;
+  const CountGrid sparse = RunGame(params, 2);
+
+  const Int3 r = params.frame.resolution;
+  std::vector<uint32_t> dense(size_t(r.x) * r.y * r.z, 0);
+  std::vector<uint64_t> dense_color(dense.size(), 0);
+  const AliasTable table(params.ifs.probabilities);
+  const Vec3 vs = params.frame.VoxelSize();
+  const double ix = 1.0 / vs.x, iy = 1.0 / vs.y, iz = 1.0 / vs.z;
+  const Bounds& b = params.frame.bounds;
+  const int n_maps = int(params.ifs.maps.size());
+  for (uint64_t chunk = 0; chunk * ChaosGame::kChunkIterations < params.iterations; ++chunk) {
+    Rng rng(params.seed, chunk);
+    const uint64_t count = std::min(ChaosGame::kChunkIterations,
+                                    params.iterations - chunk * ChaosGame::kChunkIterations);
+    constexpr int W = ChaosGame::kWalkers;
+    Vec3 pos[W];
+    double addr[W], col[W];
+    auto step = [&](int k) {
+      const uint32_t m = table.Sample(rng.Next());
+      pos[k] = params.ifs.maps[m].pre.Apply(pos[k]);
+      addr[k] = (double(m) + addr[k]) * (1.0 / n_maps);
+      col[k] += params.color.blend * (addr[k] - col[k]);
+    };
+    for (int k = 0; k < W; ++k) {
+      pos[k] = {rng.Uniform(b.min.x, b.max.x), rng.Uniform(b.min.y, b.max.y),
+                rng.Uniform(b.min.z, b.max.z)};
+      addr[k] = col[k] = rng.Uniform();
+      for (uint32_t i = 0; i < params.warmup; ++i) step(k);
+    }
+    for (uint64_t i = 0; i < count; ++i) {
+      const int k = int(i % W);
+      step(k);
+      const double fx = (pos[k].x - b.min.x) * ix, fy = (pos[k].y - b.min.y) * iy,
+                   fz = (pos[k].z - b.min.z) * iz;
+      if (!(fx >= 0 && fx < r.x && fy >= 0 && fy < r.y && fz >= 0 && fz < r.z)) continue;
+      const int x = int(fx), y = int(fy), z = int(fz);
+      const size_t v = (size_t(x) * r.y + y) * r.z + z;
+      ++dense[v];
+      dense_color[v] += uint32_t(std::clamp(col[k], 0.0, 1.0) * CountGrid::kColorScale + 0.5);
+    }
+  }
+  uint64_t total = 0;
+  for (int x = 0; x < r.x; ++x)
+    for (int y = 0; y < r.y; ++y)
+      for (int z = 0; z < r.z; ++z) {
+        const size_t v = (size_t(x) * r.y + y) * r.z + z;
+        ASSERT_EQ(sparse.Get(x, y, z), dense[v]) << x << "," << y << "," << z;
+        ASSERT_EQ(sparse.GetColorSum(x, y, z), dense_color[v]);
+        total += dense[v];
+      }
+  EXPECT_EQ(total, sparse.Total());
+  EXPECT_GT(total, params.iterations / 2);
+}
+
+TEST(ChaosGameColor, NonFiniteFinalTransformIsCountedNotPlotted) {
+  ChaosGameParams params = OctantCloud(500'000, 16);
+  PointMap bad;  // overflows every non-zero coordinate to infinity
+  bad.pre = Affine3::Scale({1e300, 1e300, 1e300});
+  bad.post = Affine3::Scale({1e300, 1e300, 1e300});
+  params.ifs.final_map = bad;
+  ChaosGameStats stats;
+  const CountGrid counts = RunGame(params, 2, &stats);
+  EXPECT_EQ(counts.Total(), 0u);
+  EXPECT_EQ(stats.final_nonfinite, params.iterations);
+  EXPECT_EQ(stats.outside, params.iterations);
+}
+
+TEST(ChaosGameColor, MemoryEstimateIsBoundedByIterationsAndGrid) {
+  ChaosGameParams params = OctantCloud(1000, 2048);
+  const ChaosGameMemory small = ChaosGame::EstimateMemory(params, 2, 4);
+  // 1000 steps touch at most ~1000 tiles of 128 KiB, not the 2048^3 grid.
+  EXPECT_LT(small.peak(), uint64_t{1} << 30);
+  params.iterations = uint64_t{1} << 36;
+  const ChaosGameMemory big = ChaosGame::EstimateMemory(params, 2, 4);
+  // Two full 32 GiB counter grids: the grid bound, not the iterations.
+  EXPECT_GE(big.accumulation, 2 * CountGrid::MaxMemoryBytes({2048, 2048, 2048}) - (1 << 24));
+  // ... plus two key buffers of at most 2^25 keys x 16 bytes.
+  EXPECT_LE(big.accumulation,
+            2 * CountGrid::MaxMemoryBytes({2048, 2048, 2048}) + 2 * (uint64_t{16} << 25));
+  // And the real run stays within the estimate.
+  params = OctantCloud(3'000'000, 128);
+  params.color.mode = ColorMode::kAddress;
+  auto game = ChaosGame::Create(params, 2);
+  ASSERT_TRUE(game.ok());
+  ASSERT_TRUE((*game)->Run(nullptr).ok());
+  EXPECT_LE((*game)->MemoryBytes(), ChaosGame::EstimateMemory(params, 2, 16).accumulation);
+}
+
+// All points at one spot: the IFS whose only map sends everything to `at`.
+ChaosGameParams FixedPoint(Vec3 at, uint64_t iterations) {
+  ChaosGameParams p;
+  PointMap m;
+  m.pre = Affine3::Translate(at) * Affine3::Scale({0, 0, 0});
+  p.ifs.maps = {m};
+  p.ifs.probabilities = {1};
+  p.frame.resolution = {8, 8, 8};
+  p.frame.bounds = {{0, 0, 0}, {8, 8, 8}};  // voxel i spans [i, i + 1)
+  p.iterations = iterations;
+  p.splat = true;
+  return p;
+}
+
+TEST(ChaosGameSplat, WeightsFollowThePositionBetweenVoxelCentres) {
+  // At a voxel centre: the whole point in that voxel.
+  CountGrid centre = RunGame(FixedPoint({3.5, 4.5, 5.5}, 1000), 2);
+  EXPECT_EQ(centre.Get(3, 4, 5), 1000 * kSplatScale);
+  EXPECT_EQ(centre.Total(), 1000 * kSplatScale);
+  // At a voxel corner: an eighth in each of the 8 voxels around it.
+  CountGrid corner = RunGame(FixedPoint({3, 4, 5}, 1000), 2);
+  for (int c = 0; c < 8; ++c)
+    EXPECT_EQ(corner.Get(2 + (c & 1), 3 + ((c >> 1) & 1), 4 + (c >> 2)), 1000 * 8);
+  // A quarter of the way from centre 3.5 to 4.5 in x: 3/4 and 1/4.
+  CountGrid quarter = RunGame(FixedPoint({3.75, 4.5, 5.5}, 1000), 1);
+  EXPECT_EQ(quarter.Get(3, 4, 5), 1000 * 48);
+  EXPECT_EQ(quarter.Get(4, 4, 5), 1000 * 16);
+  // Beyond the outermost centres the weight folds onto the border voxel.
+  CountGrid border = RunGame(FixedPoint({0.1, 4.5, 5.5}, 1000), 1);
+  EXPECT_EQ(border.Get(0, 4, 5), 1000 * kSplatScale);
+}
+
+TEST(ChaosGameSplat, ReproducibleAndMassPreserving) {
+  ChaosGameParams params = OctantCloudParams(32, 2'000'000);
+  params.splat = true;
+  params.color.mode = ColorMode::kAddress;
+  ChaosGameStats stats;
+  const CountGrid one = RunGame(params, 1, &stats);
+  ExpectSameGrids(one, RunGame(params, 2));
+  EXPECT_EQ(one.Total(), (params.iterations - stats.outside) * kSplatScale);
+  // Splatting smooths: more voxels are hit than without it.
+  params.splat = false;
+  const CountGrid plain = RunGame(params, 1);
+  size_t hit_splat = 0, hit_plain = 0;
+  for (int x = 0; x < 32; ++x)
+    for (int y = 0; y < 32; ++y)
+      for (int z = 0; z < 32; ++z) {
+        hit_splat += one.Get(x, y, z) > 0;
+        hit_plain += plain.Get(x, y, z) > 0;
+      }
+  EXPECT_GE(hit_splat, hit_plain);
+}
+
+TEST(ChaosGameColor, DensityChangeMeasuresConvergence) {
+  ChaosGameParams params = OctantCloud(uint64_t{1} << 23, 64);
+  auto game = ChaosGame::Create(params, 2);
+  ASSERT_TRUE(game.ok());
+  auto coarse = [&] {
+    std::vector<const CountGrid*> parts;
+    for (const CountGrid& g : (*game)->partial_counts()) parts.push_back(&g);
+    return CoarseCounts(parts, 32);
+  };
+  ASSERT_TRUE((*game)->RunUntil(uint64_t{1} << 21, nullptr).ok());
+  const auto a = coarse();
+  ASSERT_TRUE((*game)->RunUntil(uint64_t{1} << 22, nullptr).ok());
+  const auto b = coarse();
+  ASSERT_TRUE((*game)->RunUntil(uint64_t{1} << 23, nullptr).ok());
+  const auto c = coarse();
+  EXPECT_EQ(DensityChange(a, a), 0.0);
+  EXPECT_GT(DensityChange(a, b), 0.0);
+  EXPECT_LT(DensityChange(b, c), 0.05);  // a uniform cloud converges fast
+  EXPECT_EQ(DensityChange({1, 0}, {0, 1}), 2.0);
+}
+
+}  // namespace
+}  // namespace nimbus

@@ -1,0 +1,310 @@
+// Condensation sets end to end against a real nimbusd on loopback: asset
+// uploads checked by sha256, set-IFS jobs from uploaded meshes, the book's
+// frames, the non-watertight teapot's warning, and `nimbus render` uploading
+// a spec's meshes by itself.
+#include <arpa/inet.h>
+#include <gtest/gtest.h>
+#include <netinet/in.h>
+#include <signal.h>
+#include <sys/prctl.h>
+#include <sys/socket.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cstdlib>
+#include <fstream>
+#include <sstream>
+#include <thread>
+
+#include "client/nimbus_client.h"
+#include "core/sha256.h"
+#include "core/vdb_io.h"
+#include "proto/convert_set_ifs.h"
+#include "proto/spec_io.h"
+#include "tests/support/test_util.h"
+
+namespace nimbus {
+namespace {
+
+using client::NimbusClient;
+
+int FreePort() {
+  int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  ::bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr);
+  socklen_t len = sizeof addr;
+  ::getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len);
+  ::close(fd);
+  return ntohs(addr.sin_port);
+}
+
+std::string ReadAll(const std::filesystem::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+v1::JobSpec Example(const std::string& name) {
+  auto spec = spec::LoadSpecFile(testing::SourcePath("examples/" + name));
+  EXPECT_TRUE(spec.ok()) << spec.status();
+  return *spec;
+}
+
+class CondensationE2E : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const std::string bin = std::string(NIMBUS_BIN_DIR) + "/nimbusd";
+    const std::string listen = "127.0.0.1:" + std::to_string(FreePort());
+    const std::string data = (dir_ / "data").string();
+    pid_ = ::fork();
+    if (pid_ == 0) {
+      ::prctl(PR_SET_PDEATHSIG, SIGKILL);
+      ::execl(bin.c_str(), bin.c_str(), "--listen", listen.c_str(), "--data-dir", data.c_str(),
+              "--workers", "1", "--threads-per-job", "2", "--log-level", "warn",
+              static_cast<char*>(nullptr));
+      ::_exit(127);
+    }
+    client_ = NimbusClient::Connect(listen);
+    ASSERT_TRUE(client_->WaitForReady(20).ok()) << "nimbusd did not come up";
+  }
+  void TearDown() override {
+    ::kill(pid_, SIGKILL);
+    int status;
+    ::waitpid(pid_, &status, 0);
+  }
+  // Submits and watches to the end.
+  v1::Job Run(const v1::JobSpec& spec) {
+    auto job = client_->Submit(spec);
+    EXPECT_TRUE(job.ok()) << job.status();
+    if (!job.ok()) return {};
+    auto done = client_->Watch(job->id(), {}, [](const v1::WatchJobResponse&) {});
+    EXPECT_TRUE(done.ok()) << done.status();
+    return done.ok() ? *done : v1::Job{};
+  }
+
+  testing::TempDir dir_;
+  pid_t pid_ = -1;
+  std::unique_ptr<NimbusClient> client_;
+};
+
+TEST_F(CondensationE2E, UploadsAreCheckedAgainstTheirSha256) {
+  const std::string cow = ReadAll(testing::SourcePath("examples/meshes/cow.obj"));
+  const std::string sha = Sha256Hex(cow);
+  auto first = client_->UploadBytes("cow.obj", cow, sha, cow.size());
+  ASSERT_TRUE(first.ok()) << first.status();
+  EXPECT_EQ(first->sha256(), sha);
+  EXPECT_FALSE(first->already_present());
+  auto again = client_->UploadBytes("cow.obj", cow, sha, cow.size());
+  ASSERT_TRUE(again.ok()) << again.status();
+  EXPECT_TRUE(again->already_present());
+
+  // Bytes that do not hash to the announced value are refused.
+  std::string altered = cow;
+  altered[altered.size() / 2] ^= 1;
+  auto wrong = client_->UploadBytes("cow.obj", altered, Sha256Hex(altered + "x"), altered.size());
+  EXPECT_EQ(wrong.status().code(), absl::StatusCode::kDataLoss) << wrong.status();
+
+  // A truncated upload (the stream ends early) is refused and not stored.
+  const std::string head = altered.substr(0, altered.size() / 3);
+  auto cut = client_->UploadBytes("cow.obj", head, Sha256Hex(altered), altered.size());
+  EXPECT_EQ(cut.status().code(), absl::StatusCode::kInvalidArgument) << cut.status();
+  EXPECT_NE(cut.status().message().find("truncated"), std::string::npos) << cut.status();
+
+  v1::JobSpec spec = Example("cow_cloud.json");
+  spec.mutable_grid()->set_resolution(0, 32);
+  spec::ForEachAsset(spec,
+                     [&](const std::string&, v1::Asset& a) { a.set_sha256(Sha256Hex(altered)); });
+  auto refused = client_->Submit(spec);
+  EXPECT_EQ(refused.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(refused.status().message().find("set_ifs.maps[0].condensation.mesh.asset.sha256"),
+            std::string::npos)
+      << refused.status();
+}
+
+TEST_F(CondensationE2E, NetworkServerRefusesLocalPaths) {
+  v1::JobSpec spec = Example("cow_cloud.json");
+  spec::ResolveAssetPaths(spec, testing::SourcePath("examples"));
+  auto refused = client_->Submit(spec);
+  EXPECT_EQ(refused.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(refused.status().message().find("upload"), std::string::npos) << refused.status();
+}
+
+TEST_F(CondensationE2E, CowCloudProducesAVdb) {
+  v1::JobSpec spec = Example("cow_cloud.json");
+  spec.mutable_grid()->set_resolution(0, 48);
+  spec.mutable_set_ifs()->mutable_random()->set_iterations(300);
+  ASSERT_TRUE(client_->UploadSpecAssets(spec, testing::SourcePath("examples")).ok());
+  auto job = client_->Submit(spec);
+  ASSERT_TRUE(job.ok()) << job.status();
+  client::WatchOptions o;
+  o.preview_resolution = 16;
+  o.preview_interval_seconds = 0.05;
+  int progress_updates = 0, previews = 0;
+  auto done = client_->Watch(job->id(), o, [&](const v1::WatchJobResponse& r) {
+    if (r.job().state() == v1::JOB_STATE_RUNNING) ++progress_updates;
+    if (!r.has_preview()) return;
+    auto vol = ReadVdbBytes(r.preview().vdb());
+    ASSERT_TRUE(vol.ok()) << vol.status();
+    EXPECT_EQ(vol->frame.resolution, (Int3{16, 16, 16}));
+    ++previews;
+  });
+  ASSERT_TRUE(done.ok()) << done.status();
+  ASSERT_EQ(done->state(), v1::JOB_STATE_SUCCEEDED) << done->error();
+  EXPECT_GE(progress_updates, 2);
+  EXPECT_GE(previews, 1);
+  EXPECT_GT(done->stats().at("set_iterations"), 300u);
+  EXPECT_EQ(done->progress().done(), done->progress().total());
+  const auto out = dir_ / "cow.vdb";
+  ASSERT_TRUE(client_->Fetch(job->id(), out).ok());
+  auto vol = ReadVdbFile(out);
+  ASSERT_TRUE(vol.ok()) << vol.status();
+  EXPECT_EQ(vol->frame.resolution, (Int3{48, 48, 48}));
+  float max = 0;
+  int nonzero = 0;
+  for (float v : vol->values) {
+    max = std::max(max, v);
+    nonzero += v > 0;
+  }
+  EXPECT_FLOAT_EQ(max, 1.0f);
+  EXPECT_GT(nonzero, 500);  // a cow-sized cloud, not a speck
+}
+
+TEST_F(CondensationE2E, CancelStopsASetIfsJob) {
+  v1::JobSpec spec = Example("cow_cloud.json");
+  spec.mutable_grid()->set_resolution(0, 64);
+  spec.mutable_set_ifs()->mutable_random()->set_iterations(1'000'000);
+  ASSERT_TRUE(client_->UploadSpecAssets(spec, testing::SourcePath("examples")).ok());
+  auto job = client_->Submit(spec);
+  ASSERT_TRUE(job.ok()) << job.status();
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+  while (std::chrono::steady_clock::now() < deadline) {
+    auto j = client_->Get(job->id());
+    if (j.ok() && j->state() == v1::JOB_STATE_RUNNING && j->progress().done() > 20) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  ASSERT_TRUE(client_->Cancel(job->id()).ok());
+  const auto asked = std::chrono::steady_clock::now();
+  auto done = client_->Watch(job->id(), {}, [](const v1::WatchJobResponse&) {});
+  ASSERT_TRUE(done.ok());
+  EXPECT_EQ(done->state(), v1::JOB_STATE_CANCELLED);
+  EXPECT_LT(std::chrono::steady_clock::now() - asked, std::chrono::seconds(5));
+}
+
+TEST_F(CondensationE2E, BookWritesOneFramePerPage) {
+  v1::JobSpec spec = Example("morph_book.json");
+  spec.mutable_grid()->set_resolution(0, 32);
+  spec.mutable_set_ifs()->mutable_book()->set_depth(3);
+  ASSERT_TRUE(client_->UploadSpecAssets(spec, testing::SourcePath("examples")).ok());
+  const v1::Job done = Run(spec);
+  ASSERT_EQ(done.state(), v1::JOB_STATE_SUCCEEDED) << done.error();
+  auto full = client_->Get(done.id());
+  ASSERT_TRUE(full.ok());
+  ASSERT_EQ(full->result().files_size(), 8);
+  for (int i = 0; i < 8; ++i)
+    EXPECT_EQ(full->result().files(i).file_name(),
+              "morph_book.000" + std::to_string(i + 1) + ".vdb");
+  const auto out = dir_ / "page.vdb";
+  ASSERT_TRUE(client_->Fetch(done.id(), out, "morph_book.0008.vdb").ok());
+  EXPECT_EQ(*Sha256File(out), full->result().files(7).sha256());
+  auto vol = ReadVdbFile(out);
+  ASSERT_TRUE(vol.ok()) << vol.status();
+  const MetaValue* address = vol->Find("nimbus_book_address");
+  ASSERT_NE(address, nullptr);
+  EXPECT_EQ(std::get<std::string>(*address), "BBB");
+  EXPECT_EQ(client_->Fetch(done.id(), dir_ / "x.vdb", "nope.vdb").code(),
+            absl::StatusCode::kNotFound);
+}
+
+// Pages are listed and can be fetched while later ones are still running.
+TEST_F(CondensationE2E, BookFramesStreamWhileTheJobRuns) {
+  v1::JobSpec spec = Example("morph_book.json");
+  spec.mutable_grid()->set_resolution(0, 96);
+  spec.mutable_set_ifs()->mutable_book()->set_depth(7);  // 128 pages
+  ASSERT_TRUE(client_->UploadSpecAssets(spec, testing::SourcePath("examples")).ok());
+  auto job = client_->Submit(spec);
+  ASSERT_TRUE(job.ok()) << job.status();
+  int fetched_while_running = 0;
+  std::string first_sha;
+  auto done = client_->Watch(job->id(), {}, [&](const v1::WatchJobResponse& r) {
+    if (r.job().state() != v1::JOB_STATE_RUNNING || r.job().result().files_size() == 0 ||
+        fetched_while_running > 0)
+      return;
+    const v1::ResultFile& f = r.job().result().files(0);
+    EXPECT_EQ(f.file_name(), "morph_book.0001.vdb");
+    ASSERT_TRUE(client_->Fetch(job->id(), dir_ / "early.vdb", f.file_name()).ok());
+    first_sha = f.sha256();
+    ++fetched_while_running;
+  });
+  ASSERT_TRUE(done.ok()) << done.status();
+  ASSERT_EQ(done->state(), v1::JOB_STATE_SUCCEEDED) << done->error();
+  EXPECT_EQ(fetched_while_running, 1);
+  EXPECT_EQ(*Sha256File(dir_ / "early.vdb"), first_sha);
+  auto full = client_->Get(job->id());
+  ASSERT_TRUE(full.ok());
+  ASSERT_EQ(full->result().files_size(), 128);
+  EXPECT_EQ(full->result().files(0).sha256(), first_sha);  // the same page, committed
+}
+
+TEST_F(CondensationE2E, NonWatertightTeapotFinishesWithAWarning) {
+  v1::JobSpec spec;
+  spec.set_name("teapot");
+  spec.mutable_grid()->add_resolution(32);
+  v1::SetIfs* s = spec.mutable_set_ifs();
+  s->add_maps()->mutable_condensation()->mutable_mesh()->mutable_asset()->set_path(
+      testing::SourcePath("examples/meshes/teapot.obj").string());
+  s->add_maps()->mutable_condensation()->mutable_sphere()->set_radius(0.3);
+  s->mutable_random()->set_iterations(10);
+  ASSERT_TRUE(client_->UploadSpecAssets(spec, "/").ok());
+  const v1::Job done = Run(spec);
+  ASSERT_EQ(done.state(), v1::JOB_STATE_SUCCEEDED) << done.error();
+  ASSERT_GE(done.warnings_size(), 1);
+  EXPECT_NE(done.warnings(0).find("not watertight"), std::string::npos) << done.warnings(0);
+}
+
+TEST_F(CondensationE2E, DegenerateMeshIsAClearError) {
+  const auto flat = dir_ / "flat.obj";
+  std::ofstream(flat) << "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n";
+  v1::JobSpec spec;
+  spec.mutable_grid()->add_resolution(16);
+  v1::SetIfs* s = spec.mutable_set_ifs();
+  s->add_maps()->mutable_condensation()->mutable_sphere()->set_radius(0.5);
+  s->add_maps()->mutable_condensation()->mutable_mesh()->mutable_asset()->set_path(flat.string());
+  s->mutable_random()->set_iterations(10);
+  ASSERT_TRUE(client_->UploadSpecAssets(spec, "/").ok());
+  auto refused = client_->Submit(spec);
+  EXPECT_EQ(refused.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(refused.status().message().find("set_ifs.maps[1].condensation.mesh"), std::string::npos)
+      << refused.status();
+  EXPECT_NE(refused.status().message().find(".obj"), std::string::npos) << refused.status();
+}
+
+// `nimbus render` with its embedded server: relative mesh paths resolve
+// against the spec's folder and are uploaded by the CLI; book frames land
+// next to -o, named after it.
+TEST_F(CondensationE2E, CliUploadsMeshesAndWritesFrames) {
+  v1::JobSpec spec = Example("morph_book.json");
+  spec.mutable_grid()->set_resolution(0, 24);
+  spec.mutable_set_ifs()->mutable_book()->set_depth(2);
+  std::filesystem::create_directories(dir_ / "job" / "meshes");
+  for (const char* m : {"cow.obj", "suzanne.obj"})
+    std::filesystem::copy_file(testing::SourcePath(std::string("examples/meshes/") + m),
+                               dir_ / "job" / "meshes" / m);
+  std::ofstream(dir_ / "job" / "book.json") << spec::SpecToJson(spec);
+  std::filesystem::create_directories(dir_ / "out");
+  const std::string cmd =
+      std::string(NIMBUS_BIN_DIR) + "/nimbus --data-dir " + (dir_ / "cli").string() + " render " +
+      (dir_ / "job" / "book.json").string() + " -o " + (dir_ / "out" / "morph.vdb").string() +
+      " 2>" + (dir_ / "cli.log").string();
+  ASSERT_EQ(std::system(cmd.c_str()), 0) << ReadAll(dir_ / "cli.log");
+  EXPECT_TRUE(std::filesystem::exists(dir_ / "out" / "morph.vdb"));
+  for (int i = 1; i <= 4; ++i)
+    EXPECT_TRUE(std::filesystem::exists(dir_ / "out" / ("morph.000" + std::to_string(i) + ".vdb")))
+        << ReadAll(dir_ / "cli.log");
+}
+
+}  // namespace
+}  // namespace nimbus

@@ -1,0 +1,306 @@
+// The chaos-game part of the spec (issue 3) from JSON to the runner's VDB:
+// variations, final transforms, colour, memory limits, bad points and
+// convergence.
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include "core/attractors.h"
+#include "core/variations.h"
+#include "proto/spec_convert.h"
+#include "proto/spec_io.h"
+#include "server/job_runner.h"
+#include "tests/support/test_util.h"
+
+namespace nimbus {
+namespace {
+
+using ::testing::HasSubstr;
+
+v1::JobSpec Parse(const std::string& json) {
+  auto spec = spec::ParseSpec(json, spec::SpecFormat::kJson);
+  EXPECT_TRUE(spec.ok()) << spec.status();
+  return spec.ok() ? *spec : v1::JobSpec{};
+}
+
+// Two maps: a contraction and one map built around `map_json`.
+std::string SpecWith(const std::string& map_json, const std::string& extra_ifs = "",
+                     const std::string& extra_cg = "", int resolution = 32,
+                     uint64_t iterations = 200000) {
+  return absl::StrCat(R"({"name": "t", "grid": {"resolution": [)", resolution,
+                      R"(], "bounds_min": {"x": -2, "y": -2, "z": -2},
+            "bounds_max": {"x": 2, "y": 2, "z": 2}},
+  "chaos_game": {"ifs": {"maps": [
+      {"steps": [{"translate": {"x": 0.5}}, {"scale": {"uniform": 0.5}}]},
+      )",
+                      map_json, "]", extra_ifs, R"(}, "iterations": ")", iterations, "\"",
+                      extra_cg, "}}");
+}
+
+absl::StatusOr<spec::ConvertedJob> Convert(const std::string& json, spec::Limits limits = {}) {
+  return spec::ConvertSpec(Parse(json), limits, 2);
+}
+
+// A JobContext that records what a runner reports.
+class FakeContext : public server::JobContext {
+ public:
+  const std::string& job_id() const override { return id_; }
+  int threads() const override { return 2; }
+  Interrupter* interrupter() override { return nullptr; }
+  absl::Status ReportProgress(uint64_t done, uint64_t total) override {
+    progress_.push_back(done);
+    return absl::OkStatus();
+  }
+  void MaybePublishPreview(const std::vector<const CountGrid*>&, const GridFrame&,
+                           const DensityOptions&, uint64_t) override {}
+  void SetStat(const std::string& key, uint64_t value) override { stats[key] = value; }
+  void AddWarning(const std::string& w) override { warnings.push_back(w); }
+  std::filesystem::path ResultScratchPath() override { return dir_ / "result.vdb"; }
+  Metadata BaseMetadata() const override { return {}; }
+
+  std::map<std::string, uint64_t> stats;
+  std::vector<std::string> warnings;
+  std::vector<uint64_t> progress_;
+  std::filesystem::path result() { return dir_ / "result.vdb"; }
+
+ private:
+  std::string id_ = "job";
+  testing::TempDir dir_;
+};
+
+TEST(ChaosSpec, EveryVariationIsWiredThroughTheSpec) {
+  for (VariationKind kind : AllVariations()) {
+    const std::string name(VariationName(kind));
+    const std::string map = absl::StrCat(
+        R"({"steps": [{"translate": {"y": 0.2}}, {"scale": {"uniform": 0.6}}],
+            "variations": [{"name": ")",
+        name, R"(", "weight": 0.7, "params": [0.5, 1.5, 0.25, 2]}]})");
+    auto job = Convert(SpecWith(map));
+    ASSERT_TRUE(job.ok()) << name << ": " << job.status();
+    const PointMap& m = job->chaos_game.ifs.maps[1];
+    ASSERT_EQ(m.variations.size(), 1u) << name;
+    EXPECT_EQ(m.variations[0].kind, kind) << name;
+    EXPECT_EQ(m.variations[0].weight, 0.7) << name;
+    EXPECT_EQ(m.variations[0].params[1], 1.5) << name;
+    // The converted map is pre-affine then the weighted variation.
+    const Vec3 p{0.3, -0.2, 0.4};
+    Rng r1(5, 0), r2(5, 0);
+    const Vec3 got = m.Apply(p, r1);
+    const Vec3 want = 0.7 * EvaluateVariation(m.variations[0], m.pre.Apply(p), m.pre, r2);
+    EXPECT_EQ(got, want) << name;
+    // And the job runs end to end without crashing.
+    FakeContext ctx;
+    ASSERT_TRUE(server::RunChaosGameJob(*job, ctx).ok()) << name;
+    EXPECT_TRUE(ctx.stats.count("reseeded")) << name;
+  }
+}
+
+TEST(ChaosSpec, UnknownVariationNamesItsPath) {
+  auto job = Convert(SpecWith(R"({"variations": [{"name": "nope"}]})", R"(, "final": {})"));
+  EXPECT_EQ(job.status().code(), absl::StatusCode::kInvalidArgument);
+  auto fin = Convert(SpecWith(R"({"steps": [{"scale": {"uniform": 0.4}}]})",
+                              R"(, "final": {"variations": [{"name": "nope"}]})"));
+  EXPECT_THAT(std::string(fin.status().message()),
+              HasSubstr("chaos_game.ifs.final.variations[0].name"));
+}
+
+TEST(ChaosSpec, FinalAndArcsConvert) {
+  auto job = Convert(SpecWith(R"({"steps": [{"scale": {"uniform": 0.4}}]})",
+                              R"(, "final": {"variations": [{"name": "spherical"}]},
+                                 "arcs": {"angle_per_unit": 0.5, "amplitude": 0.1,
+                                          "frequency": 2})"));
+  ASSERT_TRUE(job.ok()) << job.status();
+  const Ifs& ifs = job->chaos_game.ifs;
+  ASSERT_TRUE(ifs.final_map.has_value());
+  EXPECT_EQ(ifs.final_map->variations[0].kind, VariationKind::kSpherical);
+  ASSERT_TRUE(ifs.arcs.has_value());
+  EXPECT_EQ(ifs.arcs->angle_per_unit, 0.5);
+  EXPECT_EQ(ifs.arcs->amplitude, 0.1);
+  EXPECT_EQ(ifs.arcs->frequency, 2);
+  // The final map does not take part in the walk's probabilities.
+  EXPECT_EQ(ifs.probabilities.size(), 2u);
+}
+
+TEST(ChaosSpec, ColourOptionsConvertWithDefaults) {
+  const std::string map = R"({"steps": [{"scale": {"uniform": 0.4}}], "color": 0.8})";
+  auto plain = Convert(SpecWith(map));
+  ASSERT_TRUE(plain.ok());
+  EXPECT_EQ(plain->chaos_game.color.mode, ColorMode::kNone);
+  EXPECT_FALSE(plain->density.color);
+
+  auto addr = Convert(SpecWith(map, "", R"(, "color": {})"));
+  ASSERT_TRUE(addr.ok()) << addr.status();
+  EXPECT_EQ(addr->chaos_game.color.mode, ColorMode::kAddress);
+  EXPECT_EQ(addr->chaos_game.color.blend, 0.05);
+  EXPECT_TRUE(addr->density.color);
+  EXPECT_TRUE(addr->density.palette.is_sine());
+
+  auto stops = Convert(SpecWith(map, "", R"(, "color": {"mode": "COLOR_MODE_MAP", "blend": 0.5,
+      "address_grid": true, "palette": {"stops": [
+        {"position": 0, "rgb": {"x": 1}}, {"position": 1, "rgb": {"z": 1}}]}},
+      "raw_counts": "RAW_COUNTS_UINT32")"));
+  ASSERT_TRUE(stops.ok()) << stops.status();
+  EXPECT_EQ(stops->chaos_game.color.mode, ColorMode::kMap);
+  EXPECT_EQ(stops->chaos_game.color.blend, 0.5);
+  EXPECT_FALSE(stops->density.palette.is_sine());
+  EXPECT_TRUE(stops->density.address_grid);
+  EXPECT_EQ(stops->density.raw_counts, RawCounts::kInteger);
+
+  auto bad = Convert(SpecWith(map, "", R"(, "color": {"palette": {"stops": [
+        {"position": 0.7}, {"position": 0.2}]}})"));
+  EXPECT_THAT(std::string(bad.status().message()),
+              HasSubstr("chaos_game.color.palette.stops[1].position"));
+  auto blend = Convert(SpecWith(map, "", R"(, "color": {"blend": 1.5})"));
+  EXPECT_THAT(std::string(blend.status().message()), HasSubstr("chaos_game.color.blend"));
+}
+
+TEST(ChaosSpec, MemoryLimitRefusesTheJobBeforeItAllocates) {
+  const std::string map = R"({"steps": [{"scale": {"uniform": 0.4}}]})";
+  spec::Limits limits;
+  limits.max_memory_bytes = uint64_t{6} << 30;
+  // A nonlinear map may reach anywhere: 2^33 steps may touch every tile of
+  // two 1024^3 counter grids (2 x 4 GiB).
+  const std::string nonlinear =
+      R"({"steps": [{"scale": {"uniform": 0.4}}], "variations": [{"name": "swirl"}]})";
+  auto big = Convert(SpecWith(nonlinear, "", "", 1024, uint64_t{1} << 33), limits);
+  EXPECT_EQ(big.status().code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_THAT(std::string(big.status().message()), HasSubstr("the chaos game needs up to"));
+  // Few steps touch few tiles: the same grid fits.
+  auto few = Convert(SpecWith(map, "", "", 1024, 20'000), limits);
+  ASSERT_TRUE(few.ok()) << few.status();
+  EXPECT_GT(few->estimated_memory_bytes, 0u);
+  // A small attractor reaches few tiles however long it runs: these maps
+  // keep every point in a ball of radius ~0.5 inside the [-2, 2]^3 grid.
+  // (The converter adds its own worst case for the output grid, 4 GiB.)
+  auto small = Convert(SpecWith(map, "", "", 1024, uint64_t{1} << 33), limits);
+  ASSERT_TRUE(small.ok()) << small.status();
+  EXPECT_LT(small->estimated_memory_bytes, uint64_t{5} << 30);
+}
+
+TEST(ChaosSpec, NonFiniteMapsAreReportedNotFatal) {
+  // A map that overflows to infinity every time it is chosen.
+  const std::string map = R"({"steps": [{"scale": {"uniform": 1e300}}],
+      "post": [{"scale": {"uniform": 1e300}}], "probability": 0.2})";
+  std::string json = SpecWith(map, "", "", 16, 300000);
+  v1::JobSpec spec = Parse(json);
+  spec.mutable_chaos_game()->mutable_ifs()->mutable_maps(0)->set_probability(0.8);
+  spec.mutable_chaos_game()->mutable_ifs()->set_allow_expanding(true);
+  auto job = spec::ConvertSpec(spec, {}, 2);
+  ASSERT_TRUE(job.ok()) << job.status();
+  FakeContext ctx;
+  ASSERT_TRUE(server::RunChaosGameJob(*job, ctx).ok());
+  EXPECT_GT(ctx.stats["reseeded"], 1000u);
+  bool warned = false;
+  for (const auto& w : ctx.warnings) warned |= w.find("bad-point rate") != std::string::npos;
+  EXPECT_TRUE(warned);
+  auto vol = ReadVdbFile(ctx.result());
+  ASSERT_TRUE(vol.ok());
+  EXPECT_GT(std::get<int64_t>(*vol->Find("nimbus_reseeded")), 1000);
+}
+
+TEST(ChaosSpec, ConvergenceStopsEarlyAndSaysWhy) {
+  const std::string map = R"({"steps": [{"translate": {"y": 0.5}}, {"scale": {"uniform": 0.5}}]})";
+  auto job = Convert(SpecWith(map, "", R"(, "convergence": {"tolerance": 0.01,
+      "check_every": "2097152"})", 128, uint64_t{1} << 32));
+  ASSERT_TRUE(job.ok()) << job.status();
+  FakeContext ctx;
+  ASSERT_TRUE(server::RunChaosGameJob(*job, ctx).ok());
+  auto vol = ReadVdbFile(ctx.result());
+  ASSERT_TRUE(vol.ok());
+  EXPECT_EQ(std::get<std::string>(*vol->Find("nimbus_stop_reason")), "converged");
+  EXPECT_LT(std::get<int64_t>(*vol->Find("nimbus_iterations")), int64_t{1} << 32);
+  EXPECT_LT(std::get<double>(*vol->Find("nimbus_convergence_change")), 0.01);
+  EXPECT_GT(ctx.stats["peak_memory_bytes"], 0u);
+
+  // Without convergence the job runs its budget.
+  auto full = Convert(SpecWith(map, "", "", 32, 3'000'000));
+  ASSERT_TRUE(full.ok());
+  FakeContext ctx2;
+  ASSERT_TRUE(server::RunChaosGameJob(*full, ctx2).ok());
+  auto vol2 = ReadVdbFile(ctx2.result());
+  ASSERT_TRUE(vol2.ok());
+  EXPECT_EQ(std::get<std::string>(*vol2->Find("nimbus_stop_reason")), "iterations");
+}
+
+TEST(ChaosSpec, ColourJobWritesCdAddressAndCounts) {
+  const std::string map = R"({"steps": [{"translate": {"y": 0.5}}, {"scale": {"uniform": 0.5}}]})";
+  auto job = Convert(SpecWith(map, R"(, "arcs": {"angle_per_unit": 0.4, "amplitude": 0.05,
+      "frequency": 0.3})", R"(, "color": {"address_grid": true}, "raw_counts": "RAW_COUNTS_FLOAT")"));
+  ASSERT_TRUE(job.ok()) << job.status();
+  FakeContext ctx;
+  ASSERT_TRUE(server::RunChaosGameJob(*job, ctx).ok());
+  auto cd = ReadVec3VdbFile(ctx.result());
+  ASSERT_TRUE(cd.ok()) << cd.status();
+  auto address = ReadVdbFile(ctx.result(), "address");
+  ASSERT_TRUE(address.ok()) << address.status();
+  auto counts = ReadVdbFile(ctx.result(), "counts");
+  ASSERT_TRUE(counts.ok()) << counts.status();
+  double total = 0;
+  for (float c : counts->values) total += c;
+  auto density = ReadVdbFile(ctx.result());
+  ASSERT_TRUE(density.ok());
+  EXPECT_EQ(int64_t(total), std::get<int64_t>(*density->Find("nimbus_total_count")));
+  for (float a : address->values) {
+    EXPECT_GE(a, 0.f);
+    EXPECT_LE(a, 1.f);
+  }
+}
+
+TEST(ChaosSpec, SplatIsRecordedAndScalesCounts) {
+  const std::string map = R"({"steps": [{"translate": {"y": 0.5}}, {"scale": {"uniform": 0.5}}]})";
+  auto job = Convert(SpecWith(map, "", R"(, "splat": true, "raw_counts": "RAW_COUNTS_UINT32")"));
+  ASSERT_TRUE(job.ok()) << job.status();
+  EXPECT_TRUE(job->chaos_game.splat);
+  FakeContext ctx;
+  ASSERT_TRUE(server::RunChaosGameJob(*job, ctx).ok());
+  auto density = ReadVdbFile(ctx.result());
+  ASSERT_TRUE(density.ok());
+  EXPECT_EQ(std::get<int64_t>(*density->Find("nimbus_count_scale")), 64);
+  const int64_t inside = std::get<int64_t>(*density->Find("nimbus_iterations")) -
+                         std::get<int64_t>(*density->Find("nimbus_outside"));
+  EXPECT_EQ(std::get<int64_t>(*density->Find("nimbus_total_count")), 64 * inside);
+}
+
+// The colour examples, shrunk to a quick run: they stay mostly inside their
+// bounds, rarely go non-finite and write Cd.
+TEST(ChaosSpec, ColourExamplesRunCleanly) {
+  for (const char* name : {"examples/flame_cloud.json", "examples/arcs_post.json"}) {
+    auto spec = spec::LoadSpecFile(testing::SourcePath(name));
+    ASSERT_TRUE(spec.ok()) << name << ": " << spec.status();
+    spec->mutable_chaos_game()->set_iterations(3'000'000);
+    auto& res = *spec->mutable_grid()->mutable_resolution();
+    for (int i = 0; i < res.size(); ++i) res[i] = std::max(8, res[i] / 8);
+    auto job = spec::ConvertSpec(*spec, {}, 2);
+    ASSERT_TRUE(job.ok()) << name << ": " << job.status();
+    FakeContext ctx;
+    ASSERT_TRUE(server::RunChaosGameJob(*job, ctx).ok()) << name;
+    EXPECT_TRUE(ctx.warnings.empty()) << name << ": " << ctx.warnings.front();
+    EXPECT_LT(ctx.stats["outside"], 3'000'000u / 10) << name;
+    auto cd = ReadVec3VdbFile(ctx.result());
+    ASSERT_TRUE(cd.ok()) << name << ": " << cd.status();
+  }
+}
+
+TEST(ChaosSpec, FernVolumeExampleIsTheBenchmarkedAttractor) {
+  auto spec = spec::LoadSpecFile(testing::SourcePath("examples/fern_volume.json"));
+  ASSERT_TRUE(spec.ok()) << spec.status();
+  auto job = spec::ConvertSpec(*spec, {}, 2);
+  ASSERT_TRUE(job.ok()) << job.status();
+  const ChaosGameParams ref = FernVolumeParams(1024, 1);
+  EXPECT_EQ(job->frame.resolution.x, 1024);
+  EXPECT_EQ(job->frame.bounds.min, ref.frame.bounds.min);
+  EXPECT_EQ(job->frame.bounds.max, ref.frame.bounds.max);
+  ASSERT_EQ(job->chaos_game.ifs.maps.size(), ref.ifs.maps.size());
+  for (size_t i = 0; i < ref.ifs.maps.size(); ++i) {
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 4; ++c)
+        EXPECT_NEAR(job->chaos_game.ifs.maps[i].pre.m[r][c], ref.ifs.maps[i].pre.m[r][c], 1e-12);
+    EXPECT_NEAR(job->chaos_game.ifs.probabilities[i], ref.ifs.probabilities[i], 1e-12);
+  }
+  // Volume-filling: the maps' volume factors sum above 1.
+  double volume = 0;
+  for (const PointMap& m : ref.ifs.maps) volume += std::fabs(m.pre.Determinant());
+  EXPECT_GT(volume, 1.0);
+}
+
+}  // namespace
+}  // namespace nimbus
