@@ -152,8 +152,11 @@ absl::StatusOr<ConvertedJob> ConvertSpec(const v1::JobSpec& spec, const Limits& 
     case v1::JobSpec::GENERATOR_NOT_SET:
       return Invalid("generator", "set one of: chaos_game, set_ifs");
   }
-  // The output float grid can be as large as one full counter grid.
-  job.estimated_memory_bytes += CountGrid::MaxMemoryBytes(job.frame.resolution);
+  // Point generators bound their output by the region they can reach (in
+  // their own estimate); set IFS work on dense sets, so their output grid
+  // can be as large as one full counter grid.
+  if (job.generator == Generator::kSetIfs)
+    job.estimated_memory_bytes += CountGrid::MaxMemoryBytes(job.frame.resolution);
   if (job.estimated_memory_bytes > limits.max_memory_bytes)
     return absl::ResourceExhaustedError(
         StrCat("grid.resolution: the job needs up to ", GiB(job.estimated_memory_bytes),

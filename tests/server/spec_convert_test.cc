@@ -105,6 +105,8 @@ TEST(SpecConvert, LimitsGiveResourceExhausted) {
 
   spec = Valid();
   spec.mutable_grid()->set_resolution(0, 2048);
+  // Enough points to reach every tile: the estimate is bounded by both.
+  spec.mutable_chaos_game()->set_iterations(uint64_t{1} << 34);
   Limits tight;
   tight.max_memory_bytes = uint64_t{1} << 30;
   s = Check(spec, tight);
