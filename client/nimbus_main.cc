@@ -345,12 +345,25 @@ int main(int argc, char** argv) {
               << (conn->embedded ? " (embedded server)" : " on " + g.server) << "\n";
     // Ctrl-C cancels the job rather than leaving it queued behind.
     std::signal(SIGINT, OnSigint);
+    std::atomic<bool> finished{false};
     std::thread canceller([&, id = job->id()] {
-      while (!g_interrupted) {
+      while (!finished) {
         std::this_thread::sleep_for(std::chrono::milliseconds(50));
-        if (g_interrupted) (void)client.Cancel(id);
+        if (g_interrupted && !finished) {
+          (void)client.Cancel(id);
+          return;
+        }
       }
     });
+    // Stops and joins the canceller on every way out of this block.
+    struct Joiner {
+      std::atomic<bool>& finished;
+      std::thread& thread;
+      ~Joiner() {
+        finished = true;
+        thread.join();
+      }
+    } joiner{finished, canceller};
     const std::filesystem::path out(out_path);
     if (out.has_parent_path()) {
       std::error_code ec;
@@ -370,8 +383,7 @@ int main(int argc, char** argv) {
     auto final_job = WatchJob(client, job->id(), watch_args, false, [&](const v1::Job& j) {
       if (j.state() == v1::JOB_STATE_RUNNING) (void)frames.FetchNew(j);
     });
-    g_interrupted = true;
-    canceller.join();
+    finished = true;
     if (!final_job.ok()) return ExitFor(final_job.status());
     if (int rc = Finished(*final_job); rc != 0) return rc;
     // The final list carries every file with its committed hash.
