@@ -29,18 +29,6 @@ namespace {
 
 using client::NimbusClient;
 
-int FreePort() {
-  int fd = ::socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in addr{};
-  addr.sin_family = AF_INET;
-  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  ::bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr);
-  socklen_t len = sizeof addr;
-  ::getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len);
-  ::close(fd);
-  return ntohs(addr.sin_port);
-}
-
 std::string ReadAll(const std::filesystem::path& p) {
   std::ifstream in(p, std::ios::binary);
   std::stringstream ss;
@@ -58,7 +46,7 @@ class CondensationE2E : public ::testing::Test {
  protected:
   void SetUp() override {
     const std::string bin = std::string(NIMBUS_BIN_DIR) + "/nimbusd";
-    const std::string listen = "127.0.0.1:" + std::to_string(FreePort());
+    const std::string listen = "127.0.0.1:" + std::to_string(testing::FreePort());
     const std::string data = (dir_ / "data").string();
     pid_ = ::fork();
     if (pid_ == 0) {

@@ -26,18 +26,6 @@ namespace {
 using client::NimbusClient;
 using Clock = std::chrono::steady_clock;
 
-int FreePort() {
-  int fd = ::socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in addr{};
-  addr.sin_family = AF_INET;
-  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  ::bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr);
-  socklen_t len = sizeof addr;
-  ::getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len);
-  ::close(fd);
-  return ntohs(addr.sin_port);
-}
-
 // A nimbusd child process.
 class Nimbusd {
  public:
@@ -86,7 +74,7 @@ v1::JobSpec Tetrahedron(int resolution, uint64_t iterations) {
 class ServiceE2E : public ::testing::Test {
  protected:
   void SetUp() override {
-    server_ = std::make_unique<Nimbusd>(dir_ / "data", FreePort());
+    server_ = std::make_unique<Nimbusd>(dir_ / "data", testing::FreePort());
     server_->Start();
   }
   // Waits until the job is running with some progress.

@@ -20,6 +20,9 @@ class TempDir {
   std::filesystem::path path_;
 };
 
+/// A loopback TCP port that was free a moment ago, for test servers.
+int FreePort();
+
 /// Absolute path of a file in the source tree, e.g. SourcePath("examples/tree.json").
 std::filesystem::path SourcePath(const std::string& relative);
 
