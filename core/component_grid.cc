@@ -1,5 +1,7 @@
 #include "core/component_grid.h"
 
+#include "core/vdb_internal.h"
+
 #include <openvdb/openvdb.h>
 
 #include <mutex>
@@ -50,28 +52,13 @@ uint64_t ComponentAccumulator::MaxMemoryBytes(Int3 resolution) {
 
 namespace {
 
-void InitOpenVdbOnce() {
-  static std::once_flag once;
-  std::call_once(once, [] { openvdb::initialize(); });
-}
-
-// Same convention as vdb_io.cc: voxel centres at integer index coordinates.
-openvdb::math::Transform::Ptr FrameTransform(const GridFrame& frame) {
-  const Vec3 h = frame.VoxelSize();
-  openvdb::math::Mat4d m = openvdb::math::Mat4d::identity();
-  m.setToScale(openvdb::Vec3d(h.x, h.y, h.z));
-  m.setTranslation(openvdb::Vec3d(frame.bounds.min.x + 0.5 * h.x, frame.bounds.min.y + 0.5 * h.y,
-                                  frame.bounds.min.z + 0.5 * h.z));
-  return openvdb::math::Transform::createLinearTransform(m);
-}
-
 template <typename GridT>
 typename GridT::Ptr BuildComponentGrid(const ComponentAccumulator& acc, const GridFrame& frame) {
   using ValueT = typename GridT::ValueType;
   auto grid = GridT::create(ValueT(-1));
   grid->setName("component");
   grid->setGridClass(openvdb::GRID_UNKNOWN);
-  grid->setTransform(FrameTransform(frame));
+  grid->setTransform(vdb_internal::FrameTransform(frame));
   auto accessor = grid->getAccessor();
   acc.ForEachLabel([&](int x, int y, int z, int32_t label) {
     accessor.setValueOn(openvdb::Coord(x, y, z), ValueT(label));
@@ -96,7 +83,7 @@ absl::Status WriteDensityAndComponentVdb(const std::filesystem::path& path,
                                          const Metadata& metadata) {
   if (type == ComponentGridType::kNone)
     return WriteDensityVdb(path, acc.density(), frame, options, metadata);
-  InitOpenVdbOnce();
+  vdb_internal::InitOpenVdb();
   // The density grid comes from vdb_io so both writers agree bit for bit;
   // it is written to a side file, read back and joined with the labels.
   const std::filesystem::path density_tmp = path.string() + ".density.partial";
@@ -134,7 +121,7 @@ absl::Status WriteDensityAndComponentVdb(const std::filesystem::path& path,
 
 absl::StatusOr<std::vector<int32_t>> ReadComponentGrid(const std::filesystem::path& path,
                                                        Int3 resolution) {
-  InitOpenVdbOnce();
+  vdb_internal::InitOpenVdb();
   std::vector<int32_t> out(size_t(resolution.Volume()), -1);
   auto put = [&](const openvdb::Coord& c, int32_t v) -> absl::Status {
     if (c.x() < 0 || c.y() < 0 || c.z() < 0 || c.x() >= resolution.x || c.y() >= resolution.y ||

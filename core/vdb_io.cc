@@ -1,7 +1,7 @@
 #include "core/vdb_io.h"
 
-#include <openvdb/openvdb.h>
 #include <openvdb/io/Stream.h>
+#include <openvdb/openvdb.h>
 
 #include <cmath>
 #include <fstream>
@@ -9,15 +9,34 @@
 #include <sstream>
 
 #include "absl/strings/str_cat.h"
+#include "core/vdb_internal.h"
 
 namespace nimbus {
 
-namespace {
+namespace vdb_internal {
 
 void InitOpenVdb() {
   static std::once_flag once;
   std::call_once(once, [] { openvdb::initialize(); });
 }
+
+openvdb::math::Transform::Ptr FrameTransform(const GridFrame& frame) {
+  const Vec3 h = frame.VoxelSize();
+  openvdb::math::Mat4d m = openvdb::math::Mat4d::identity();
+  m.setToScale(openvdb::Vec3d(h.x, h.y, h.z));
+  // Index-space voxel centres sit at integer coordinates in OpenVDB.
+  m.setTranslation(openvdb::Vec3d(frame.bounds.min.x + 0.5 * h.x, frame.bounds.min.y + 0.5 * h.y,
+                                  frame.bounds.min.z + 0.5 * h.z));
+  return openvdb::math::Transform::createLinearTransform(m);
+}
+
+}  // namespace vdb_internal
+
+using vdb_internal::FrameTransform;
+using vdb_internal::InitOpenVdb;
+
+namespace {
+
 
 const char* MappingName(DensityMapping m) {
   switch (m) {
@@ -50,15 +69,6 @@ struct Normaliser {
   }
 };
 
-openvdb::math::Transform::Ptr FrameTransform(const GridFrame& frame) {
-  const Vec3 h = frame.VoxelSize();
-  openvdb::math::Mat4d m = openvdb::math::Mat4d::identity();
-  m.setToScale(openvdb::Vec3d(h.x, h.y, h.z));
-  // Index-space voxel centres sit at integer coordinates in OpenVDB.
-  m.setTranslation(openvdb::Vec3d(frame.bounds.min.x + 0.5 * h.x, frame.bounds.min.y + 0.5 * h.y,
-                                  frame.bounds.min.z + 0.5 * h.z));
-  return openvdb::math::Transform::createLinearTransform(m);
-}
 
 void AddMeta(openvdb::MetaMap& meta, const std::string& key, const MetaValue& v) {
   if (auto* s = std::get_if<std::string>(&v)) meta.insertMeta(key, openvdb::StringMetadata(*s));
