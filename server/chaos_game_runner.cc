@@ -14,6 +14,22 @@ namespace {
 constexpr int kConvergenceResolution = 32;
 }  // namespace
 
+void ReportChaosGameStats(const ChaosGameStats& stats, JobContext& ctx) {
+  ctx.SetStat("outside", stats.outside);
+  ctx.SetStat("reseeded", stats.reseeded);
+  ctx.SetStat("final_nonfinite", stats.final_nonfinite);
+  if (stats.iterations_done > 0 && stats.reseeded * 1000 > stats.iterations_done)
+    ctx.AddWarning(absl::StrCat("high bad-point rate: ", stats.reseeded,
+                                " walkers re-seeded after non-finite points in ",
+                                stats.iterations_done, " steps"));
+  if (stats.iterations_done > 0 && stats.final_nonfinite * 1000 > stats.iterations_done)
+    ctx.AddWarning(absl::StrCat("the final transform made ", stats.final_nonfinite, " of ",
+                                stats.iterations_done, " plotted points non-finite"));
+  if (stats.iterations_done > 0 && stats.outside * 2 > stats.iterations_done)
+    ctx.AddWarning(absl::StrCat(stats.outside, " of ", stats.iterations_done,
+                                " points fell outside the grid bounds"));
+}
+
 absl::Status RunChaosGameJob(const spec::ConvertedJob& job, JobContext& ctx) {
   using Clock = std::chrono::steady_clock;
   auto game = ChaosGame::Create(job.chaos_game, ctx.threads());
@@ -56,19 +72,7 @@ absl::Status RunChaosGameJob(const spec::ConvertedJob& job, JobContext& ctx) {
     ctx.MaybePublishPreview(parts, job.frame, job.density, done);
   }
   const ChaosGameStats stats = (*game)->stats();
-  ctx.SetStat("outside", stats.outside);
-  ctx.SetStat("reseeded", stats.reseeded);
-  ctx.SetStat("final_nonfinite", stats.final_nonfinite);
-  if (stats.iterations_done > 0 && stats.reseeded * 1000 > stats.iterations_done)
-    ctx.AddWarning(absl::StrCat("high bad-point rate: ", stats.reseeded,
-                                " walkers re-seeded after non-finite points in ",
-                                stats.iterations_done, " steps"));
-  if (stats.iterations_done > 0 && stats.final_nonfinite * 1000 > stats.iterations_done)
-    ctx.AddWarning(absl::StrCat("the final transform made ", stats.final_nonfinite, " of ",
-                                stats.iterations_done, " plotted points non-finite"));
-  if (stats.iterations_done > 0 && stats.outside * 2 > stats.iterations_done)
-    ctx.AddWarning(absl::StrCat(stats.outside, " of ", stats.iterations_done,
-                                " points fell outside the grid bounds"));
+  ReportChaosGameStats(stats, ctx);
   const std::string stop_reason = converged ? "converged" : "iterations";
   const CountGrid counts = (*game)->TakeCounts();
   // The output grids come on top of the merged counters.

@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "absl/status/status.h"
+#include "core/chaos_game.h"
 #include "core/count_grid.h"
 #include "core/geometry.h"
 #include "core/interrupter.h"
@@ -44,6 +45,10 @@ class JobContext {
   /// Metadata every result grid carries (seed is added by the runner).
   virtual Metadata BaseMetadata() const = 0;
 };
+
+/// Publishes a chaos game's counters as job stats and warns when many
+/// points went non-finite or fell outside the grid.
+void ReportChaosGameStats(const ChaosGameStats& stats, JobContext& ctx);
 
 /// Runs a chaos-game job (plain or recurrent IFS) into ResultScratchPath().
 absl::Status RunChaosGameJob(const spec::ConvertedJob& job, JobContext& ctx);

@@ -55,19 +55,12 @@ absl::Status RunIfsMatrixJob(const spec::ConvertedJob& job, JobContext& ctx) {
     sum.iterations_done += stats.iterations_done;
     sum.outside += stats.outside;
     sum.reseeded += stats.reseeded;
+    sum.final_nonfinite += stats.final_nonfinite;
     finished += stats.iterations_done;
     const CountGrid counts = (*game)->TakeCounts();
     acc.Add(int32_t(c), counts);
   }
-  ctx.SetStat("outside", sum.outside);
-  ctx.SetStat("reseeded", sum.reseeded);
-  if (sum.iterations_done > 0 && sum.reseeded * 1000 > sum.iterations_done)
-    ctx.AddWarning(absl::StrCat("high bad-point rate: ", sum.reseeded,
-                                " walkers re-seeded after non-finite points in ",
-                                sum.iterations_done, " steps"));
-  if (sum.iterations_done > 0 && sum.outside * 2 > sum.iterations_done)
-    ctx.AddWarning(absl::StrCat(sum.outside, " of ", sum.iterations_done,
-                                " points fell outside the grid bounds"));
+  ReportChaosGameStats(sum, ctx);
   const std::vector<uint64_t> voxels = acc.VoxelsPerLabel();
   for (size_t c = 0; c < plan->selection.size(); ++c)
     ctx.SetStat(absl::StrCat("component_", c, "_voxels"), c < voxels.size() ? voxels[c] : 0);
