@@ -62,22 +62,24 @@ double Affine3::Determinant() const {
          m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
 }
 
-double Affine3::ContractionFactor() const {
-  // Largest eigenvalue of the symmetric 3x3 matrix A^T A, by the closed-form
-  // trigonometric solution; its square root is the spectral norm of A.
+namespace {
+
+// Eigenvalues of the symmetric 3x3 matrix A^T A (the squared singular values
+// of A), smallest first, by the closed-form trigonometric solution.
+std::array<double, 3> GramEigenvalues(const Affine3& a) {
   double s[3][3];
   for (int i = 0; i < 3; ++i)
     for (int j = 0; j < 3; ++j) {
       double v = 0;
-      for (int k = 0; k < 3; ++k) v += m[k][i] * m[k][j];
+      for (int k = 0; k < 3; ++k) v += a.m[k][i] * a.m[k][j];
       s[i][j] = v;
     }
   const double p1 = s[0][1] * s[0][1] + s[0][2] * s[0][2] + s[1][2] * s[1][2];
-  const double q = (s[0][0] + s[1][1] + s[2][2]) / 3.0;
-  double largest;
+  std::array<double, 3> e;
   if (p1 <= 1e-300) {
-    largest = std::max({s[0][0], s[1][1], s[2][2]});
+    e = {s[0][0], s[1][1], s[2][2]};
   } else {
+    const double q = (s[0][0] + s[1][1] + s[2][2]) / 3.0;
     const double p2 = (s[0][0] - q) * (s[0][0] - q) + (s[1][1] - q) * (s[1][1] - q) +
                       (s[2][2] - q) * (s[2][2] - q) + 2 * p1;
     const double p = std::sqrt(p2 / 6.0);
@@ -87,10 +89,23 @@ double Affine3::ContractionFactor() const {
     const double detb = b[0][0] * (b[1][1] * b[2][2] - b[1][2] * b[2][1]) -
                         b[0][1] * (b[1][0] * b[2][2] - b[1][2] * b[2][0]) +
                         b[0][2] * (b[1][0] * b[2][1] - b[1][1] * b[2][0]);
-    const double r = std::clamp(detb / 2.0, -1.0, 1.0);
-    largest = q + 2 * p * std::cos(std::acos(r) / 3.0);
+    const double phi = std::acos(std::clamp(detb / 2.0, -1.0, 1.0)) / 3.0;
+    const double largest = q + 2 * p * std::cos(phi);
+    const double smallest = q + 2 * p * std::cos(phi + 2 * M_PI / 3);
+    e = {smallest, 3 * q - largest - smallest, largest};
   }
-  return std::sqrt(std::max(largest, 0.0));
+  std::sort(e.begin(), e.end());
+  return e;
+}
+
+}  // namespace
+
+double Affine3::ContractionFactor() const {
+  return std::sqrt(std::max(GramEigenvalues(*this)[2], 0.0));
+}
+
+double Affine3::SmallestSingularValue() const {
+  return std::sqrt(std::max(GramEigenvalues(*this)[0], 0.0));
 }
 
 }  // namespace nimbus

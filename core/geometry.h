@@ -61,6 +61,9 @@ struct Affine3 {
   /// Largest singular value of the linear part: the map's Lipschitz constant.
   /// A map is a contraction iff this is < 1.
   double ContractionFactor() const;
+  /// Smallest singular value of the linear part: below 1 some direction
+  /// shrinks.
+  double SmallestSingularValue() const;
 
   friend Affine3 operator*(const Affine3& f, const Affine3& g);  // f after g
   friend bool operator==(const Affine3& a, const Affine3& b) = default;

@@ -341,30 +341,6 @@ std::optional<Affine3> Inverse(const Affine3& f) {
   return inv;
 }
 
-// Smallest singular value of the linear part: below 1, some direction
-// shrinks and pulling back alone could skip thin parts.
-double SmallestSingularValue(const Affine3& f) {
-  double s[3][3];  // A^T A
-  for (int i = 0; i < 3; ++i)
-    for (int j = 0; j < 3; ++j)
-      s[i][j] = f.m[0][i] * f.m[0][j] + f.m[1][i] * f.m[1][j] + f.m[2][i] * f.m[2][j];
-  const double p1 = s[0][1] * s[0][1] + s[0][2] * s[0][2] + s[1][2] * s[1][2];
-  const double q = (s[0][0] + s[1][1] + s[2][2]) / 3;
-  const double p2 = (s[0][0] - q) * (s[0][0] - q) + (s[1][1] - q) * (s[1][1] - q) +
-                    (s[2][2] - q) * (s[2][2] - q) + 2 * p1;
-  if (p2 <= 1e-30) return std::sqrt(std::max(q, 0.0));
-  const double p = std::sqrt(p2 / 6);
-  double b[3][3];
-  for (int i = 0; i < 3; ++i)
-    for (int j = 0; j < 3; ++j) b[i][j] = (s[i][j] - (i == j ? q : 0)) / p;
-  const double detb = b[0][0] * (b[1][1] * b[2][2] - b[1][2] * b[2][1]) -
-                      b[0][1] * (b[1][0] * b[2][2] - b[1][2] * b[2][0]) +
-                      b[0][2] * (b[1][0] * b[2][1] - b[1][1] * b[2][0]);
-  const double phi = std::acos(std::clamp(detb / 2, -1.0, 1.0)) / 3;
-  const double smallest = q + 2 * p * std::cos(phi + 2 * M_PI / 3);
-  return std::sqrt(std::max(smallest, 0.0));
-}
-
 // Image of `in` under an index-space affine map, written to `out`.
 void TransformIndexSpace(const VoxelSet& in, const Affine3& g, VoxelSet& out) {
   const Int3 res = in.resolution();
@@ -406,7 +382,7 @@ void TransformIndexSpace(const VoxelSet& in, const Affine3& g, VoxelSet& out) {
       });
     }
   }
-  if (!inv || SmallestSingularValue(g) < 1 - 1e-9) {
+  if (!inv || g.SmallestSingularValue() < 1 - 1e-9) {
     tbb::parallel_for(tbb::blocked_range<int>(0, res.z, 2), [&](const tbb::blocked_range<int>& r) {
       in.ForEachInSlabs(r.begin(), r.end(), [&](int x, int y, int z) {
         const Vec3 p = g.Apply({x + 0.5, y + 0.5, z + 0.5});

@@ -24,7 +24,10 @@ TEST(Affine3, DeterminantAndContraction) {
   const Affine3 r = Affine3::Rotate({1, 2, 3}, 37) * Affine3::Scale({0.5, 0.5, 0.5});
   EXPECT_NEAR(r.ContractionFactor(), 0.5, 1e-9);
   EXPECT_NEAR(r.Determinant(), 0.125, 1e-12);
-  // A shear stretches more than its diagonal suggests.
+  EXPECT_NEAR(s.SmallestSingularValue(), 0.25, 1e-12);
+  EXPECT_NEAR(r.SmallestSingularValue(), 0.5, 1e-9);
+  // A shear stretches more than its diagonal suggests, and shrinks as much.
+  EXPECT_LT(Affine3::Shear(1, 0, 0, 0, 0, 0).SmallestSingularValue(), 0.62);
   EXPECT_GT(Affine3::Shear(1, 0, 0, 0, 0, 0).ContractionFactor(), 1.6);
 }
 
