@@ -63,13 +63,7 @@ typename GridT::Ptr BuildComponentGrid(const ComponentAccumulator& acc, const Gr
   acc.ForEachLabel([&](int x, int y, int z, int32_t label) {
     accessor.setValueOn(openvdb::Coord(x, y, z), ValueT(label));
   });
-  const Int3 r = frame.resolution;
-  grid->insertMeta("nimbus_resolution", openvdb::Vec3IMetadata(openvdb::Vec3i(r.x, r.y, r.z)));
-  const Bounds& b = frame.bounds;
-  grid->insertMeta("nimbus_bounds_min",
-                   openvdb::Vec3DMetadata(openvdb::Vec3d(b.min.x, b.min.y, b.min.z)));
-  grid->insertMeta("nimbus_bounds_max",
-                   openvdb::Vec3DMetadata(openvdb::Vec3d(b.max.x, b.max.y, b.max.z)));
+  vdb_internal::SetFrameMetadata(*grid, frame);
   grid->insertMeta("nimbus_component_labels",
                    openvdb::StringMetadata("selection index of the dominant component; -1 none"));
   return grid;
@@ -131,10 +125,7 @@ absl::StatusOr<std::vector<int32_t>> ReadComponentGrid(const std::filesystem::pa
     return absl::OkStatus();
   };
   try {
-    openvdb::io::File file(path.string());
-    file.open();
-    auto grids = file.getGrids();
-    file.close();
+    auto grids = vdb_internal::ReadAllGrids(path);
     for (const auto& g : *grids) {
       if (g->getName() != "component") continue;
       if (auto ig = openvdb::gridPtrCast<openvdb::Int32Grid>(g)) {

@@ -30,6 +30,24 @@ openvdb::math::Transform::Ptr FrameTransform(const GridFrame& frame) {
   return openvdb::math::Transform::createLinearTransform(m);
 }
 
+void SetFrameMetadata(openvdb::GridBase& grid, const GridFrame& frame) {
+  const Int3 r = frame.resolution;
+  grid.insertMeta("nimbus_resolution", openvdb::Vec3IMetadata(openvdb::Vec3i(r.x, r.y, r.z)));
+  const Bounds& b = frame.bounds;
+  grid.insertMeta("nimbus_bounds_min",
+                  openvdb::Vec3DMetadata(openvdb::Vec3d(b.min.x, b.min.y, b.min.z)));
+  grid.insertMeta("nimbus_bounds_max",
+                  openvdb::Vec3DMetadata(openvdb::Vec3d(b.max.x, b.max.y, b.max.z)));
+}
+
+openvdb::GridPtrVecPtr ReadAllGrids(const std::filesystem::path& path) {
+  openvdb::io::File file(path.string());
+  file.open();
+  auto grids = file.getGrids();
+  file.close();
+  return grids;
+}
+
 }  // namespace vdb_internal
 
 using vdb_internal::FrameTransform;
@@ -143,13 +161,7 @@ openvdb::GridPtrVec BuildGrids(const CountGrid& counts, const GridFrame& frame,
       }
     }
   });
-  const Int3 r = frame.resolution;
-  grid->insertMeta("nimbus_resolution", openvdb::Vec3IMetadata(openvdb::Vec3i(r.x, r.y, r.z)));
-  const Bounds& b = frame.bounds;
-  grid->insertMeta("nimbus_bounds_min",
-                   openvdb::Vec3DMetadata(openvdb::Vec3d(b.min.x, b.min.y, b.min.z)));
-  grid->insertMeta("nimbus_bounds_max",
-                   openvdb::Vec3DMetadata(openvdb::Vec3d(b.max.x, b.max.y, b.max.z)));
+  vdb_internal::SetFrameMetadata(*grid, frame);
   grid->insertMeta("nimbus_max_count", openvdb::Int64Metadata(int64_t(max_count)));
   grid->insertMeta("nimbus_total_count", openvdb::Int64Metadata(int64_t(counts.Total())));
   grid->insertMeta("nimbus_density_mapping", openvdb::StringMetadata(MappingName(options.mapping)));
@@ -261,10 +273,7 @@ absl::StatusOr<DenseVolume> ReadVdbFile(const std::filesystem::path& path,
                                         const std::string& name) {
   InitOpenVdb();
   try {
-    openvdb::io::File file(path.string());
-    file.open();
-    auto grids = file.getGrids();
-    file.close();
+    auto grids = vdb_internal::ReadAllGrids(path);
     return ToDense(grids, name);
   } catch (const std::exception& e) {
     return absl::InvalidArgumentError(absl::StrCat("reading ", path.string(), ": ", e.what()));
@@ -295,10 +304,7 @@ absl::StatusOr<DenseVec3Volume> ReadVec3VdbFile(const std::filesystem::path& pat
                                                 const std::string& name) {
   InitOpenVdb();
   try {
-    openvdb::io::File file(path.string());
-    file.open();
-    auto grids = file.getGrids();
-    file.close();
+    auto grids = vdb_internal::ReadAllGrids(path);
     openvdb::Vec3SGrid::Ptr grid;
     openvdb::GridBase::Ptr any;
     for (const auto& g : *grids) {
