@@ -6,25 +6,42 @@
 #include <thread>
 
 #include "absl/strings/str_cat.h"
+#include "core/affine_walk.h"
+#include "core/tile_bins.h"
 
 namespace nimbus {
+
+static_assert(ChaosGame::kWalkers == walk::kLanes);
 
 namespace {
 // Bytes per key in a worker's buffer and its binning scratch.
 constexpr uint64_t kKeyBytes = 2 * sizeof(uint64_t);
+
+Vec3 RandomPoint(Rng& rng, const Bounds& b) {
+  // Three draws in x, y, z order: the argument order of a braced list is
+  // fixed, unlike a function call's.
+  return Vec3{rng.Uniform(b.min.x, b.max.x), rng.Uniform(b.min.y, b.max.y),
+              rng.Uniform(b.min.z, b.max.z)};
+}
+
+size_t BinCapacity(const ChaosGameParams& p);
 }  // namespace
 
 struct ChaosGame::Worker {
   CountGrid* grid = nullptr;
+  // General path: 64-bit keys, binned at flush time.
   std::vector<uint64_t> keys;
   std::vector<uint64_t> scratch;
   size_t n = 0;
+  // Fast path: binned as produced.
+  std::unique_ptr<TileBins> bins;
   ChaosGameStats stats;
 
   bool weighted = true;  // false: plain keys, the cheapest increments
 
   void Flush() {
-    grid->AddKeys(keys.data(), n, scratch, weighted);
+    if (bins) bins->Flush();
+    if (n) grid->AddKeys(keys.data(), n, scratch, weighted);
     n = 0;
   }
 };
@@ -34,8 +51,7 @@ ChaosGame::ChaosGame(ChaosGameParams params, int threads)
 
 ChaosGame::~ChaosGame() = default;
 
-absl::StatusOr<std::unique_ptr<ChaosGame>> ChaosGame::Create(ChaosGameParams params,
-                                                             int threads) {
+absl::StatusOr<std::unique_ptr<ChaosGame>> ChaosGame::Create(ChaosGameParams params, int threads) {
   if (params.ifs.maps.empty()) return absl::InvalidArgumentError("the IFS has no maps");
   const Int3 r = params.frame.resolution;
   if (r.x <= 0 || r.y <= 0 || r.z <= 0)
@@ -75,16 +91,26 @@ absl::StatusOr<std::unique_ptr<ChaosGame>> ChaosGame::Create(ChaosGameParams par
   if (p.color.mode != ColorMode::kNone && !(p.color.blend > 0 && p.color.blend <= 1))
     return absl::InvalidArgumentError("colour blend must be in (0, 1]");
   game->num_chunks_ = (p.iterations + kChunkIterations - 1) / kChunkIterations;
+  game->fast_ = UsesFastPath(p);
+  game->simd_ = std::min(p.simd.value_or(ActiveSimd()), DetectSimd());
+  for (const PointMap& m : ifs.maps)
+    for (const auto& row : m.pre.m)
+      game->affine_coef_.insert(game->affine_coef_.end(), row.begin(), row.end());
   const bool color = p.color.mode != ColorMode::kNone;
+  for (int t = 0; t < game->threads_; ++t) game->counts_.emplace_back(r, color);
+  // Buffers sized once, so memory stays as estimated.
   for (int t = 0; t < game->threads_; ++t) {
-    game->counts_.emplace_back(r, color);
     auto w = std::make_unique<Worker>();
-    w->keys.resize(KeyBatch(p));
-    w->scratch.resize(w->keys.size());  // sized once: memory stays as estimated
+    w->grid = &game->counts_[t];
+    if (game->fast_) {
+      w->bins = std::make_unique<TileBins>(game->counts_[t], BinCapacity(p));
+    } else {
+      w->keys.resize(KeyBatch(p));
+      w->scratch.resize(w->keys.size());
+    }
     w->weighted = p.splat;
     game->workers_.push_back(std::move(w));
   }
-  for (int t = 0; t < game->threads_; ++t) game->workers_[t]->grid = &game->counts_[t];
   return game;
 }
 
@@ -130,7 +156,21 @@ uint64_t ReachableTiles(const ChaosGameParams& p) {
   return std::min(tiles, all);
 }
 
+// Entries each fast-path thread buffers: about 32768 per reachable tile, so
+// a flush pulls each 128 KiB tile (2048 cache lines) into L2 once for ~16
+// increments per line. Capped at 2^26 entries (256 MiB) per thread.
+size_t BinCapacity(const ChaosGameParams& p) {
+  const uint64_t tiles = ReachableTiles(p);
+  const uint64_t want = std::min(tiles * 32768, std::max<uint64_t>(p.iterations, 1));
+  return size_t(std::clamp<uint64_t>(want, uint64_t{1} << 16, uint64_t{1} << 26));
+}
+
 }  // namespace
+
+bool ChaosGame::UsesFastPath(const ChaosGameParams& p) {
+  return !p.chain && !p.ifs.final_map && !p.ifs.arcs && !p.splat &&
+         p.color.mode == ColorMode::kNone && p.ifs.AllAffine();
+}
 
 size_t ChaosGame::KeyBatch(const ChaosGameParams& p) {
   // A flush pulls each active tile (2048 cache lines) into L2 once; with
@@ -156,9 +196,10 @@ ChaosGameMemory ChaosGame::EstimateMemory(const ChaosGameParams& p, int threads,
   const uint64_t touches = (p.iterations + uint64_t(threads) * kWalkers) * (p.splat ? 8 : 1);
   const uint64_t all_tiles = std::min(tiles * uint64_t(threads), touches);
   ChaosGameMemory m;
+  const uint64_t buffers =
+      UsesFastPath(p) ? TileBins::Bytes(r, BinCapacity(p)) : KeyBatch(p) * kKeyBytes;
   m.accumulation = uint64_t(threads) * CountGrid::BoundedMemoryBytes(r, 0, color) +
-                   all_tiles * CountGrid::TileBytes(color) +
-                   uint64_t(threads) * KeyBatch(p) * kKeyBytes;
+                   all_tiles * CountGrid::TileBytes(color) + uint64_t(threads) * buffers;
   // Output: the merged grid, plus one VDB leaf (8^3 voxels, with ~15 %
   // tree overhead) per touched leaf.
   const uint64_t merged = CountGrid::BoundedMemoryBytes(r, std::min(tiles, touches), color);
@@ -170,7 +211,10 @@ ChaosGameMemory ChaosGame::EstimateMemory(const ChaosGameParams& p, int threads,
 uint64_t ChaosGame::MemoryBytes() const {
   uint64_t bytes = 0;
   for (const CountGrid& g : counts_) bytes += g.MemoryBytes();
-  for (const auto& w : workers_) bytes += (w->keys.capacity() + w->scratch.capacity()) * 8;
+  for (const auto& w : workers_) {
+    bytes += (w->keys.capacity() + w->scratch.capacity()) * 8;
+    if (w->bins) bytes += w->bins->MemoryBytes();
+  }
   return bytes;
 }
 
@@ -185,120 +229,104 @@ ChaosGameStats ChaosGame::stats() const {
   return s;
 }
 
-template <bool kColor>
-void ChaosGame::RunChunkAffine(uint64_t chunk, Worker& w) {
-  const ChaosGameParams& p = params_;
-  const uint64_t begin = chunk * kChunkIterations;
-  const uint64_t count = std::min(kChunkIterations, p.iterations - begin);
-  Rng rng(p.seed, chunk);
+// One fast-path chunk: the walkers, the kernel's view of the job and the
+// callbacks it makes for the rare cases (a full bin, a point off the grid).
+struct ChaosGame::FastChunk {
+  walk::Walkers lanes;
+  walk::AffineWalk kernel;
+  TileBins* bins = nullptr;
+  const ChaosGameParams* p = nullptr;
+  const AliasTable* table = nullptr;
+  uint64_t outside = 0, reseeded = 0;
 
-  const Bounds b = p.frame.bounds;
-  const Int3 res = p.frame.resolution;
-  const Vec3 vs = p.frame.VoxelSize();
-  const double ix = 1.0 / vs.x, iy = 1.0 / vs.y, iz = 1.0 / vs.z;
-  const double rx = res.x, ry = res.y, rz = res.z;
-  const uint64_t ty = uint64_t(w.grid->tiles().y), tz = uint64_t(w.grid->tiles().z);
-  const std::vector<PointMap>& maps = p.ifs.maps;
-  // Local copies: stores into the key buffer cannot alias them.
-  std::vector<Affine3> affine(maps.size());
-  std::vector<double> color_of(maps.size());
-  for (size_t i = 0; i < maps.size(); ++i) {
-    affine[i] = maps[i].pre;
-    color_of[i] = maps[i].color;
+  Rng LoadRng(int l) const {
+    return Rng::FromState(lanes.s0[l], lanes.s1[l], lanes.s2[l], lanes.s3[l]);
   }
-  const Affine3* A = affine.data();
-  const AliasTable table = map_table_;
-  const bool by_address = p.color.mode == ColorMode::kAddress;
-  const double blend = p.color.blend;
-  const double inv_maps = 1.0 / double(maps.size());
-  uint64_t reseeded = 0, outside = 0;
-
-  Vec3 pos[kWalkers];
-  double addr[kWalkers], col[kWalkers];
-  auto random_point = [&] {
-    return Vec3{rng.Uniform(b.min.x, b.max.x), rng.Uniform(b.min.y, b.max.y),
-                rng.Uniform(b.min.z, b.max.z)};
-  };
-  auto step = [&](int k) {
-    const uint32_t map = table.Sample(rng.Next());
-    pos[k] = A[map].Apply(pos[k]);
-    if constexpr (kColor) {
-      addr[k] = (double(map) + addr[k]) * inv_maps;
-      const double target = by_address ? addr[k] : color_of[map];
-      col[k] += blend * (target - col[k]);
-    }
-    return IsFinite(pos[k]);
-  };
-  auto warm_up = [&](int k) {
-    pos[k] = random_point();
-    if constexpr (kColor) addr[k] = col[k] = rng.Uniform();
-    for (uint32_t i = 0; i < p.warmup; ++i) {
-      if (!step(k)) {
-        pos[k] = random_point();
+  void Store(int l, const Rng& rng, Vec3 pos) {
+    lanes.s0[l] = rng.state(0), lanes.s1[l] = rng.state(1);
+    lanes.s2[l] = rng.state(2), lanes.s3[l] = rng.state(3);
+    lanes.x[l] = pos.x, lanes.y[l] = pos.y, lanes.z[l] = pos.z;
+  }
+  // RunChunk's warm_up for this case, draw for draw.
+  void WarmUp(int l) {
+    Rng rng = LoadRng(l);
+    Vec3 pos = RandomPoint(rng, p->frame.bounds);
+    for (uint32_t i = 0; i < p->warmup; ++i) {
+      pos = p->ifs.maps[table->Sample(rng.Next())].pre.Apply(pos);
+      if (!IsFinite(pos)) {
+        pos = RandomPoint(rng, p->frame.bounds);
         ++reseeded;
       }
     }
-  };
-  for (int k = 0; k < kWalkers; ++k) warm_up(k);
+    Store(l, rng, pos);
+  }
+  static void Refill(void* self, uint32_t bin) { static_cast<FastChunk*>(self)->bins->Refill(bin); }
+  // RunChunk's advance: a non-finite point restarts the walker, a finite
+  // one off the grid is counted.
+  static void Exit(void* self, int l) {
+    auto* c = static_cast<FastChunk*>(self);
+    if (IsFinite(Vec3{c->lanes.x[l], c->lanes.y[l], c->lanes.z[l]})) {
+      ++c->outside;
+    } else {
+      ++c->reseeded;
+      c->WarmUp(l);
+    }
+  }
+};
 
-  uint64_t* keys = w.keys.data();
-  const size_t cap = w.keys.size();
-  size_t n = w.n;
-  auto advance = [&](int k) {
-    if (!step(k)) [[unlikely]] {
-      ++reseeded;
-      warm_up(k);
-      return;
-    }
-    const double fx = (pos[k].x - b.min.x) * ix, fy = (pos[k].y - b.min.y) * iy,
-                 fz = (pos[k].z - b.min.z) * iz;
-    if (!(fx >= 0 && fx < rx && fy >= 0 && fy < ry && fz >= 0 && fz < rz)) [[unlikely]] {
-      ++outside;
-      return;
-    }
-    const int x = int(fx), y = int(fy), z = int(fz);
-    const uint64_t tile = (uint64_t(x >> 5) * ty + uint64_t(y >> 5)) * tz + uint64_t(z >> 5);
-    uint64_t key = (tile << 15) | CountGrid::LocalOffset(x & 31, y & 31, z & 31);
-    if constexpr (kColor) {
-      const double c = std::clamp(col[k], 0.0, 1.0);
-      key = CountGrid::WithColor(key, uint32_t(c * CountGrid::kColorScale + 0.5));
-    }
-    keys[n++] = key;
-  };
+void ChaosGame::RunChunkFast(uint64_t chunk, Worker& w) {
+  const ChaosGameParams& p = params_;
+  const uint64_t begin = chunk * kChunkIterations;
+  const uint64_t count = std::min(kChunkIterations, p.iterations - begin);
+  FastChunk c;
+  c.bins = w.bins.get();
+  c.p = &p;
+  c.table = &map_table_;
+  for (int l = 0; l < kWalkers; ++l) {
+    c.Store(l, Rng(p.seed, chunk * kWalkers + uint64_t(l)), {});
+    c.WarmUp(l);
+  }
+  walk::AffineWalk& k = c.kernel;
+  k.coef = affine_coef_.data();
+  k.threshold = map_table_.thresholds();
+  k.alias = map_table_.aliases();
+  k.num_maps = uint32_t(p.ifs.maps.size());
+  const Vec3 vs = p.frame.VoxelSize();
+  for (int a = 0; a < 3; ++a) {
+    k.min[a] = p.frame.bounds.min[a];
+    k.inv_voxel[a] = 1.0 / vs[a];
+  }
+  const Int3 res = p.frame.resolution;
+  k.res[0] = res.x, k.res[1] = res.y, k.res[2] = res.z;
+  k.tiles_y = uint32_t(w.grid->tiles().y);
+  k.tiles_z = uint32_t(w.grid->tiles().z);
+  k.bin_shift = c.bins->bin_shift();
+  k.bins = c.bins->cursors();
+  k.owner = &c;
+  k.refill = &FastChunk::Refill;
+  k.exit = &FastChunk::Exit;
+
   const uint64_t rounds = count / kWalkers;
-  const int tail = int(count % kWalkers);
-  for (uint64_t r = 0; r < rounds; ++r) {
-    if (n + kWalkers > cap) {
-      w.n = n;
-      w.Flush();
-      n = 0;
-    }
-    for (int k = 0; k < kWalkers; ++k) advance(k);
-  }
-  if (n + kWalkers > cap) {
-    w.n = n;
-    w.Flush();
-    n = 0;
-  }
-  for (int k = 0; k < tail; ++k) advance(k);
-  w.n = n;
-  w.stats.reseeded += reseeded;
-  w.stats.outside += outside;
+  if (simd_ == SimdLevel::kAvx2)
+    walk::WalkAvx2(k, c.lanes, rounds);
+  else
+    walk::WalkScalar(k, c.lanes, rounds);
+  for (int l = 0; l < int(count % kWalkers); ++l) walk::WalkLane(k, c.lanes, l, 1);
+  w.stats.outside += c.outside;
+  w.stats.reseeded += c.reseeded;
   w.stats.iterations_done += count;
 }
 
 void ChaosGame::RunChunk(uint64_t chunk, Worker& w) {
   const ChaosGameParams& p = params_;
-  if (!p.chain && !p.ifs.final_map && !p.ifs.arcs && !p.splat && p.ifs.AllAffine()) {
-    if (p.color.mode == ColorMode::kNone)
-      RunChunkAffine<false>(chunk, w);
-    else
-      RunChunkAffine<true>(chunk, w);
+  if (fast_) {
+    RunChunkFast(chunk, w);
     return;
   }
   const uint64_t begin = chunk * kChunkIterations;
   const uint64_t count = std::min(kChunkIterations, p.iterations - begin);
-  Rng rng(p.seed, chunk);
+  Rng rngs[kWalkers];
+  for (int k = 0; k < kWalkers; ++k) rngs[k] = Rng(p.seed, chunk * kWalkers + uint64_t(k));
 
   const Bounds& b = p.frame.bounds;
   const Int3 res = p.frame.resolution;
@@ -319,12 +347,9 @@ void ChaosGame::RunChunk(uint64_t chunk, Worker& w) {
   Vec3 pos[kWalkers];
   uint32_t state[kWalkers];
   double addr[kWalkers], col[kWalkers];
-  auto random_point = [&] {
-    return Vec3{rng.Uniform(b.min.x, b.max.x), rng.Uniform(b.min.y, b.max.y),
-                rng.Uniform(b.min.z, b.max.z)};
-  };
   // One step of walker k; returns false if its point went non-finite.
   auto step = [&](int k) {
+    Rng& rng = rngs[k];
     uint32_t map;
     if (chain) {
       const ChainState& st = chain->states[state[k]];
@@ -343,12 +368,12 @@ void ChaosGame::RunChunk(uint64_t chunk, Worker& w) {
     return IsFinite(pos[k]);
   };
   auto warm_up = [&](int k) {
-    pos[k] = random_point();
+    pos[k] = RandomPoint(rngs[k], b);
     state[k] = chain ? chain->start_state : 0;
-    if (color_mode != ColorMode::kNone) addr[k] = col[k] = rng.Uniform();
+    if (color_mode != ColorMode::kNone) addr[k] = col[k] = rngs[k].Uniform();
     for (uint32_t i = 0; i < p.warmup; ++i) {
       if (!step(k)) {
-        pos[k] = random_point();
+        pos[k] = RandomPoint(rngs[k], b);
         ++w.stats.reseeded;
       }
     }
@@ -358,7 +383,7 @@ void ChaosGame::RunChunk(uint64_t chunk, Worker& w) {
     if (chain && !chain->states[state[k]].plotted) return;
     Vec3 q = pos[k];
     if (has_final) {
-      if (final_map) q = final_map->Apply(q, rng);
+      if (final_map) q = final_map->Apply(q, rngs[k]);
       if (arcs) q = arcs->Apply(q, n);
       if (!IsFinite(q)) {
         ++w.stats.final_nonfinite;
@@ -401,8 +426,7 @@ void ChaosGame::RunChunk(uint64_t chunk, Worker& w) {
         v[a] = std::clamp(i0[a] + hi, 0, lim[a]);
       }
       if (weight == 0) continue;
-      w.keys[w.n++] =
-          CountGrid::WithWeight(w.grid->Key(v[0], v[1], v[2]), weight) | color_bits;
+      w.keys[w.n++] = CountGrid::WithWeight(w.grid->Key(v[0], v[1], v[2]), weight) | color_bits;
     }
   };
   auto advance = [&](int k, uint64_t n) {
@@ -454,8 +478,7 @@ absl::Status ChaosGame::RunUntil(uint64_t iterations, Interrupter* interrupter) 
   return absl::OkStatus();
 }
 
-std::vector<uint64_t> CoarseCounts(const std::vector<const CountGrid*>& parts,
-                                   int max_resolution) {
+std::vector<uint64_t> CoarseCounts(const std::vector<const CountGrid*>& parts, int max_resolution) {
   if (parts.empty()) return {};
   const Int3 r = parts[0]->resolution();
   // Whole tiles per cell keeps this a pass over tile sums.

@@ -8,6 +8,7 @@
 
 #include "absl/status/statusor.h"
 #include "core/count_grid.h"
+#include "core/cpu_dispatch.h"
 #include "core/geometry.h"
 #include "core/interrupter.h"
 #include "core/point_map.h"
@@ -93,6 +94,9 @@ struct ChaosGameParams {
   /// whose centres surround it, with per-axis weights quantised to quarters,
   /// so counts are in units of 1/kSplatScale visit.
   bool splat = false;
+  /// SIMD level of the walk kernels; unset means ActiveSimd(). Never above
+  /// what the CPU has. Every level gives the same counts.
+  std::optional<SimdLevel> simd;
 };
 
 /// Count units per plotted point when splatting (4 x 4 x 4).
@@ -128,8 +132,10 @@ class ChaosGame {
  public:
   /// Work unit: plotted steps per chunk (~5-10 ms on one core).
   static constexpr uint64_t kChunkIterations = uint64_t{1} << 20;
-  /// Independent walkers interleaved per chunk, to overlap memory latency.
-  static constexpr int kWalkers = 8;
+  /// Walkers per chunk, each with its own random stream (seed, chunk *
+  /// kWalkers + walker), so SIMD lanes and scalar code walk the same paths.
+  /// Walker k plots every kWalkers-th step of the chunk, starting at k.
+  static constexpr int kWalkers = 16;
 
   /// Validates `params` (non-empty IFS, probabilities, chain shape).
   static absl::StatusOr<std::unique_ptr<ChaosGame>> Create(ChaosGameParams params, int threads);
@@ -158,19 +164,21 @@ class ChaosGame {
   /// Keys buffered per thread before a binned flush: scaled with the tiles
   /// the job can reach, capped by its budget.
   static size_t KeyBatch(const ChaosGameParams& params);
+  /// True when `params` take the fast path: plain affine maps, no chain,
+  /// final transform, colour or splatting (core/affine_walk.h).
+  static bool UsesFastPath(const ChaosGameParams& params);
   /// Bytes currently held by the per-thread accumulators and buffers.
   uint64_t MemoryBytes() const;
 
  private:
   ChaosGame(ChaosGameParams params, int threads);
   struct Worker;
+  struct FastChunk;
   void RunChunk(uint64_t chunk, Worker& worker);
-  // The hot path for plain affine IFS without chain or final transform:
-  // same random stream and arithmetic as RunChunk, so the same counts, but
-  // with walkers and the key buffer in locals the compiler keeps in
-  // registers.
-  template <bool kColor>
-  void RunChunkAffine(uint64_t chunk, Worker& worker);
+  // The fast path (UsesFastPath): the walk kernels of core/affine_walk.h
+  // write into per-thread TileBins. Same random streams and arithmetic as
+  // RunChunk, so the same counts.
+  void RunChunkFast(uint64_t chunk, Worker& worker);
 
   ChaosGameParams params_;
   int threads_;
@@ -181,6 +189,9 @@ class ChaosGame {
   // Precomputed sampling tables.
   AliasTable map_table_;
   std::vector<AliasTable> state_tables_;
+  bool fast_ = false;
+  SimdLevel simd_ = SimdLevel::kScalar;
+  std::vector<double> affine_coef_;  // 12 per map, for the fast path
 };
 
 }  // namespace nimbus

@@ -85,6 +85,10 @@ class CountGrid {
   void AddKeys(const uint64_t* keys, size_t n, std::vector<uint64_t>& scratch,
                bool weighted = true);
 
+  /// The counters of tile `tile` (allocated on first use), indexed by
+  /// LocalOffset: for writers that bin their own increments.
+  uint32_t* MutableTile(uint64_t tile) { return TileFor(tile); }
+
   uint32_t Get(int x, int y, int z) const;
   /// Sum of the colour coordinates (units of 1/kColorScale); 0 without colour.
   uint64_t GetColorSum(int x, int y, int z) const;

@@ -53,6 +53,9 @@ class AliasTable {
     return (i & keep) | (alias_[i] & ~keep);
   }
   size_t size() const { return n_; }
+  /// The tables, for kernels that sample the same way (core/affine_walk.h).
+  const uint32_t* thresholds() const { return threshold_.data(); }
+  const uint32_t* aliases() const { return alias_.data(); }
 
  private:
   uint64_t n_ = 0;

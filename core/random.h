@@ -29,6 +29,7 @@ constexpr uint64_t HashCoords(uint64_t seed, uint64_t a, uint64_t b = 0, uint64_
 /// @brief xoshiro256++ generator, seeded per stream through SplitMix64.
 class Rng {
  public:
+  Rng() : Rng(0, 0) {}
   Rng(uint64_t seed, uint64_t stream) {
     uint64_t z = Mix64(seed) ^ Mix64(stream * 0xd1342543de82ef95ULL + 0x632be59bd9b4e019ULL);
     for (auto& w : s_) {
@@ -51,6 +52,15 @@ class Rng {
   double Uniform() { return (Next() >> 11) * 0x1.0p-53; }
   /// Uniform in [a, b).
   double Uniform(double a, double b) { return a + (b - a) * Uniform(); }
+
+  /// The four state words, for kernels that keep generators in their own
+  /// layout (core/affine_walk.h) and hand them back.
+  uint64_t state(int i) const { return s_[i]; }
+  static Rng FromState(uint64_t s0, uint64_t s1, uint64_t s2, uint64_t s3) {
+    Rng r;
+    r.s_[0] = s0, r.s_[1] = s1, r.s_[2] = s2, r.s_[3] = s3;
+    return r;
+  }
 
  private:
   static constexpr uint64_t Rotl(uint64_t x, int k) { return (x << k) | (x >> (64 - k)); }

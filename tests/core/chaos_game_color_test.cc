@@ -7,6 +7,7 @@
 
 #include "core/attractors.h"
 #include "core/chaos_game.h"
+#include "core/cpu_dispatch.h"
 #include "core/palette.h"
 #include "core/vdb_io.h"
 #include "tests/support/test_util.h"
@@ -213,64 +214,176 @@ TEST(ChaosGameColor, MapColourModeFollowsTheMaps) {
   EXPECT_GT(checked, 500);
 }
 
+// The chaos game written the simple way: one walker after another, each
+// with its own stream, counting into a dense array.
+struct Reference {
+  std::vector<uint32_t> counts;
+  std::vector<uint64_t> color;
+  uint64_t outside = 0, reseeded = 0;
+};
+Reference ReferenceLoop(const ChaosGameParams& params) {
+  const Int3 r = params.frame.resolution;
+  Reference ref;
+  ref.counts.assign(size_t(r.x) * r.y * r.z, 0);
+  ref.color.assign(ref.counts.size(), 0);
+  const AliasTable table(params.ifs.probabilities);
+  const Vec3 vs = params.frame.VoxelSize();
+  const double ix = 1.0 / vs.x, iy = 1.0 / vs.y, iz = 1.0 / vs.z;
+  const Bounds& b = params.frame.bounds;
+  const int n_maps = int(params.ifs.maps.size());
+  const bool colored = params.color.mode != ColorMode::kNone;
+  constexpr int W = ChaosGame::kWalkers;
+  for (uint64_t chunk = 0; chunk * ChaosGame::kChunkIterations < params.iterations; ++chunk) {
+    const uint64_t count = std::min(ChaosGame::kChunkIterations,
+                                    params.iterations - chunk * ChaosGame::kChunkIterations);
+    for (int k = 0; k < W; ++k) {
+      Rng rng(params.seed, chunk * W + k);
+      Vec3 pos;
+      double addr = 0, col = 0;
+      auto step = [&] {
+        const uint32_t m = table.Sample(rng.Next());
+        pos = params.ifs.maps[m].pre.Apply(pos);
+        addr = (double(m) + addr) * (1.0 / n_maps);
+        col += params.color.blend * (addr - col);
+        return IsFinite(pos);
+      };
+      auto random_point = [&] {
+        const double x = rng.Uniform(b.min.x, b.max.x), y = rng.Uniform(b.min.y, b.max.y);
+        return Vec3{x, y, rng.Uniform(b.min.z, b.max.z)};
+      };
+      auto warm_up = [&] {
+        pos = random_point();
+        if (colored) addr = col = rng.Uniform();
+        for (uint32_t i = 0; i < params.warmup; ++i)
+          if (!step()) {
+            pos = random_point();
+            ++ref.reseeded;
+          }
+      };
+      warm_up();
+      // Walker k plots steps k, k + W, k + 2W, ... of the chunk.
+      for (uint64_t i = k; i < count; i += W) {
+        if (!step()) {
+          ++ref.reseeded;
+          warm_up();
+          continue;
+        }
+        const double fx = (pos.x - b.min.x) * ix, fy = (pos.y - b.min.y) * iy,
+                     fz = (pos.z - b.min.z) * iz;
+        if (!(fx >= 0 && fx < r.x && fy >= 0 && fy < r.y && fz >= 0 && fz < r.z)) {
+          ++ref.outside;
+          continue;
+        }
+        const size_t v = (size_t(fx) * r.y + size_t(fy)) * r.z + size_t(fz);
+        ++ref.counts[v];
+        if (colored)
+          ref.color[v] += uint32_t(std::clamp(col, 0.0, 1.0) * CountGrid::kColorScale + 0.5);
+      }
+    }
+  }
+  return ref;
+}
+
+void ExpectMatchesReference(const ChaosGameParams& params, int threads,
+                            ChaosGameStats* out = nullptr) {
+  ChaosGameStats stats;
+  const CountGrid sparse = RunGame(params, threads, &stats);
+  const Reference ref = ReferenceLoop(params);
+  const Int3 r = params.frame.resolution;
+  uint64_t total = 0;
+  for (int x = 0; x < r.x; ++x)
+    for (int y = 0; y < r.y; ++y)
+      for (int z = 0; z < r.z; ++z) {
+        const size_t v = (size_t(x) * r.y + y) * r.z + z;
+        ASSERT_EQ(sparse.Get(x, y, z), ref.counts[v]) << x << "," << y << "," << z;
+        ASSERT_EQ(sparse.GetColorSum(x, y, z), ref.color[v]);
+        total += ref.counts[v];
+      }
+  EXPECT_EQ(total, sparse.Total());
+  EXPECT_EQ(stats.outside, ref.outside);
+  EXPECT_EQ(stats.reseeded, ref.reseeded);
+  EXPECT_EQ(stats.iterations_done, params.iterations);
+  EXPECT_GT(total, params.iterations / 4);
+  if (out) *out = stats;
+}
+
 TEST(ChaosGameColor, SparseAccumulationMatchesAReferenceLoop) {
   // The engine's binned, deferred, per-thread accumulation against a plain
   // dense array filled by the same walk written the simple way.
   ChaosGameParams params = OctantCloud(ChaosGame::kChunkIterations * 3 + 12345, 24);
   params.color.mode = ColorMode::kAddress;
   params.warmup = 20;
-  const CountGrid sparse = RunGame(params, 2);
+  ASSERT_FALSE(ChaosGame::UsesFastPath(params));
+  ExpectMatchesReference(params, 2);
+}
 
-  const Int3 r = params.frame.resolution;
-  std::vector<uint32_t> dense(size_t(r.x) * r.y * r.z, 0);
-  std::vector<uint64_t> dense_color(dense.size(), 0);
-  const AliasTable table(params.ifs.probabilities);
-  const Vec3 vs = params.frame.VoxelSize();
-  const double ix = 1.0 / vs.x, iy = 1.0 / vs.y, iz = 1.0 / vs.z;
-  const Bounds& b = params.frame.bounds;
-  const int n_maps = int(params.ifs.maps.size());
-  for (uint64_t chunk = 0; chunk * ChaosGame::kChunkIterations < params.iterations; ++chunk) {
-    Rng rng(params.seed, chunk);
-    const uint64_t count = std::min(ChaosGame::kChunkIterations,
-                                    params.iterations - chunk * ChaosGame::kChunkIterations);
-    constexpr int W = ChaosGame::kWalkers;
-    Vec3 pos[W];
-    double addr[W], col[W];
-    auto step = [&](int k) {
-      const uint32_t m = table.Sample(rng.Next());
-      pos[k] = params.ifs.maps[m].pre.Apply(pos[k]);
-      addr[k] = (double(m) + addr[k]) * (1.0 / n_maps);
-      col[k] += params.color.blend * (addr[k] - col[k]);
-    };
-    for (int k = 0; k < W; ++k) {
-      pos[k] = {rng.Uniform(b.min.x, b.max.x), rng.Uniform(b.min.y, b.max.y),
-                rng.Uniform(b.min.z, b.max.z)};
-      addr[k] = col[k] = rng.Uniform();
-      for (uint32_t i = 0; i < params.warmup; ++i) step(k);
-    }
-    for (uint64_t i = 0; i < count; ++i) {
-      const int k = int(i % W);
-      step(k);
-      const double fx = (pos[k].x - b.min.x) * ix, fy = (pos[k].y - b.min.y) * iy,
-                   fz = (pos[k].z - b.min.z) * iz;
-      if (!(fx >= 0 && fx < r.x && fy >= 0 && fy < r.y && fz >= 0 && fz < r.z)) continue;
-      const int x = int(fx), y = int(fy), z = int(fz);
-      const size_t v = (size_t(x) * r.y + y) * r.z + z;
-      ++dense[v];
-      dense_color[v] += uint32_t(std::clamp(col[k], 0.0, 1.0) * CountGrid::kColorScale + 0.5);
-    }
+// The fast path (affine_walk kernels into TileBins) at every SIMD level the
+// CPU has, on a grid that crops the attractor (points leave it) and with a
+// map that overflows to infinity (walkers restart).
+TEST(ChaosGameFastPath, MatchesTheReferenceLoopAtEverySimdLevel) {
+  ChaosGameParams params = OctantCloud(ChaosGame::kChunkIterations * 2 + 777, 40);
+  params.frame.bounds = {{-1.0, -1.2, -0.9}, {1.1, 0.8, 1.2}};
+  PointMap blow_up;
+  blow_up.pre = Affine3::Scale({1e300, 1e300, 1e300});
+  params.ifs.maps.push_back(blow_up);
+  params.ifs.probabilities.assign(9, 0.124);
+  params.ifs.probabilities.back() = 0.008;
+  ASSERT_TRUE(ChaosGame::UsesFastPath(params));
+  std::vector<SimdLevel> levels = {SimdLevel::kScalar};
+  if (DetectSimd() == SimdLevel::kAvx2) levels.push_back(SimdLevel::kAvx2);
+  for (SimdLevel level : levels) {
+    SCOPED_TRACE(std::string(SimdName(level)));
+    params.simd = level;
+    ChaosGameStats stats;
+    ExpectMatchesReference(params, 2, &stats);
+    EXPECT_GT(stats.outside, params.iterations / 10);
+    EXPECT_GT(stats.reseeded, 1000u);
   }
-  uint64_t total = 0;
-  for (int x = 0; x < r.x; ++x)
-    for (int y = 0; y < r.y; ++y)
-      for (int z = 0; z < r.z; ++z) {
-        const size_t v = (size_t(x) * r.y + y) * r.z + z;
-        ASSERT_EQ(sparse.Get(x, y, z), dense[v]) << x << "," << y << "," << z;
-        ASSERT_EQ(sparse.GetColorSum(x, y, z), dense_color[v]);
-        total += dense[v];
-      }
-  EXPECT_EQ(total, sparse.Total());
-  EXPECT_GT(total, params.iterations / 2);
+}
+
+// Each way of finding a map's coefficients in the AVX2 kernel: up to 4 maps
+// (one permute), up to 8 (two), and more (gathers).
+TEST(ChaosGameFastPath, SimdLevelsAgreeForEveryMapCount) {
+  if (DetectSimd() != SimdLevel::kAvx2) GTEST_SKIP() << "no AVX2 on this CPU";
+  for (int maps : {1, 3, 5, 8, 11}) {
+    SCOPED_TRACE(maps);
+    ChaosGameParams params = OctantCloud(300'000 + maps, 32);
+    params.ifs.maps.resize(8);
+    for (int i = 8; i < maps; ++i) {
+      PointMap m;
+      m.pre = Affine3::Translate({0.1 * i - 1, 0.3, -0.2}) * Affine3::Scale({0.3, 0.4, 0.35});
+      params.ifs.maps.push_back(m);
+    }
+    params.ifs.maps.resize(maps);
+    params.ifs.probabilities.clear();
+    for (int i = 0; i < maps; ++i) params.ifs.probabilities.push_back(1.0 + i);
+    params.simd = SimdLevel::kScalar;
+    ChaosGameStats scalar_stats, avx2_stats;
+    const CountGrid scalar = RunGame(params, 1, &scalar_stats);
+    params.simd = SimdLevel::kAvx2;
+    const CountGrid avx2 = RunGame(params, 2, &avx2_stats);
+    ExpectSameGrids(scalar, avx2);
+    EXPECT_EQ(scalar_stats.outside, avx2_stats.outside);
+    EXPECT_GT(scalar.Total(), 0u);
+  }
+}
+
+TEST(ChaosGameFastPath, PlainIfsMatchesTheGeneralPathBitwise) {
+  // An identity final transform sends the job down the general path; a
+  // one-state chain too. Both must count exactly what the fast path counts.
+  ChaosGameParams params = OctantCloud(ChaosGame::kChunkIterations + 4321, 48);
+  const CountGrid fast = RunGame(params, 2);
+  params.ifs.final_map = PointMap{};
+  ASSERT_FALSE(ChaosGame::UsesFastPath(params));
+  ExpectSameGrids(fast, RunGame(params, 2));
+  params.ifs.final_map.reset();
+  MarkovChain chain;
+  ChainState state;
+  for (uint32_t i = 0; i < 8; ++i) state.transitions.push_back({i, 0});
+  state.probabilities = params.ifs.probabilities;
+  chain.states = {state};
+  params.chain = chain;
+  ExpectSameGrids(fast, RunGame(params, 2));
 }
 
 TEST(ChaosGameColor, NonFiniteFinalTransformIsCountedNotPlotted) {

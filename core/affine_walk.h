@@ -1,0 +1,62 @@
+// The chaos game's hot loop for plain affine IFS that only count visits:
+// many walkers in structure-of-arrays form, each plotted point's voxel
+// pushed straight into per-tile bins. A scalar and an AVX2 version give
+// bitwise-identical walks; core/cpu_dispatch.h picks one at run time.
+//
+// Everything here is plain data: the AVX2 translation unit includes only
+// this header, because an inline function compiled there with AVX2 enabled
+// could be the copy the linker keeps for the rest of the program.
+#pragma once
+
+#include <cstdint>
+
+namespace nimbus::walk {
+
+/// Walkers advanced together: four AVX2 groups of four doubles, enough
+/// independent chains to hide the latency of one step.
+inline constexpr int kLanes = 16;
+
+/// @brief Walker state as structure of arrays: positions and the four words
+/// of each walker's own xoshiro256++ stream (the same generator as Rng).
+struct alignas(64) Walkers {
+  double x[kLanes], y[kLanes], z[kLanes];
+  uint64_t s0[kLanes], s1[kLanes], s2[kLanes], s3[kLanes];
+};
+
+/// Write position and end of one bin's current block. A push with
+/// tail == end first asks the owner for a new block.
+struct BinCursor {
+  uint32_t* tail = nullptr;
+  uint32_t* end = nullptr;
+};
+
+/// @brief What the kernels read. Points are binned by tile: bin = tile >>
+/// bin_shift, and a bin entry is (tile & (2^bin_shift - 1)) << 15 | the
+/// voxel's offset in its tile (CountGrid::LocalOffset).
+struct AffineWalk {
+  const double* coef = nullptr;         // 12 per map: the rows of [A | b]
+  const uint32_t* threshold = nullptr;  // alias table (AliasTable)
+  const uint32_t* alias = nullptr;
+  uint32_t num_maps = 0;
+  double min[3] = {0, 0, 0};        // grid bounds' minimum corner
+  double inv_voxel[3] = {1, 1, 1};  // voxels per world unit
+  double res[3] = {0, 0, 0};        // resolution, as doubles
+  uint32_t tiles_y = 0, tiles_z = 0;
+  uint32_t bin_shift = 0;
+  BinCursor* bins = nullptr;
+  void* owner = nullptr;
+  /// bins[bin] is full (or has no block yet): give it room for one entry.
+  void (*refill)(void* owner, uint32_t bin) = nullptr;
+  /// The lane's new point is outside the grid box or not finite. The owner
+  /// may restart the walker by rewriting its lane of Walkers.
+  void (*exit)(void* owner, int lane) = nullptr;
+};
+
+/// Advances every lane by `steps` plotted steps.
+void WalkScalar(const AffineWalk& k, Walkers& w, uint64_t steps);
+/// Same walk with AVX2; call only where the CPU has AVX2.
+void WalkAvx2(const AffineWalk& k, Walkers& w, uint64_t steps);
+/// Advances one lane by `steps` plotted steps.
+void WalkLane(const AffineWalk& k, Walkers& w, int lane, uint64_t steps);
+
+}  // namespace nimbus::walk
