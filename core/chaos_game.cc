@@ -111,6 +111,14 @@ absl::StatusOr<std::unique_ptr<ChaosGame>> ChaosGame::Create(ChaosGameParams par
     w->weighted = p.splat;
     game->workers_.push_back(std::move(w));
   }
+  if (p.memory_budget > 0) {
+    // Each thread's grid gets an equal share of what the budget leaves
+    // after the fixed parts (tile tables and buffers).
+    const uint64_t fixed = game->MemoryBytes();  // no tiles yet
+    const uint64_t free_bytes = p.memory_budget > fixed ? p.memory_budget - fixed : 0;
+    const uint64_t tiles = free_bytes / uint64_t(game->threads_) / CountGrid::TileBytes(color);
+    for (CountGrid& g : game->counts_) g.SetTileLimit(size_t(std::max<uint64_t>(tiles, 1)));
+  }
   return game;
 }
 
@@ -161,7 +169,9 @@ uint64_t ReachableTiles(const ChaosGameParams& p) {
 // increments per line. Capped at 2^26 entries (256 MiB) per thread.
 size_t BinCapacity(const ChaosGameParams& p) {
   const uint64_t tiles = ReachableTiles(p);
-  const uint64_t want = std::min(tiles * 32768, std::max<uint64_t>(p.iterations, 1));
+  uint64_t want = std::min(tiles * 32768, std::max<uint64_t>(p.iterations, 1));
+  // With a budget, each thread buffers at most an eighth of it.
+  if (p.memory_budget > 0) want = std::min(want, p.memory_budget / 8 / sizeof(uint32_t));
   return size_t(std::clamp<uint64_t>(want, uint64_t{1} << 16, uint64_t{1} << 26));
 }
 
@@ -180,16 +190,18 @@ size_t ChaosGame::KeyBatch(const ChaosGameParams& p) {
   // larger reach (their counters can take gigabytes).
   const uint64_t tiles = ReachableTiles(p);
   // A thread never buffers more keys than the whole job plots.
-  const uint64_t batch = std::min(tiles * 8192, std::max<uint64_t>(p.iterations, 1));
+  uint64_t batch = std::min(tiles * 8192, std::max<uint64_t>(p.iterations, 1));
+  if (p.memory_budget > 0) batch = std::min(batch, p.memory_budget / 8 / kKeyBytes);
   return size_t(std::clamp<uint64_t>(batch, uint64_t{1} << 16, uint64_t{1} << 25));
 }
 
 ChaosGameMemory ChaosGame::EstimateMemory(const ChaosGameParams& p, int threads,
-                                          uint64_t output_bytes_per_voxel) {
+                                          uint64_t output_bytes_per_voxel, uint64_t tiles_hint) {
   threads = std::max(1, threads);
   const Int3 r = p.frame.resolution;
   const bool color = p.color.mode != ColorMode::kNone;
-  const uint64_t tiles = ReachableTiles(p);
+  uint64_t tiles = ReachableTiles(p);
+  if (tiles_hint > 0) tiles = std::min(tiles, tiles_hint);
   // Every plotted step lands in at most one tile of one thread, so the
   // tiles of all threads together are bounded by the iterations as well as
   // by threads x the reachable tiles.
@@ -206,6 +218,67 @@ ChaosGameMemory ChaosGame::EstimateMemory(const ChaosGameParams& p, int threads,
   const uint64_t leaves = std::min(tiles * 64, touches);
   m.output = merged + leaves * 512 * output_bytes_per_voxel * 115 / 100;
   return m;
+}
+
+absl::StatusOr<TileCensus> ChaosGame::Pilot(const ChaosGameParams& params, uint64_t samples,
+                                            Interrupter* interrupter) {
+  ChaosGameParams p = params;
+  const Int3 r = params.frame.resolution;
+  const Vec3 vs = params.frame.VoxelSize();
+  constexpr int kT = CountGrid::kTileDim;
+  p.frame.resolution = {(r.x + kT - 1) / kT, (r.y + kT - 1) / kT, (r.z + kT - 1) / kT};
+  // Pilot voxel i covers exactly tile i of the real grid.
+  for (int a = 0; a < 3; ++a)
+    p.frame.bounds.max[a] = p.frame.bounds.min[a] + p.frame.resolution[a] * kT * vs[a];
+  p.iterations = std::max<uint64_t>(1, std::min(samples, params.iterations));
+  p.color = {};
+  p.splat = false;
+  p.convergence = {};
+  p.memory_budget = 0;
+  auto game = Create(p, 1);
+  if (!game.ok()) return game.status();
+  if (auto st = (*game)->Run(interrupter); !st.ok()) return st;
+  const CountGrid counts = (*game)->TakeCounts();
+  const Int3 pr = p.frame.resolution;
+  TileCensus c;
+  c.samples = p.iterations;
+  std::vector<uint8_t> hit(size_t(pr.x) * pr.y * pr.z, 0);
+  counts.ForEachTile([&](Int3 o, const uint32_t* t) {
+    for (int i = 0; i < CountGrid::kTileVoxels; ++i) {
+      if (t[i] == 0) continue;
+      const Int3 l = CountGrid::LocalCoord(uint32_t(i));
+      const Int3 v{o.x + l.x, o.y + l.y, o.z + l.z};
+      if (v.x >= pr.x || v.y >= pr.y || v.z >= pr.z) continue;
+      hit[(size_t(v.x) * pr.y + v.y) * pr.z + v.z] = 1;
+      ++c.seen;
+      c.singletons += t[i] == 1;
+      c.doubletons += t[i] == 2;
+    }
+  });
+  const double f1 = double(c.singletons), f2 = double(c.doubletons);
+  const double unseen = f2 > 0 ? f1 * f1 / (2 * f2) : f1 * (f1 - 1) / 2;
+  double factor = 1.25;
+  if (params.splat && c.seen > 0) {
+    // A splatted point reaches at most one voxel into the next tile: count
+    // the tiles within one of a tile seen.
+    uint64_t grown = 0;
+    for (int x = 0; x < pr.x; ++x)
+      for (int y = 0; y < pr.y; ++y)
+        for (int z = 0; z < pr.z; ++z) {
+          bool near = false;
+          for (int dx = -1; dx <= 1 && !near; ++dx)
+            for (int dy = -1; dy <= 1 && !near; ++dy)
+              for (int dz = -1; dz <= 1 && !near; ++dz) {
+                const int X = x + dx, Y = y + dy, Z = z + dz;
+                near = X >= 0 && Y >= 0 && Z >= 0 && X < pr.x && Y < pr.y && Z < pr.z &&
+                       hit[(size_t(X) * pr.y + Y) * pr.z + Z];
+              }
+          grown += near;
+        }
+    factor *= double(grown) / double(c.seen);
+  }
+  c.estimate = uint64_t(std::ceil((double(c.seen) + unseen) * factor)) + 8;
+  return c;
 }
 
 uint64_t ChaosGame::MemoryBytes() const {
@@ -457,22 +530,28 @@ absl::Status ChaosGame::RunUntil(uint64_t iterations, Interrupter* interrupter) 
       std::min(num_chunks_, (iterations + kChunkIterations - 1) / kChunkIterations);
   if (next_chunk_ >= target) return absl::OkStatus();
   std::atomic<uint64_t> next{next_chunk_};
-  std::atomic<bool> stop{false};
+  std::atomic<bool> stop{false}, over_budget{false};
   auto body = [&](int t) {
     Worker& w = *workers_[t];
     while (!stop.load(std::memory_order_relaxed)) {
       const uint64_t c = next.fetch_add(1);
       if (c >= target) break;
       RunChunk(c, w);
+      if (w.grid->overflowed()) over_budget = stop = true;
       if (intr.WasInterrupted(c * kChunkIterations, params_.iterations)) stop = true;
     }
     w.Flush();
+    if (w.grid->overflowed()) over_budget = stop = true;
   };
   const int n = int(std::min<uint64_t>(threads_, target - next_chunk_));
   std::vector<std::thread> pool;
   for (int t = 1; t < n; ++t) pool.emplace_back(body, t);
   body(0);
   for (auto& th : pool) th.join();
+  if (over_budget)
+    return absl::ResourceExhaustedError(absl::StrCat(
+        "the chaos game's counters outgrew the memory budget of ", params_.memory_budget >> 20,
+        " MiB (", threads_, " threads); the attractor covers more of the grid than estimated"));
   if (stop) return absl::CancelledError("interrupted");
   next_chunk_ = target;
   return absl::OkStatus();
@@ -509,6 +588,7 @@ double DensityChange(const std::vector<uint64_t>& a, const std::vector<uint64_t>
 
 CountGrid ChaosGame::TakeCounts() {
   workers_.clear();  // the key buffers first: lowers the merge's peak
+  for (CountGrid& g : counts_) g.SetTileLimit(0);
   CountGrid out = std::move(counts_[0]);
   for (size_t t = 1; t < counts_.size(); ++t) {
     out.Merge(counts_[t]);

@@ -97,6 +97,10 @@ struct ChaosGameParams {
   /// SIMD level of the walk kernels; unset means ActiveSimd(). Never above
   /// what the CPU has. Every level gives the same counts.
   std::optional<SimdLevel> simd;
+  /// Bytes the accumulation may hold (0: no limit). A run whose counters
+  /// outgrow it stops with ResourceExhausted instead of exhausting the
+  /// machine: the safety net behind EstimateMemory.
+  uint64_t memory_budget = 0;
 };
 
 /// Count units per plotted point when splatting (4 x 4 x 4).
@@ -108,6 +112,18 @@ struct ChaosGameStats {
   uint64_t outside = 0;          // steps whose point fell outside the grid bounds
   uint64_t reseeded = 0;         // walkers restarted after a non-finite point
   uint64_t final_nonfinite = 0;  // plotted points the final transform made non-finite
+};
+
+/// @brief What a pilot run saw of the tiles a job touches (ChaosGame::Pilot).
+struct TileCensus {
+  uint64_t samples = 0;     // plotted steps of the pilot
+  uint64_t seen = 0;        // tiles hit at least once
+  uint64_t singletons = 0;  // tiles hit exactly once
+  uint64_t doubletons = 0;  // tiles hit exactly twice
+  /// Tiles a full run is expected to touch: the tiles seen plus the Chao1
+  /// estimate of tiles the pilot missed (singletons^2 / (2 doubletons)),
+  /// with a 25 % margin, grown by one tile around each when splatting.
+  uint64_t estimate = 0;
 };
 
 /// @brief Honest memory bounds of a chaos-game job, in bytes. Each plotted
@@ -159,8 +175,16 @@ class ChaosGame {
 
   /// Worst-case memory of a run of `params` on `threads` threads;
   /// `output_bytes_per_voxel` is what the output grids add per active voxel.
+  /// `tiles`, when non-zero, is a better bound on the tiles the job
+  /// touches (TileCensus::estimate) than the one from the maps' geometry.
   static ChaosGameMemory EstimateMemory(const ChaosGameParams& params, int threads,
-                                        uint64_t output_bytes_per_voxel);
+                                        uint64_t output_bytes_per_voxel, uint64_t tiles = 0);
+  /// @brief Runs `samples` steps of `params` on a grid with one voxel per
+  /// tile of the real grid and counts the tiles hit. Cheap (a 2048^3 job's
+  /// pilot grid is 64^3); for jobs whose geometric bound is far above what a
+  /// thin attractor really touches.
+  static absl::StatusOr<TileCensus> Pilot(const ChaosGameParams& params, uint64_t samples,
+                                          Interrupter* interrupter);
   /// Keys buffered per thread before a binned flush: scaled with the tiles
   /// the job can reach, capped by its budget.
   static size_t KeyBatch(const ChaosGameParams& params);

@@ -23,10 +23,19 @@ CountGrid::CountGrid(CountGrid&&) noexcept = default;
 CountGrid& CountGrid::operator=(CountGrid&&) noexcept = default;
 CountGrid::~CountGrid() = default;
 
-void CountGrid::Allocate(uint64_t tile) {
+uint32_t* CountGrid::Allocate(uint64_t tile) {
+  if (tile_limit_ > 0 && allocated_ >= tile_limit_) {
+    overflowed_ = true;
+    if (!spill_) {
+      spill_.reset(new uint32_t[kTileVoxels]());
+      if (with_color_) spill_color_.reset(new uint64_t[kTileVoxels]());
+    }
+    return spill_.get();
+  }
   table_[tile].reset(new uint32_t[kTileVoxels]());
   if (with_color_) color_[tile].reset(new uint64_t[kTileVoxels]());
   ++allocated_;
+  return table_[tile].get();
 }
 
 void CountGrid::AddKeys(const uint64_t* keys, size_t n, std::vector<uint64_t>& scratch,
@@ -111,7 +120,8 @@ uint64_t CountGrid::Total() const {
 
 uint32_t CountGrid::Max() const {
   uint32_t m = 0;
-  ForEachTile([&](Int3, const uint32_t* t) { m = std::max(m, *std::max_element(t, t + kTileVoxels)); });
+  ForEachTile(
+      [&](Int3, const uint32_t* t) { m = std::max(m, *std::max_element(t, t + kTileVoxels)); });
   return m;
 }
 
@@ -121,15 +131,15 @@ size_t CountGrid::MemoryBytes() const {
 }
 
 uint64_t CountGrid::BoundedMemoryBytes(Int3 r, uint64_t max_tiles, bool with_color) {
-  const uint64_t tiles = uint64_t(CeilDiv(r.x, kTileDim)) * CeilDiv(r.y, kTileDim) *
-                         CeilDiv(r.z, kTileDim);
+  const uint64_t tiles =
+      uint64_t(CeilDiv(r.x, kTileDim)) * CeilDiv(r.y, kTileDim) * CeilDiv(r.z, kTileDim);
   return tiles * sizeof(void*) * (with_color ? 2 : 1) +
          std::min(tiles, max_tiles) * TileBytes(with_color);
 }
 
 uint64_t CountGrid::MaxMemoryBytes(Int3 r) {
-  const uint64_t tiles = uint64_t(CeilDiv(r.x, kTileDim)) * CeilDiv(r.y, kTileDim) *
-                         CeilDiv(r.z, kTileDim);
+  const uint64_t tiles =
+      uint64_t(CeilDiv(r.x, kTileDim)) * CeilDiv(r.y, kTileDim) * CeilDiv(r.z, kTileDim);
   return tiles * (sizeof(void*) + sizeof(uint32_t) * kTileVoxels);
 }
 

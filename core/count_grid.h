@@ -24,7 +24,7 @@ namespace nimbus {
 class CountGrid {
  public:
   static constexpr int kTileLog2 = 5;
-  static constexpr int kTileDim = 1 << kTileLog2;           // 32
+  static constexpr int kTileDim = 1 << kTileLog2;  // 32
   static constexpr int kTileVoxels = kTileDim * kTileDim * kTileDim;
   static constexpr int kLeafDim = 8;
 
@@ -76,7 +76,7 @@ class CountGrid {
     const uint32_t off = uint32_t(key & 0x7fff);
     const uint32_t add = n * WeightOf(key);
     TileFor(tile)[off] += add;
-    if (with_color_) color_[tile][off] += uint64_t(add) * (key >> kColorShift);
+    if (with_color_) ColorTileFor(tile)[off] += uint64_t(add) * (key >> kColorShift);
   }
   void Add(int x, int y, int z, uint32_t n = 1) { AddKey(Key(x, y, z), n); }
   /// Adds a batch of keys. Keys are binned by tile first so each tile's
@@ -99,6 +99,11 @@ class CountGrid {
   uint64_t Total() const;
   uint32_t Max() const;
   size_t AllocatedTiles() const { return allocated_; }
+  /// Caps the tiles this grid allocates (0: no cap). Increments to tiles
+  /// beyond the cap land in a scratch tile and set overflowed(): the owner
+  /// then abandons the run instead of running the machine out of memory.
+  void SetTileLimit(size_t max_tiles) { tile_limit_ = max_tiles; }
+  bool overflowed() const { return overflowed_; }
   size_t MemoryBytes() const;
   /// Worst-case bytes for a grid of this resolution (every tile allocated).
   static uint64_t MaxMemoryBytes(Int3 resolution);
@@ -137,10 +142,16 @@ class CountGrid {
  private:
   uint32_t* TileFor(uint64_t tile) {
     auto& p = table_[tile];
-    if (!p) Allocate(tile);
+    if (!p) [[unlikely]]
+      return Allocate(tile);
     return p.get();
   }
-  void Allocate(uint64_t tile);
+  uint64_t* ColorTileFor(uint64_t tile) {
+    auto& p = color_[tile];
+    return p ? p.get() : spill_color_.get();  // null only past the tile limit
+  }
+  // Allocates the tile, or returns the scratch tile past the limit.
+  uint32_t* Allocate(uint64_t tile);
 
   Int3 res_;
   Int3 tiles_;
@@ -149,6 +160,10 @@ class CountGrid {
   std::vector<std::unique_ptr<uint64_t[]>> color_;  // parallel to table_ when with_color_
   std::vector<uint32_t> offsets_, cursor_;          // AddKeys binning, reused
   size_t allocated_ = 0;
+  size_t tile_limit_ = 0;
+  bool overflowed_ = false;
+  std::unique_ptr<uint32_t[]> spill_;  // the scratch tile, once needed
+  std::unique_ptr<uint64_t[]> spill_color_;
 };
 
 }  // namespace nimbus

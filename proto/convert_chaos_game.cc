@@ -19,8 +19,8 @@ absl::StatusOr<PointMap> ConvertMap(const v1::Map& m, const std::string& path) {
     if (!kind) {
       std::vector<std::string> names;
       for (VariationKind k : AllVariations()) names.emplace_back(VariationName(k));
-      return Invalid(vpath + ".name", StrCat("unknown variation '", v.name(), "' (known: ",
-                                             absl::StrJoin(names, ", "), ")"));
+      return Invalid(vpath + ".name", StrCat("unknown variation '", v.name(),
+                                             "' (known: ", absl::StrJoin(names, ", "), ")"));
     }
     if (!std::isfinite(v.weight())) return Invalid(vpath + ".weight", "must be finite");
     if (v.params_size() > 4) return Invalid(vpath + ".params", "at most 4 values");
@@ -49,9 +49,8 @@ absl::Status ConvertIfs(const v1::Ifs& ifs, const std::string& path, const Limit
   Ifs& out = job.chaos_game.ifs;
   if (ifs.maps_size() == 0) return Invalid(path + ".maps", "needs at least one map");
   if (ifs.maps_size() > limits.max_maps)
-    return absl::ResourceExhaustedError(StrCat(path, ".maps: ", ifs.maps_size(),
-                                               " maps exceed the server limit of ",
-                                               limits.max_maps));
+    return absl::ResourceExhaustedError(StrCat(
+        path, ".maps: ", ifs.maps_size(), " maps exceed the server limit of ", limits.max_maps));
   std::vector<std::string> expanding;
   for (int i = 0; i < ifs.maps_size(); ++i) {
     const std::string mpath = StrCat(path, ".maps[", i, "]");
@@ -72,7 +71,8 @@ absl::Status ConvertIfs(const v1::Ifs& ifs, const std::string& path, const Limit
         StrCat("not a contraction: ", absl::StrJoin(expanding, ", "),
                "; the chaos game needs every map's largest singular value below 1");
     if (!ifs.allow_expanding())
-      return Invalid(path + ".maps", StrCat(msg, " (set ", path, ".allow_expanding to run anyway)"));
+      return Invalid(path + ".maps",
+                     StrCat(msg, " (set ", path, ".allow_expanding to run anyway)"));
     job.warnings.push_back(msg);
   }
   double floor = ifs.probability_floor();
@@ -100,7 +100,6 @@ absl::Status ConvertIfs(const v1::Ifs& ifs, const std::string& path, const Limit
   return absl::OkStatus();
 }
 
-
 namespace {
 
 absl::Status ConvertFinal(const v1::Ifs& ifs, const std::string& path, Ifs& out) {
@@ -111,9 +110,9 @@ absl::Status ConvertFinal(const v1::Ifs& ifs, const std::string& path, Ifs& out)
   }
   if (ifs.has_arcs()) {
     const v1::Arcs& a = ifs.arcs();
-    for (auto [v, name] : {std::pair{a.angle_per_unit(), "angle_per_unit"},
-                           std::pair{a.amplitude(), "amplitude"},
-                           std::pair{a.frequency(), "frequency"}})
+    for (auto [v, name] :
+         {std::pair{a.angle_per_unit(), "angle_per_unit"}, std::pair{a.amplitude(), "amplitude"},
+          std::pair{a.frequency(), "frequency"}})
       if (!std::isfinite(v)) return Invalid(StrCat(path, ".arcs.", name), "must be finite");
     out.arcs = ArcsTransform{a.angle_per_unit(), a.amplitude(), a.frequency()};
   }
@@ -127,9 +126,14 @@ absl::Status ConvertColor(const v1::ChaosGame& cg, ConvertedJob& job) {
   ColorParams& p = job.chaos_game.color;
   switch (c.mode()) {
     case v1::COLOR_MODE_UNSPECIFIED:
-    case v1::COLOR_MODE_ADDRESS: p.mode = ColorMode::kAddress; break;
-    case v1::COLOR_MODE_MAP: p.mode = ColorMode::kMap; break;
-    default: return Invalid(path + ".mode", "unknown value");
+    case v1::COLOR_MODE_ADDRESS:
+      p.mode = ColorMode::kAddress;
+      break;
+    case v1::COLOR_MODE_MAP:
+      p.mode = ColorMode::kMap;
+      break;
+    default:
+      return Invalid(path + ".mode", "unknown value");
   }
   if (!(c.blend() >= 0 && c.blend() <= 1)) return Invalid(path + ".blend", "must be in (0, 1]");
   p.blend = c.blend() == 0 ? 0.05 : c.blend();
@@ -173,10 +177,17 @@ absl::Status ConvertChaosGame(const v1::ChaosGame& cg, const Limits& limits, int
   if (auto st = ConvertFinal(cg.ifs(), "chaos_game.ifs", job.chaos_game.ifs); !st.ok()) return st;
   if (auto st = ConvertColor(cg, job); !st.ok()) return st;
   switch (cg.raw_counts()) {
-    case v1::RAW_COUNTS_NONE: job.density.raw_counts = RawCounts::kNone; break;
-    case v1::RAW_COUNTS_FLOAT: job.density.raw_counts = RawCounts::kFloat; break;
-    case v1::RAW_COUNTS_UINT32: job.density.raw_counts = RawCounts::kInteger; break;
-    default: return Invalid("chaos_game.raw_counts", "unknown value");
+    case v1::RAW_COUNTS_NONE:
+      job.density.raw_counts = RawCounts::kNone;
+      break;
+    case v1::RAW_COUNTS_FLOAT:
+      job.density.raw_counts = RawCounts::kFloat;
+      break;
+    case v1::RAW_COUNTS_UINT32:
+      job.density.raw_counts = RawCounts::kInteger;
+      break;
+    default:
+      return Invalid("chaos_game.raw_counts", "unknown value");
   }
   if (cg.has_convergence()) {
     const v1::Convergence& c = cg.convergence();
@@ -190,19 +201,35 @@ absl::Status ConvertChaosGame(const v1::ChaosGame& cg, const Limits& limits, int
   }
   job.chaos_game.splat = cg.splat();
   job.total_work = cg.iterations();
-  // The honest worst case: sparse tiles bounded by the grid and by the
-  // iterations (docs/chaos_game.md). Checked here, before anything is
-  // allocated, so an oversized job never starts.
+  // Checked here, before anything is allocated, so an oversized job never
+  // starts (docs/chaos_game.md, "Memory").
+  uint64_t pilot = 0;
   const ChaosGameMemory mem =
-      ChaosGame::EstimateMemory(job.chaos_game, threads, OutputBytesPerVoxel(job.density));
+      EstimateChaosGameMemory(job.chaos_game, threads, job.density, limits, &pilot);
   job.estimated_memory_bytes = mem.peak();
   if (mem.peak() > limits.max_memory_bytes)
     return absl::ResourceExhaustedError(
-        StrCat("grid.resolution: the chaos game needs up to ", GiB(mem.peak()),
-               " of memory (", GiB(mem.accumulation), " to accumulate on ", threads,
-               " threads, ", GiB(mem.output), " to write); the server limit is ",
-               GiB(limits.max_memory_bytes)));
+        StrCat("grid.resolution: the chaos game needs up to ", GiB(mem.peak()), " of memory (",
+               GiB(mem.accumulation), " to accumulate on ", threads, " threads, ", GiB(mem.output),
+               " to write", pilot ? StrCat(", measured by a pilot run of ", pilot, " points") : "",
+               "); the server limit is ", GiB(limits.max_memory_bytes)));
   return absl::OkStatus();
+}
+
+ChaosGameMemory EstimateChaosGameMemory(ChaosGameParams& params, int threads,
+                                        const DensityOptions& density, const Limits& limits,
+                                        uint64_t* pilot_samples) {
+  // About 10-40 ms of walking; only paid by jobs the cheap bound refuses.
+  constexpr uint64_t kPilotSamples = uint64_t{1} << 21;
+  *pilot_samples = 0;
+  params.memory_budget = limits.max_memory_bytes;
+  const uint64_t per_voxel = OutputBytesPerVoxel(density);
+  ChaosGameMemory mem = ChaosGame::EstimateMemory(params, threads, per_voxel);
+  if (mem.peak() <= limits.max_memory_bytes) return mem;
+  auto census = ChaosGame::Pilot(params, kPilotSamples, nullptr);
+  if (!census.ok()) return mem;
+  *pilot_samples = census->samples;
+  return ChaosGame::EstimateMemory(params, threads, per_voxel, census->estimate);
 }
 
 }  // namespace nimbus::spec::internal

@@ -21,6 +21,15 @@ std::string GiB(uint64_t bytes);
 /// A Map message as a core PointMap (pre steps, variations, post, colour).
 absl::StatusOr<PointMap> ConvertMap(const v1::Map& m, const std::string& path);
 
+/// Memory a chaos-game run of `params` needs on `threads` threads. When the
+/// geometric bound is above the server's limit, a short pilot run measures
+/// the tiles the attractor really touches (ChaosGame::Pilot) and the
+/// estimate uses those. Also sets params.memory_budget to the limit, the
+/// run-time safety net. `pilot_samples` is set to the pilot's size, or 0.
+ChaosGameMemory EstimateChaosGameMemory(ChaosGameParams& params, int threads,
+                                        const DensityOptions& density, const Limits& limits,
+                                        uint64_t* pilot_samples);
+
 /// Per-generator converters: fill `job` (generator, plan, total_work,
 /// estimated_memory_bytes, warnings) from their part of the spec. The grid
 /// (job.frame) is already converted.

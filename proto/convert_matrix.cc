@@ -411,8 +411,9 @@ absl::Status ConvertMatrixChaosGame(const v1::ChaosGame& cg, const Limits& limit
   }
   // One engine runs at a time, so its worst case is the job's, plus the
   // accumulator of a component grid.
+  uint64_t pilot = 0;
   job.estimated_memory_bytes =
-      ChaosGame::EstimateMemory(params, threads, OutputBytesPerVoxel(job.density)).peak();
+      EstimateChaosGameMemory(params, threads, job.density, limits, &pilot).peak();
   if (plan->component_grid != ComponentGridType::kNone) {
     const uint64_t k = selection.size();
     if (cg.iterations() < k)

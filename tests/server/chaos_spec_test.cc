@@ -157,13 +157,20 @@ TEST(ChaosSpec, MemoryLimitRefusesTheJobBeforeItAllocates) {
   const std::string map = R"({"steps": [{"scale": {"uniform": 0.4}}]})";
   spec::Limits limits;
   limits.max_memory_bytes = uint64_t{6} << 30;
-  // A nonlinear map may reach anywhere: 2^33 steps may touch every tile of
-  // two 1024^3 counter grids (2 x 4 GiB).
-  const std::string nonlinear =
-      R"({"steps": [{"scale": {"uniform": 0.4}}], "variations": [{"name": "swirl"}]})";
-  auto big = Convert(SpecWith(nonlinear, "", "", 1024, uint64_t{1} << 33), limits);
-  EXPECT_EQ(big.status().code(), absl::StatusCode::kResourceExhausted);
+  // Eight half-size copies fill the [-2, 2]^3 box: 2^33 steps touch every
+  // tile of two 1024^3 counter grids (2 x 4 GiB), as the pilot run confirms.
+  std::string octants = R"({"name": "t", "grid": {"resolution": [1024],
+      "bounds_min": {"x": -2, "y": -2, "z": -2}, "bounds_max": {"x": 2, "y": 2, "z": 2}},
+      "chaos_game": {"iterations": "8589934592", "ifs": {"maps": [)";
+  for (int i = 0; i < 8; ++i)
+    octants += absl::StrCat(i ? "," : "", R"({"steps": [{"translate": {"x": )",
+                            i & 1 ? 1 : -1, R"(, "y": )", i & 2 ? 1 : -1, R"(, "z": )",
+                            i & 4 ? 1 : -1, R"(}}, {"scale": {"uniform": 0.5}}]})");
+  octants += "]}}}";
+  auto big = Convert(octants, limits);
+  EXPECT_EQ(big.status().code(), absl::StatusCode::kResourceExhausted) << big.status();
   EXPECT_THAT(std::string(big.status().message()), HasSubstr("the chaos game needs up to"));
+  EXPECT_THAT(std::string(big.status().message()), HasSubstr("measured by a pilot run"));
   // Few steps touch few tiles: the same grid fits.
   auto few = Convert(SpecWith(map, "", "", 1024, 20'000), limits);
   ASSERT_TRUE(few.ok()) << few.status();
@@ -174,6 +181,20 @@ TEST(ChaosSpec, MemoryLimitRefusesTheJobBeforeItAllocates) {
   auto small = Convert(SpecWith(map, "", "", 1024, uint64_t{1} << 33), limits);
   ASSERT_TRUE(small.ok()) << small.status();
   EXPECT_LT(small->estimated_memory_bytes, uint64_t{5} << 30);
+}
+
+TEST(ChaosSpec, ThinAttractorAt2048FitsTheDefaultLimit) {
+  // The geometric bound of the tetrahedron at 2048^3 is tens of GiB; the
+  // pilot run sees that it touches a few percent of the tiles.
+  auto spec = spec::LoadSpecFile(testing::SourcePath("examples/sierpinski_tetrahedron.json"));
+  ASSERT_TRUE(spec.ok()) << spec.status();
+  spec->mutable_grid()->set_resolution(0, 2048);
+  spec->mutable_chaos_game()->set_iterations(100'000'000);
+  const spec::Limits limits;  // 16 GiB
+  auto job = spec::ConvertSpec(*spec, limits, 2);
+  ASSERT_TRUE(job.ok()) << job.status();
+  EXPECT_LT(job->estimated_memory_bytes, uint64_t{8} << 30);
+  EXPECT_EQ(job->chaos_game.memory_budget, limits.max_memory_bytes);
 }
 
 TEST(ChaosSpec, NonFiniteMapsAreReportedNotFatal) {
