@@ -1,12 +1,11 @@
 #include "core/component_grid.h"
 
-#include "core/vdb_internal.h"
-
 #include <openvdb/openvdb.h>
 
 #include <mutex>
 
 #include "absl/strings/str_cat.h"
+#include "core/vdb_internal.h"
 
 namespace nimbus {
 
@@ -107,6 +106,10 @@ absl::Status WriteDensityAndComponentVdb(const std::filesystem::path& path,
     return absl::InternalError(absl::StrCat("writing ", path.string(), ": ", e.what()));
   }
   std::filesystem::remove(density_tmp, ec);
+  if (auto st = vdb_internal::StampContentUuid(tmp); !st.ok()) {
+    std::filesystem::remove(tmp, ec);
+    return st;
+  }
   std::filesystem::rename(tmp, path, ec);
   if (ec)
     return absl::InternalError(absl::StrCat("renaming into ", path.string(), ": ", ec.message()));

@@ -5,7 +5,9 @@
 #include <openvdb/openvdb.h>
 
 #include <filesystem>
+#include <string>
 
+#include "absl/status/status.h"
 #include "core/geometry.h"
 
 namespace nimbus::vdb_internal {
@@ -20,5 +22,11 @@ void SetFrameMetadata(openvdb::GridBase& grid, const GridFrame& frame);
 /// Every grid of a .vdb file. Throws OpenVDB's exceptions; callers turn
 /// them into statuses.
 openvdb::GridPtrVecPtr ReadAllGrids(const std::filesystem::path& path);
+/// OpenVDB writes a random UUID into every file; these replace it with one
+/// derived from the SHA-256 of the rest of the file, so the same grids give
+/// the same bytes. The UUID only tells readers whether two files are the
+/// same, which a content hash says truthfully.
+absl::Status StampContentUuid(const std::filesystem::path& path);
+void StampContentUuid(std::string& bytes);
 
 }  // namespace nimbus::vdb_internal

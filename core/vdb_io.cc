@@ -4,11 +4,13 @@
 #include <openvdb/openvdb.h>
 
 #include <cmath>
+#include <cstring>
 #include <fstream>
 #include <mutex>
 #include <sstream>
 
 #include "absl/strings/str_cat.h"
+#include "core/sha256.h"
 #include "core/vdb_internal.h"
 
 namespace nimbus {
@@ -48,6 +50,58 @@ openvdb::GridPtrVecPtr ReadAllGrids(const std::filesystem::path& path) {
   return grids;
 }
 
+namespace {
+// OpenVDB's header: magic (8 bytes), file version, library major and minor
+// (4 each), the grid-offsets flag (1), then the UUID as 36 characters.
+constexpr size_t kUuidOffset = 21;
+constexpr size_t kUuidSize = 36;
+
+bool LooksLikeHeader(std::string_view head) {
+  if (head.size() < kUuidOffset + kUuidSize) return false;
+  int64_t magic = 0;
+  std::memcpy(&magic, head.data(), sizeof(magic));
+  return magic == int64_t(openvdb::OPENVDB_MAGIC) && head[kUuidOffset + 8] == '-' &&
+         head[kUuidOffset + 13] == '-';
+}
+
+// A version-8 (custom) UUID from a digest's first 32 hex digits.
+std::string UuidFromDigest(const std::string& hex) {
+  std::string u = hex.substr(0, 32);
+  u[12] = '8';
+  u[16] = "89ab"[std::stoi(u.substr(16, 1), nullptr, 16) & 3];
+  return u.substr(0, 8) + "-" + u.substr(8, 4) + "-" + u.substr(12, 4) + "-" + u.substr(16, 4) +
+         "-" + u.substr(20, 12);
+}
+}  // namespace
+
+void StampContentUuid(std::string& bytes) {
+  if (!LooksLikeHeader(bytes)) return;
+  Sha256 h;
+  h.Update(std::string_view(bytes).substr(0, kUuidOffset));
+  h.Update(std::string_view(bytes).substr(kUuidOffset + kUuidSize));
+  const std::string uuid = UuidFromDigest(h.HexDigest());
+  bytes.replace(kUuidOffset, kUuidSize, uuid);
+}
+
+absl::Status StampContentUuid(const std::filesystem::path& path) {
+  std::fstream f(path, std::ios::in | std::ios::out | std::ios::binary);
+  std::string head(kUuidOffset + kUuidSize, '\0');
+  if (!f || !f.read(head.data(), std::streamsize(head.size())) || !LooksLikeHeader(head))
+    return absl::InternalError(absl::StrCat(path.string(), ": not a VDB file header"));
+  Sha256 h;
+  h.Update(std::string_view(head).substr(0, kUuidOffset));
+  std::string buf(size_t{1} << 20, '\0');
+  while (f.read(buf.data(), std::streamsize(buf.size())) || f.gcount() > 0)
+    h.Update(std::string_view(buf.data(), size_t(f.gcount())));
+  f.clear();
+  const std::string uuid = UuidFromDigest(h.HexDigest());
+  f.seekp(std::streamoff(kUuidOffset));
+  f.write(uuid.data(), std::streamsize(uuid.size()));
+  f.close();
+  if (!f) return absl::InternalError(absl::StrCat(path.string(), ": cannot stamp the UUID"));
+  return absl::OkStatus();
+}
+
 }  // namespace vdb_internal
 
 using vdb_internal::FrameTransform;
@@ -55,13 +109,16 @@ using vdb_internal::InitOpenVdb;
 
 namespace {
 
-
 const char* MappingName(DensityMapping m) {
   switch (m) {
-    case DensityMapping::kLinear: return "linear";
-    case DensityMapping::kSqrt: return "sqrt";
-    case DensityMapping::kLog: return "log";
-    case DensityMapping::kGamma: return "gamma";
+    case DensityMapping::kLinear:
+      return "linear";
+    case DensityMapping::kSqrt:
+      return "sqrt";
+    case DensityMapping::kLog:
+      return "log";
+    case DensityMapping::kGamma:
+      return "gamma";
   }
   return "linear";
 }
@@ -78,15 +135,18 @@ struct Normaliser {
         inv_gamma(1.0 / (o.gamma > 0 ? o.gamma : 1.0)) {}
   float operator()(uint32_t c) const {
     switch (mapping) {
-      case DensityMapping::kLinear: return float(c * inv_max);
-      case DensityMapping::kSqrt: return float(std::sqrt(c * inv_max));
-      case DensityMapping::kLog: return float(std::log1p(double(c)) * inv_log_max);
-      case DensityMapping::kGamma: return float(std::pow(c * inv_max, inv_gamma));
+      case DensityMapping::kLinear:
+        return float(c * inv_max);
+      case DensityMapping::kSqrt:
+        return float(std::sqrt(c * inv_max));
+      case DensityMapping::kLog:
+        return float(std::log1p(double(c)) * inv_log_max);
+      case DensityMapping::kGamma:
+        return float(std::pow(c * inv_max, inv_gamma));
     }
     return 0.f;
   }
 };
-
 
 void AddMeta(openvdb::MetaMap& meta, const std::string& key, const MetaValue& v) {
   if (auto* s = std::get_if<std::string>(&v)) meta.insertMeta(key, openvdb::StringMetadata(*s));
@@ -248,8 +308,13 @@ absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid&
     return absl::InternalError(absl::StrCat("writing ", path.string(), ": ", e.what()));
   }
   std::error_code ec;
+  if (auto st = vdb_internal::StampContentUuid(tmp); !st.ok()) {
+    std::filesystem::remove(tmp, ec);
+    return st;
+  }
   std::filesystem::rename(tmp, path, ec);
-  if (ec) return absl::InternalError(absl::StrCat("renaming into ", path.string(), ": ", ec.message()));
+  if (ec)
+    return absl::InternalError(absl::StrCat("renaming into ", path.string(), ": ", ec.message()));
   return absl::OkStatus();
 }
 
@@ -263,7 +328,9 @@ absl::StatusOr<std::string> DensityVdbBytes(const CountGrid& counts, const GridF
     openvdb::io::Stream stream(os);
     stream.setCompression(openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK);
     stream.write(grids);
-    return os.str();
+    std::string bytes = os.str();
+    vdb_internal::StampContentUuid(bytes);
+    return bytes;
   } catch (const std::exception& e) {
     return absl::InternalError(absl::StrCat("serialising VDB: ", e.what()));
   }
@@ -321,8 +388,7 @@ absl::StatusOr<DenseVec3Volume> ReadVec3VdbFile(const std::filesystem::path& pat
     out.active.assign(n, false);
     for (auto it = grid->cbeginValueOn(); it; ++it) {
       const openvdb::Coord c = it.getCoord();
-      if (c.x() < 0 || c.y() < 0 || c.z() < 0 || c.x() >= r.x() || c.y() >= r.y() ||
-          c.z() >= r.z())
+      if (c.x() < 0 || c.y() < 0 || c.z() < 0 || c.x() >= r.x() || c.y() >= r.y() || c.z() >= r.z())
         return absl::DataLossError("active voxel outside the recorded resolution");
       const size_t i = (size_t(c.x()) * r.y() + c.y()) * r.z() + c.z();
       out.values[i] = {(*it).x(), (*it).y(), (*it).z()};
@@ -347,16 +413,16 @@ GridFrame DownsampleFrame(const GridFrame& frame, int factor) {
                     (r.z + factor - 1) / factor};
   const Vec3 h = frame.VoxelSize();
   out.bounds.min = frame.bounds.min;
-  out.bounds.max = frame.bounds.min + Vec3{out.resolution.x * factor * h.x,
-                                           out.resolution.y * factor * h.y,
-                                           out.resolution.z * factor * h.z};
+  out.bounds.max =
+      frame.bounds.min + Vec3{out.resolution.x * factor * h.x, out.resolution.y * factor * h.y,
+                              out.resolution.z * factor * h.z};
   return out;
 }
 
 CountGrid DownsampleCounts(const std::vector<const CountGrid*>& parts, int factor) {
   const Int3 r = parts.empty() ? Int3{1, 1, 1} : parts[0]->resolution();
-  CountGrid out(Int3{(r.x + factor - 1) / factor, (r.y + factor - 1) / factor,
-                     (r.z + factor - 1) / factor});
+  CountGrid out(
+      Int3{(r.x + factor - 1) / factor, (r.y + factor - 1) / factor, (r.z + factor - 1) / factor});
   for (const CountGrid* part : parts) {
     part->ForEachTile([&](Int3 o, const uint32_t* tile) {
       for (uint32_t i = 0; i < uint32_t(CountGrid::kTileVoxels); ++i) {

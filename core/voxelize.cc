@@ -1,7 +1,7 @@
 #include "core/voxelize.h"
 
-#include <openvdb/openvdb.h>
 #include <openvdb/io/File.h>
+#include <openvdb/openvdb.h>
 #include <openvdb/tools/MeshToVolume.h>
 #include <openvdb/util/NullInterrupter.h>
 
@@ -12,6 +12,7 @@
 #include <unordered_map>
 
 #include "absl/strings/str_cat.h"
+#include "core/vdb_internal.h"
 
 namespace nimbus {
 namespace {
@@ -383,7 +384,7 @@ absl::Status SaveMeshLevelSet(const TriangleMesh& mesh, const GridFrame& frame,
   } catch (const std::exception& e) {
     return absl::InternalError(absl::StrCat(path.string(), ": cannot write: ", e.what()));
   }
-  return absl::OkStatus();
+  return vdb_internal::StampContentUuid(path);
 }
 
 absl::StatusOr<VoxelSet> LoadGridSet(const std::filesystem::path& path, const GridFrame& frame,

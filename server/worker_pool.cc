@@ -109,9 +109,9 @@ class WorkerPool::Context : public JobContext {
     return pool_->results_->ScratchPath(record_.id);
   }
   Metadata BaseMetadata() const override {
-    return {{"nimbus_spec_hash", spec_hash_},
-            {"nimbus_version", std::string(NIMBUS_VERSION)},
-            {"nimbus_job_id", record_.id}};
+    // Nothing per job or per run (id, time): a result's bytes depend only
+    // on its spec, so identical specs give identical files.
+    return {{"nimbus_spec_hash", spec_hash_}, {"nimbus_version", std::string(NIMBUS_VERSION)}};
   }
 
   const v1::Job& view() const { return view_; }
@@ -144,7 +144,8 @@ WorkerPool::WorkerPool(JobStore* store, ResultStore* results, JobHub* hub, Worke
 WorkerPool::~WorkerPool() { Stop(); }
 
 void WorkerPool::Start() {
-  for (int i = 0; i < std::max(1, options_.workers); ++i) threads_.emplace_back([this, i] { Loop(i); });
+  for (int i = 0; i < std::max(1, options_.workers); ++i)
+    threads_.emplace_back([this, i] { Loop(i); });
 }
 
 void WorkerPool::Stop() {
@@ -277,9 +278,12 @@ void WorkerPool::RunJob(const JobRecord& record, const std::string& worker_id) {
 
 absl::Status WorkerPool::RunGenerator(const spec::ConvertedJob& job, JobContext& ctx) {
   switch (job.generator) {
-    case spec::Generator::kChaosGame: return RunChaosGameJob(job, ctx);
-    case spec::Generator::kSetIfs: return RunSetIfsJob(job, ctx);
-    case spec::Generator::kIfsMatrix: return RunIfsMatrixJob(job, ctx);
+    case spec::Generator::kChaosGame:
+      return RunChaosGameJob(job, ctx);
+    case spec::Generator::kSetIfs:
+      return RunSetIfsJob(job, ctx);
+    case spec::Generator::kIfsMatrix:
+      return RunIfsMatrixJob(job, ctx);
   }
   return absl::UnimplementedError("unknown generator");
 }
