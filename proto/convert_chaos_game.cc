@@ -175,6 +175,24 @@ absl::Status ConvertChaosGame(const v1::ChaosGame& cg, const Limits& limits, int
   job.chaos_game.warmup = cg.warmup() == 0 ? 100 : cg.warmup();
   job.chaos_game.seed = cg.seed();
   if (auto st = ConvertFinal(cg.ifs(), "chaos_game.ifs", job.chaos_game.ifs); !st.ok()) return st;
+  if (auto st = ConvertEngineOptions(cg, job); !st.ok()) return st;
+  job.total_work = cg.iterations();
+  // Checked here, before anything is allocated, so an oversized job never
+  // starts (docs/chaos_game.md, "Memory").
+  uint64_t pilot = 0;
+  const ChaosGameMemory mem =
+      EstimateChaosGameMemory(job.chaos_game, threads, job.density, limits, &pilot);
+  job.estimated_memory_bytes = mem.peak();
+  if (mem.peak() > limits.max_memory_bytes)
+    return absl::ResourceExhaustedError(
+        StrCat("grid.resolution: the chaos game needs up to ", GiB(mem.peak()), " of memory (",
+               GiB(mem.accumulation), " to accumulate on ", threads, " threads, ", GiB(mem.output),
+               " to write", pilot ? StrCat(", measured by a pilot run of ", pilot, " points") : "",
+               "); the server limit is ", GiB(limits.max_memory_bytes)));
+  return absl::OkStatus();
+}
+
+absl::Status ConvertEngineOptions(const v1::ChaosGame& cg, ConvertedJob& job) {
   if (auto st = ConvertColor(cg, job); !st.ok()) return st;
   switch (cg.raw_counts()) {
     case v1::RAW_COUNTS_NONE:
@@ -200,19 +218,6 @@ absl::Status ConvertChaosGame(const v1::ChaosGame& cg, const Limits& limits, int
     }
   }
   job.chaos_game.splat = cg.splat();
-  job.total_work = cg.iterations();
-  // Checked here, before anything is allocated, so an oversized job never
-  // starts (docs/chaos_game.md, "Memory").
-  uint64_t pilot = 0;
-  const ChaosGameMemory mem =
-      EstimateChaosGameMemory(job.chaos_game, threads, job.density, limits, &pilot);
-  job.estimated_memory_bytes = mem.peak();
-  if (mem.peak() > limits.max_memory_bytes)
-    return absl::ResourceExhaustedError(
-        StrCat("grid.resolution: the chaos game needs up to ", GiB(mem.peak()), " of memory (",
-               GiB(mem.accumulation), " to accumulate on ", threads, " threads, ", GiB(mem.output),
-               " to write", pilot ? StrCat(", measured by a pilot run of ", pilot, " points") : "",
-               "); the server limit is ", GiB(limits.max_memory_bytes)));
   return absl::OkStatus();
 }
 

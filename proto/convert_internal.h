@@ -21,6 +21,10 @@ std::string GiB(uint64_t bytes);
 /// A Map message as a core PointMap (pre steps, variations, post, colour).
 absl::StatusOr<PointMap> ConvertMap(const v1::Map& m, const std::string& path);
 
+/// The engine options shared by plain and matrix chaos games: colour, raw
+/// counts, convergence and splatting.
+absl::Status ConvertEngineOptions(const v1::ChaosGame& cg, ConvertedJob& job);
+
 /// Memory a chaos-game run of `params` needs on `threads` threads. When the
 /// geometric bound is above the server's limit, a short pilot run measures
 /// the tiles the attractor really touches (ChaosGame::Pilot) and the

@@ -365,6 +365,9 @@ absl::Status ConvertMatrixChaosGame(const v1::ChaosGame& cg, const Limits& limit
   params.iterations = cg.iterations();
   params.warmup = cg.warmup() == 0 ? 100 : cg.warmup();
   params.seed = cg.seed();
+  // Colour, raw counts, convergence and splatting mean what they mean for a
+  // plain IFS: the chain walks the same engine.
+  if (auto st = ConvertEngineOptions(cg, job); !st.ok()) return st;
   ComponentChainOptions chain_options;
   chain_options.probability_floor = floor;
   chain_options.map_weights = weights;
@@ -408,6 +411,14 @@ absl::Status ConvertMatrixChaosGame(const v1::ChaosGame& cg, const Limits& limit
       break;
     default:
       return Invalid(path + ".component_grid", "unknown value");
+  }
+  if (plan->component_grid != ComponentGridType::kNone) {
+    // Component runs are summed and labelled by count; these options would
+    // be silently lost there, so they are refused by name.
+    const char* why = "not supported together with chaos_game.matrices.component_grid";
+    if (cg.has_color()) return Invalid("chaos_game.color", why);
+    if (cg.has_convergence()) return Invalid("chaos_game.convergence", why);
+    if (cg.splat()) return Invalid("chaos_game.splat", why);
   }
   // One engine runs at a time, so its worst case is the job's, plus the
   // accumulator of a component grid.

@@ -4,6 +4,7 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <map>
 
@@ -467,6 +468,40 @@ TEST(MatrixRunner, WithoutComponentGridRunsAsOneChaosGame) {
   ASSERT_TRUE(density.ok()) << density.status();
   EXPECT_FALSE(ReadComponentGrid(dir / "t.vdb", density->frame.resolution).ok());
   EXPECT_GT(ctx.stats["matrix_chain_states"], 2u);
+}
+
+TEST(MatrixRunner, EngineOptionsApplyToMatrixJobs) {
+  // Colour, raw counts and splatting are the engine's, so a matrix job
+  // honours them as a plain IFS does.
+  testing::TempDir dir;
+  v1::JobSpec spec = Parse(kTree);
+  spec.mutable_chaos_game()->mutable_color()->set_mode(v1::COLOR_MODE_ADDRESS);
+  spec.mutable_chaos_game()->set_raw_counts(v1::RAW_COUNTS_FLOAT);
+  auto job = ConvertSpec(spec, {}, 2);
+  ASSERT_TRUE(job.ok()) << job.status();
+  EXPECT_EQ(job->chaos_game.color.mode, ColorMode::kAddress);
+  EXPECT_EQ(job->density.raw_counts, RawCounts::kFloat);
+  FakeContext ctx(dir / "t.vdb");
+  ASSERT_TRUE(server::RunIfsMatrixJob(*job, ctx).ok());
+  auto cd = ReadVec3VdbFile(dir / "t.vdb");
+  ASSERT_TRUE(cd.ok()) << cd.status();
+  EXPECT_TRUE(std::any_of(cd->active.begin(), cd->active.end(), [](auto a) { return a != 0; }));
+  EXPECT_TRUE(ReadVdbFile(dir / "t.vdb", "counts").ok());
+}
+
+TEST(MatrixSpec, OptionsAComponentGridCannotHonourAreRefusedByName) {
+  v1::JobSpec spec = Parse(kTree);
+  spec.mutable_chaos_game()->mutable_matrices()->set_component_grid(v1::COMPONENT_GRID_INT);
+  ASSERT_TRUE(Convert(spec).ok());
+  v1::JobSpec colour = spec;
+  colour.mutable_chaos_game()->mutable_color()->set_mode(v1::COLOR_MODE_MAP);
+  EXPECT_THAT(Message(Convert(colour)), HasSubstr("chaos_game.color: not supported"));
+  v1::JobSpec conv = spec;
+  conv.mutable_chaos_game()->mutable_convergence()->set_tolerance(0.01);
+  EXPECT_THAT(Message(Convert(conv)), HasSubstr("chaos_game.convergence"));
+  v1::JobSpec splat = spec;
+  splat.mutable_chaos_game()->set_splat(true);
+  EXPECT_THAT(Message(Convert(splat)), HasSubstr("chaos_game.splat"));
 }
 
 }  // namespace
