@@ -11,6 +11,7 @@
 
 #include "core/attractors.h"
 #include "core/chaos_game.h"
+#include "core/cpu_dispatch.h"
 
 namespace nimbus {
 namespace {
@@ -22,8 +23,11 @@ uint64_t PeakRssBytes() {
 }
 
 // One full engine run per benchmark iteration: allocation, walk, merge.
-void RunEngine(benchmark::State& state, const ChaosGameParams& params) {
+// Arguments: threads, then the SIMD level (0 scalar, 1 the best this CPU has).
+void RunEngine(benchmark::State& state, ChaosGameParams params) {
   const int threads = int(state.range(0));
+  params.simd = state.range(1) ? DetectSimd() : SimdLevel::kScalar;
+  state.SetLabel(std::string(SimdName(std::min(*params.simd, DetectSimd()))));
   uint64_t engine_bytes = 0;
   for (auto _ : state) {
     auto game = ChaosGame::Create(params, threads);
@@ -46,17 +50,55 @@ void RunEngine(benchmark::State& state, const ChaosGameParams& params) {
 void BM_SierpinskiTetrahedron256(benchmark::State& state) {
   RunEngine(state, SierpinskiTetrahedronParams(256, uint64_t{1} << 27));
 }
-BENCHMARK(BM_SierpinskiTetrahedron256)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_SierpinskiTetrahedron256)
+    ->ArgsProduct({{1, 2}, {0, 1}})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 
 void BM_OctantCloud256(benchmark::State& state) {
   RunEngine(state, OctantCloudParams(256, uint64_t{1} << 28));
 }
-BENCHMARK(BM_OctantCloud256)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_OctantCloud256)
+    ->ArgsProduct({{1, 2}, {0, 1}})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 
 void BM_FernVolume1024(benchmark::State& state) {
   RunEngine(state, FernVolumeParams(1024, uint64_t{1} << 30));
 }
-BENCHMARK(BM_FernVolume1024)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime()
+BENCHMARK(BM_FernVolume1024)
+    ->ArgsProduct({{1, 2}, {0, 1}})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->Iterations(1);
+
+// A thin attractor on a huge grid: the pilot census and the memory it
+// predicts against what the run really holds.
+void BM_SierpinskiTetrahedron2048(benchmark::State& state) {
+  const int threads = int(state.range(0));
+  const ChaosGameParams params = SierpinskiTetrahedronParams(2048, uint64_t{1} << 30);
+  uint64_t engine_bytes = 0, estimate = 0;
+  for (auto _ : state) {
+    auto census = ChaosGame::Pilot(params, uint64_t{1} << 21, nullptr);
+    if (!census.ok()) return state.SkipWithError("pilot failed");
+    estimate = ChaosGame::EstimateMemory(params, threads, sizeof(float), census->estimate).peak();
+    auto game = ChaosGame::Create(params, threads);
+    if (!game.ok()) return state.SkipWithError("create failed");
+    (void)(*game)->Run(nullptr);
+    engine_bytes = (*game)->MemoryBytes();
+    benchmark::DoNotOptimize((*game)->TakeCounts().AllocatedTiles());
+  }
+  state.SetItemsProcessed(int64_t(state.iterations() * params.iterations));
+  state.counters["engine_bytes"] = double(engine_bytes);
+  state.counters["estimate_bytes"] = double(estimate);
+  state.counters["geometric_estimate_bytes"] =
+      double(ChaosGame::EstimateMemory(params, threads, sizeof(float)).peak());
+  state.counters["peak_rss_bytes"] = double(PeakRssBytes());
+}
+BENCHMARK(BM_SierpinskiTetrahedron2048)
+    ->Arg(2)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
     ->Iterations(1);
 
 // Baseline: one walker, each point written through an OpenVDB accessor.
@@ -94,8 +136,7 @@ void FlatArray(benchmark::State& state, const ChaosGameParams& p) {
     Vec3 q = 0.5 * (b.min + b.max);
     for (uint64_t i = 0; i < p.iterations; ++i) {
       q = p.ifs.maps[table.Sample(rng.Next())].pre.Apply(q);
-      const double fx = (q.x - b.min.x) * ix, fy = (q.y - b.min.y) * iy,
-                   fz = (q.z - b.min.z) * iz;
+      const double fx = (q.x - b.min.x) * ix, fy = (q.y - b.min.y) * iy, fz = (q.z - b.min.z) * iz;
       if (!(fx >= 0 && fx < kRes && fy >= 0 && fy < kRes && fz >= 0 && fz < kRes)) continue;
       ++counts[(size_t(fx) * kRes + size_t(fy)) * kRes + size_t(fz)];
     }

@@ -224,13 +224,16 @@ absl::Status ConvertEngineOptions(const v1::ChaosGame& cg, ConvertedJob& job) {
 ChaosGameMemory EstimateChaosGameMemory(ChaosGameParams& params, int threads,
                                         const DensityOptions& density, const Limits& limits,
                                         uint64_t* pilot_samples) {
-  // About 10-40 ms of walking; only paid by jobs the cheap bound refuses.
+  // About 10-40 ms of walking (on the admission thread, never a gRPC one),
+  // paid only by jobs whose cheap bound is large: they run for seconds or
+  // more, and the job status then reports what they will really hold.
   constexpr uint64_t kPilotSamples = uint64_t{1} << 21;
+  constexpr uint64_t kPilotAbove = uint64_t{1} << 30;
   *pilot_samples = 0;
   params.memory_budget = limits.max_memory_bytes;
   const uint64_t per_voxel = OutputBytesPerVoxel(density);
   ChaosGameMemory mem = ChaosGame::EstimateMemory(params, threads, per_voxel);
-  if (mem.peak() <= limits.max_memory_bytes) return mem;
+  if (mem.peak() <= std::min(limits.max_memory_bytes, kPilotAbove)) return mem;
   auto census = ChaosGame::Pilot(params, kPilotSamples, nullptr);
   if (!census.ok()) return mem;
   *pilot_samples = census->samples;

@@ -26,7 +26,7 @@ absl::StatusOr<PointMap> ConvertMap(const v1::Map& m, const std::string& path);
 absl::Status ConvertEngineOptions(const v1::ChaosGame& cg, ConvertedJob& job);
 
 /// Memory a chaos-game run of `params` needs on `threads` threads. When the
-/// geometric bound is above the server's limit, a short pilot run measures
+/// geometric bound is above 1 GiB (or the limit), a short pilot run measures
 /// the tiles the attractor really touches (ChaosGame::Pilot) and the
 /// estimate uses those. Also sets params.memory_budget to the limit, the
 /// run-time safety net. `pilot_samples` is set to the pilot's size, or 0.

@@ -55,8 +55,8 @@ void AddResultFiles(ResultStore* results, v1::Job& job) {
 // slow client skips intermediate states instead of queueing them.
 class WatchReactor : public grpc::ServerWriteReactor<v1::WatchJobResponse> {
  public:
-  WatchReactor(JobHub* hub, JobStore* store, ResultStore* results,
-               const v1::WatchJobRequest& req, const v1::Job& initial)
+  WatchReactor(JobHub* hub, JobStore* store, ResultStore* results, const v1::WatchJobRequest& req,
+               const v1::Job& initial)
       : hub_(hub),
         results_(results),
         job_id_(req.job_id()),
@@ -119,7 +119,8 @@ class WatchReactor : public grpc::ServerWriteReactor<v1::WatchJobResponse> {
     if (writing_ || finished_) return;
     const v1::Job& job = *latest_.job;
     const bool job_changed = !sent_job_ || job.state() != sent_state_ ||
-                             job.progress().done() != sent_done_ || job.attempts() != sent_attempts_;
+                             job.progress().done() != sent_done_ ||
+                             job.attempts() != sent_attempts_;
     bool send_preview = false;
     if (latest_.preview && latest_.preview->sequence() != sent_preview_seq_) {
       const auto now = std::chrono::steady_clock::now();
@@ -236,25 +237,37 @@ NimbusServiceImpl::NimbusServiceImpl(JobStore* store, ResultStore* results, Asse
 grpc::ServerUnaryReactor* NimbusServiceImpl::SubmitJob(grpc::CallbackServerContext* ctx,
                                                        const v1::SubmitJobRequest* req,
                                                        v1::SubmitJobResponse* resp) {
-  // Validation is cheap (no allocation of grids); it runs here so that the
-  // client hears about a bad spec at once.
-  auto job = spec::ConvertSpec(req->spec(), limits_, pool_->threads_per_job());
-  if (!job.ok()) return Done(ctx, ToGrpc(job.status()));
+  // The reactor is answered from the admission thread; gRPC keeps `req`
+  // and `resp` alive until then.
+  grpc::ServerUnaryReactor* reactor = ctx->DefaultReactor();
+  if (!admission_.Post([this, req, resp, reactor] { reactor->Finish(Admit(*req, *resp)); }))
+    reactor->Finish(
+        grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
+                     absl::StrCat("server busy: ", admission_.max_pending(),
+                                  " submissions are waiting to be validated; retry shortly")));
+  return reactor;
+}
+
+grpc::Status NimbusServiceImpl::Admit(const v1::SubmitJobRequest& req,
+                                      v1::SubmitJobResponse& resp) {
+  // Validation names the offending field; nothing is allocated for grids.
+  auto job = spec::ConvertSpec(req.spec(), limits_, pool_->threads_per_job());
+  if (!job.ok()) return ToGrpc(job.status());
   NewJob nj;
   nj.id = NewJobId();
   nj.name = job->name;
-  req->spec().SerializeToString(&nj.spec);
-  nj.request_id = req->request_id();
+  req.spec().SerializeToString(&nj.spec);
+  nj.request_id = req.request_id();
   nj.progress_total = job->total_work;
   for (const auto& w : job->warnings) nj.warnings += w + "\n";
   nj.estimated_memory_bytes = job->estimated_memory_bytes;
   auto rec = store_->Create(nj, NowMs());
-  if (!rec.ok()) return Done(ctx, ToGrpc(rec.status()));
+  if (!rec.ok()) return ToGrpc(rec.status());
   spdlog::info("job={} event=submitted name={} work={}", rec->id, rec->name, rec->progress_total);
-  *resp->mutable_job() = ToProto(*rec, true);
-  if (rec->state == JobState::kQueued) hub_->PublishJob(resp->job());
+  *resp.mutable_job() = ToProto(*rec, true);
+  if (rec->state == JobState::kQueued) hub_->PublishJob(resp.job());
   pool_->Wake();
-  return Done(ctx, grpc::Status::OK);
+  return grpc::Status::OK;
 }
 
 grpc::ServerUnaryReactor* NimbusServiceImpl::GetJob(grpc::CallbackServerContext* ctx,
@@ -327,10 +340,10 @@ grpc::ServerWriteReactor<v1::FetchResultResponse>* NimbusServiceImpl::FetchResul
   // they are listed; everything else waits for success.
   const bool running = rec->state == JobState::kRunning;
   if (rec->state != JobState::kSucceeded && !(running && !req->file_name().empty()))
-    return new Fail(grpc::Status(
-        grpc::StatusCode::FAILED_PRECONDITION,
-        absl::StrCat("job ", rec->id, " is ", v1::JobState_Name(ToProto(rec->state)),
-                     "; results exist only for JOB_STATE_SUCCEEDED")));
+    return new Fail(
+        grpc::Status(grpc::StatusCode::FAILED_PRECONDITION,
+                     absl::StrCat("job ", rec->id, " is ", v1::JobState_Name(ToProto(rec->state)),
+                                  "; results exist only for JOB_STATE_SUCCEEDED")));
   uint64_t size = rec->result_size;
   std::string sha256 = rec->result_sha256;
   if (!req->file_name().empty()) {
@@ -342,14 +355,14 @@ grpc::ServerWriteReactor<v1::FetchResultResponse>* NimbusServiceImpl::FetchResul
         found = true;
       }
     if (!found)
-      return new Fail(grpc::Status(grpc::StatusCode::NOT_FOUND,
-                                   absl::StrCat("job ", rec->id, " has no result file '",
-                                                req->file_name(), "'")));
+      return new Fail(grpc::Status(
+          grpc::StatusCode::NOT_FOUND,
+          absl::StrCat("job ", rec->id, " has no result file '", req->file_name(), "'")));
   }
   if (req->offset() > size)
-    return new Fail(grpc::Status(grpc::StatusCode::OUT_OF_RANGE,
-                                 absl::StrCat("offset ", req->offset(), " is past the end (",
-                                              size, " bytes)")));
+    return new Fail(grpc::Status(
+        grpc::StatusCode::OUT_OF_RANGE,
+        absl::StrCat("offset ", req->offset(), " is past the end (", size, " bytes)")));
   // Committed further files live under the job id (the result key).
   return new FetchReactor(results_, req->file_name().empty() ? rec->result_key : rec->id,
                           req->file_name(), running, req->offset(), size, sha256);
@@ -369,9 +382,10 @@ class UploadReactor : public grpc::ServerReadReactor<v1::UploadAssetRequest> {
   void OnReadDone(bool ok) override {
     if (!ok) {
       // The client closed its side: the upload is complete or truncated.
-      if (!upload_) return Finish(grpc::Status(grpc::StatusCode::INVALID_ARGUMENT,
-                                               "empty upload: the first message must name "
-                                               "sha256, size_bytes and file_name"));
+      if (!upload_)
+        return Finish(grpc::Status(grpc::StatusCode::INVALID_ARGUMENT,
+                                   "empty upload: the first message must name "
+                                   "sha256, size_bytes and file_name"));
       auto info = upload_->Finish();
       if (!info.ok()) {
         spdlog::warn("event=upload_rejected sha256={} reason=\"{}\"", sha256_,

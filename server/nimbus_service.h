@@ -4,6 +4,7 @@
 
 #include "nimbus/v1/nimbus_service.grpc.pb.h"
 #include "proto/spec_convert.h"
+#include "server/admission.h"
 #include "server/asset_store.h"
 #include "server/job_hub.h"
 #include "server/job_store.h"
@@ -28,20 +29,24 @@ class NimbusServiceImpl final : public v1::NimbusService::CallbackService {
   grpc::ServerUnaryReactor* CancelJob(grpc::CallbackServerContext* ctx,
                                       const v1::CancelJobRequest* req,
                                       v1::CancelJobResponse* resp) override;
-  grpc::ServerWriteReactor<v1::WatchJobResponse>* WatchJob(
-      grpc::CallbackServerContext* ctx, const v1::WatchJobRequest* req) override;
+  grpc::ServerWriteReactor<v1::WatchJobResponse>* WatchJob(grpc::CallbackServerContext* ctx,
+                                                           const v1::WatchJobRequest* req) override;
   grpc::ServerWriteReactor<v1::FetchResultResponse>* FetchResult(
       grpc::CallbackServerContext* ctx, const v1::FetchResultRequest* req) override;
   grpc::ServerReadReactor<v1::UploadAssetRequest>* UploadAsset(
       grpc::CallbackServerContext* ctx, v1::UploadAssetResponse* resp) override;
 
  private:
+  // Validates and stores one submission (runs on the admission thread).
+  grpc::Status Admit(const v1::SubmitJobRequest& req, v1::SubmitJobResponse& resp);
+
   JobStore* store_;
   ResultStore* results_;
   AssetStore* assets_;
   JobHub* hub_;
   WorkerPool* pool_;
   spec::Limits limits_;
+  Admission admission_;  // last: drained before the members it uses go
 };
 
 /// Maps an absl::Status onto a grpc::Status with the same code and message.
