@@ -40,7 +40,8 @@ struct NimbusClient::Impl {
   std::unique_ptr<v1::NimbusService::Stub> stub;
 };
 
-NimbusClient::NimbusClient(std::shared_ptr<grpc::Channel> channel) : impl_(std::make_unique<Impl>()) {
+NimbusClient::NimbusClient(std::shared_ptr<grpc::Channel> channel)
+    : impl_(std::make_unique<Impl>()) {
   impl_->channel = std::move(channel);
   impl_->stub = v1::NimbusService::NewStub(impl_->channel);
 }
@@ -65,7 +66,8 @@ absl::Status NimbusClient::WaitForReady(double seconds) {
   return absl::OkStatus();
 }
 
-absl::StatusOr<v1::Job> NimbusClient::Submit(const v1::JobSpec& spec, const std::string& request_id) {
+absl::StatusOr<v1::Job> NimbusClient::Submit(const v1::JobSpec& spec,
+                                             const std::string& request_id) {
   grpc::ClientContext ctx;
   v1::SubmitJobRequest req;
   *req.mutable_spec() = spec;
@@ -156,8 +158,8 @@ absl::Status NimbusClient::Fetch(const std::string& job_id, const std::filesyste
       if (!chunk.sha256().empty()) expected_sha = chunk.sha256();
       if (chunk.total_size()) total = chunk.total_size();
       if (chunk.offset() != offset)
-        return absl::DataLossError(absl::StrCat("server sent offset ", chunk.offset(),
-                                                ", expected ", offset));
+        return absl::DataLossError(
+            absl::StrCat("server sent offset ", chunk.offset(), ", expected ", offset));
       out.write(chunk.data().data(), std::streamsize(chunk.data().size()));
       offset += chunk.data().size();
     }
@@ -241,7 +243,8 @@ absl::Status NimbusClient::UploadSpecAssets(v1::JobSpec& spec,
       }
       it = uploaded.emplace(asset.path(), *sha).first;
     }
-    asset.set_sha256(it->second);
+    asset.set_label(std::filesystem::path(asset.path()).filename().string());
+    asset.set_sha256(it->second);  // replaces the path (one of)
   });
   return status;
 }

@@ -80,40 +80,22 @@ absl::Status WriteDensityAndComponentVdb(const std::filesystem::path& path,
   // The density grid comes from vdb_io so both writers agree bit for bit;
   // it is written to a side file, read back and joined with the labels.
   const std::filesystem::path density_tmp = path.string() + ".density.partial";
-  const std::filesystem::path tmp = path.string() + ".partial";
   if (auto st = WriteDensityVdb(density_tmp, acc.density(), frame, options, metadata); !st.ok())
     return st;
+  openvdb::GridPtrVecPtr grids;
   std::error_code ec;
   try {
-    openvdb::GridPtrVecPtr grids;
-    {
-      openvdb::io::File in(density_tmp.string());
-      in.open();
-      grids = in.getGrids();
-      in.close();
-    }
+    grids = vdb_internal::ReadAllGrids(density_tmp);
     if (type == ComponentGridType::kInt)
       grids->push_back(BuildComponentGrid<openvdb::Int32Grid>(acc, frame));
     else
       grids->push_back(BuildComponentGrid<openvdb::FloatGrid>(acc, frame));
-    openvdb::io::File out(tmp.string());
-    out.setCompression(openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK);
-    out.write(*grids);
-    out.close();
   } catch (const std::exception& e) {
     std::filesystem::remove(density_tmp, ec);
-    std::filesystem::remove(tmp, ec);
     return absl::InternalError(absl::StrCat("writing ", path.string(), ": ", e.what()));
   }
   std::filesystem::remove(density_tmp, ec);
-  if (auto st = vdb_internal::StampContentUuid(tmp); !st.ok()) {
-    std::filesystem::remove(tmp, ec);
-    return st;
-  }
-  std::filesystem::rename(tmp, path, ec);
-  if (ec)
-    return absl::InternalError(absl::StrCat("renaming into ", path.string(), ": ", ec.message()));
-  return absl::OkStatus();
+  return vdb_internal::WriteGridsAtomically(path, *grids);
 }
 
 absl::StatusOr<std::vector<int32_t>> ReadComponentGrid(const std::filesystem::path& path,

@@ -241,52 +241,22 @@ class BinaryCursor {
     // Values are stored in the file's byte order; this machine is little-endian.
     static_assert(std::endian::native == std::endian::little);
     if (big_endian_) std::reverse(b, b + n);
-    switch (t) {
-      case PlyType::kInt8:
-        out = double(int8_t(b[0]));
-        break;
-      case PlyType::kUint8:
-        out = double(b[0]);
-        break;
-      case PlyType::kInt16: {
-        int16_t v;
-        std::memcpy(&v, b, 2);
-        out = v;
-        break;
-      }
-      case PlyType::kUint16: {
-        uint16_t v;
-        std::memcpy(&v, b, 2);
-        out = v;
-        break;
-      }
-      case PlyType::kInt32: {
-        int32_t v;
-        std::memcpy(&v, b, 4);
-        out = v;
-        break;
-      }
-      case PlyType::kUint32: {
-        uint32_t v;
-        std::memcpy(&v, b, 4);
-        out = v;
-        break;
-      }
-      case PlyType::kFloat32: {
-        float v;
-        std::memcpy(&v, b, 4);
-        out = v;
-        break;
-      }
-      case PlyType::kFloat64: {
-        std::memcpy(&out, b, 8);
-        break;
-      }
-    }
+    // In PlyType order.
+    static constexpr double (*kLoad[])(const unsigned char*) = {
+        &Load<int8_t>,  &Load<uint8_t>,  &Load<int16_t>, &Load<uint16_t>,
+        &Load<int32_t>, &Load<uint32_t>, &Load<float>,   &Load<double>};
+    out = kLoad[int(t)](b);
     return true;
   }
 
  private:
+  template <typename T>
+  static double Load(const unsigned char* b) {
+    T v;
+    std::memcpy(&v, b, sizeof(T));
+    return double(v);
+  }
+
   std::string_view data_;
   size_t pos_;
   bool big_endian_;

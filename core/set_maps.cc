@@ -444,13 +444,29 @@ absl::Status RotatedMedianInto(const VoxelSet& a, const VoxelSet& b, const Featu
 
 // ---------------------------------------------------------------- maps
 
-// Shared parts of the maps that condense toward a fixed set C.
+// Shared parts of the maps that condense toward a fixed set C: an empty
+// input maps to C itself, and every application is timed and counted.
 class CondensingMap : public SetMap {
+ public:
+  absl::Status Apply(const VoxelSet& in, VoxelSet& out, SetMapWorkspace& ws) const final {
+    const auto t0 = Clock::now();
+    absl::Status s;
+    if (in.Empty())
+      out = condensation();
+    else
+      s = Condense(in, out, ws);
+    ws.stats.seconds += SecondsSince(t0);
+    ++ws.stats.applications;
+    return s;
+  }
+
  protected:
   CondensingMap(const GridFrame& frame, VoxelSet c, FeatureField field)
       : SetMap(frame), c_(std::move(c)), field_(std::move(field)) {}
   const VoxelSet& condensation() const { return c_; }
   const FeatureField& field() const { return field_; }
+  // The map on a non-empty input.
+  virtual absl::Status Condense(const VoxelSet& in, VoxelSet& out, SetMapWorkspace& ws) const = 0;
 
  private:
   VoxelSet c_;
@@ -465,20 +481,11 @@ class MedianMap final : public CondensingMap {
   std::string Describe() const override {
     return absl::StrCat("median toward a set of ", condensation().Count(), " voxels");
   }
-  absl::Status Apply(const VoxelSet& in, VoxelSet& out, SetMapWorkspace& ws) const override {
-    const auto t0 = Clock::now();
-    absl::Status s;
-    if (in.Empty()) {
-      out = condensation();
-    } else {
-      s = MedianInto(in, condensation(), &field(), frame().VoxelSize(), options_, true, ws, out);
-    }
-    ws.stats.seconds += SecondsSince(t0);
-    ++ws.stats.applications;
-    return s;
-  }
 
  private:
+  absl::Status Condense(const VoxelSet& in, VoxelSet& out, SetMapWorkspace& ws) const override {
+    return MedianInto(in, condensation(), &field(), frame().VoxelSize(), options_, true, ws, out);
+  }
   MedianOptions options_;
 };
 
@@ -492,20 +499,11 @@ class RotatedMedianMap final : public CondensingMap {
     return absl::StrCat("rotated median (", options_.degrees_per_unit,
                         " deg/unit) toward a set of ", condensation().Count(), " voxels");
   }
-  absl::Status Apply(const VoxelSet& in, VoxelSet& out, SetMapWorkspace& ws) const override {
-    const auto t0 = Clock::now();
-    absl::Status s;
-    if (in.Empty()) {
-      out = condensation();
-    } else {
-      s = RotatedMedianInto(in, condensation(), &field(), frame(), options_, ws, out);
-    }
-    ws.stats.seconds += SecondsSince(t0);
-    ++ws.stats.applications;
-    return s;
-  }
 
  private:
+  absl::Status Condense(const VoxelSet& in, VoxelSet& out, SetMapWorkspace& ws) const override {
+    return RotatedMedianInto(in, condensation(), &field(), frame(), options_, ws, out);
+  }
   RotatedMedianOptions options_;
 };
 

@@ -83,6 +83,29 @@ void StampContentUuid(std::string& bytes) {
   bytes.replace(kUuidOffset, kUuidSize, uuid);
 }
 
+absl::Status WriteGridsAtomically(const std::filesystem::path& path,
+                                  const openvdb::GridPtrVec& grids) {
+  const std::filesystem::path tmp = path.string() + ".partial";
+  std::error_code ec;
+  try {
+    openvdb::io::File file(tmp.string());
+    file.setCompression(openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK);
+    file.write(grids);
+    file.close();
+  } catch (const std::exception& e) {
+    std::filesystem::remove(tmp, ec);
+    return absl::InternalError(absl::StrCat("writing ", path.string(), ": ", e.what()));
+  }
+  if (auto st = StampContentUuid(tmp); !st.ok()) {
+    std::filesystem::remove(tmp, ec);
+    return st;
+  }
+  std::filesystem::rename(tmp, path, ec);
+  if (ec)
+    return absl::InternalError(absl::StrCat("renaming into ", path.string(), ": ", ec.message()));
+  return absl::OkStatus();
+}
+
 absl::Status StampContentUuid(const std::filesystem::path& path) {
   std::fstream f(path, std::ios::in | std::ios::out | std::ios::binary);
   std::string head(kUuidOffset + kUuidSize, '\0');
@@ -295,27 +318,14 @@ absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid&
                              const GridFrame& frame, const DensityOptions& options,
                              const Metadata& metadata) {
   InitOpenVdb();
-  const std::filesystem::path tmp = path.string() + ".partial";
+  openvdb::GridPtrVec grids;
   try {
-    openvdb::GridPtrVec grids = BuildGrids(counts, frame, options, metadata);
-    openvdb::io::File file(tmp.string());
-    file.setCompression(openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK);
-    file.write(grids);
-    file.close();
+    grids = BuildGrids(counts, frame, options, metadata);
   } catch (const std::exception& e) {
-    std::error_code ec;
-    std::filesystem::remove(tmp, ec);
-    return absl::InternalError(absl::StrCat("writing ", path.string(), ": ", e.what()));
+    return absl::InternalError(
+        absl::StrCat("building the grids of ", path.string(), ": ", e.what()));
   }
-  std::error_code ec;
-  if (auto st = vdb_internal::StampContentUuid(tmp); !st.ok()) {
-    std::filesystem::remove(tmp, ec);
-    return st;
-  }
-  std::filesystem::rename(tmp, path, ec);
-  if (ec)
-    return absl::InternalError(absl::StrCat("renaming into ", path.string(), ": ", ec.message()));
-  return absl::OkStatus();
+  return vdb_internal::WriteGridsAtomically(path, grids);
 }
 
 absl::StatusOr<std::string> DensityVdbBytes(const CountGrid& counts, const GridFrame& frame,

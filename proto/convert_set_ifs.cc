@@ -51,7 +51,10 @@ absl::Status ResolveAsset(const v1::Asset& asset, const std::string& field, cons
         return Invalid(field + ".sha256",
                        StrCat("no uploaded asset ", asset.sha256(), " (upload it first)"));
       out.file = *p;
-      out.file_label = asset.sha256();
+      // Messages name the artist's file when the client said what it was.
+      out.file_label = asset.label().empty() ? asset.sha256()
+                                             : StrCat(asset.label(), " (sha256 ",
+                                                      asset.sha256().substr(0, 12), "...)");
       return absl::OkStatus();
     }
     case v1::Asset::kPath: {

@@ -251,6 +251,8 @@ TEST_F(CondensationE2E, NonWatertightTeapotFinishesWithAWarning) {
   ASSERT_EQ(done.state(), v1::JOB_STATE_SUCCEEDED) << done.error();
   ASSERT_GE(done.warnings_size(), 1);
   EXPECT_NE(done.warnings(0).find("not watertight"), std::string::npos) << done.warnings(0);
+  // The warning names the artist's file, not only its hash.
+  EXPECT_NE(done.warnings(0).find("teapot.obj (sha256 "), std::string::npos) << done.warnings(0);
 }
 
 TEST_F(CondensationE2E, DegenerateMeshIsAClearError) {
