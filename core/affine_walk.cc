@@ -8,6 +8,7 @@ inline uint64_t Rotl(uint64_t x, int k) { return (x << k) | (x >> (64 - k)); }
 
 // One step of one lane. The AVX2 kernel performs exactly these operations
 // in the same order (no fused multiply-add), so both give the same bits.
+template <bool kChain>
 inline void Step(const AffineWalk& k, Walkers& w, int l) {
   uint64_t s0 = w.s0[l], s1 = w.s1[l], s2 = w.s2[l], s3 = w.s3[l];
   const uint64_t r = Rotl(s0 + s3, 23) + s0;
@@ -20,14 +21,35 @@ inline void Step(const AffineWalk& k, Walkers& w, int l) {
   s3 = Rotl(s3, 45);
   w.s0[l] = s0, w.s1[l] = s1, w.s2[l] = s2, w.s3[l] = s3;
 
-  const uint32_t i = uint32_t(((r >> 32) * k.num_maps) >> 32);
-  const uint32_t m = uint32_t(r) < k.threshold[i] ? i : k.alias[i];
+  uint32_t m;
+  bool plotted = true;
+  if constexpr (kChain) {
+    const ChainTables& c = *k.chain;
+    const uint64_t info = c.state[w.state[l]];
+    const uint32_t off = uint32_t(info);
+    const uint32_t i = uint32_t(((r >> 32) * (info >> 32)) >> 32);
+    const uint64_t sample = c.sample[off + i];
+    const uint32_t t = off + (uint32_t(r) < uint32_t(sample) ? i : uint32_t(sample >> 32));
+    const uint64_t step = c.step[t];
+    m = uint32_t(step) & 0x7fffffff;
+    plotted = (step >> 31) & 1;
+    w.state[l] = step >> 32;
+  } else {
+    const uint32_t i = uint32_t(((r >> 32) * k.num_maps) >> 32);
+    m = uint32_t(r) < k.threshold[i] ? i : k.alias[i];
+  }
   const double* c = k.coef + 12 * uint64_t(m);
   const double x = w.x[l], y = w.y[l], z = w.z[l];
   const double nx = c[0] * x + c[1] * y + c[2] * z + c[3];
   const double ny = c[4] * x + c[5] * y + c[6] * z + c[7];
   const double nz = c[8] * x + c[9] * y + c[10] * z + c[11];
   w.x[l] = nx, w.y[l] = ny, w.z[l] = nz;
+  if (!plotted) {
+    // x - x is 0 exactly when x is finite.
+    if (!(nx - nx == 0 && ny - ny == 0 && nz - nz == 0)) [[unlikely]]
+      k.exit(k.owner, l);
+    return;
+  }
 
   const double fx = (nx - k.min[0]) * k.inv_voxel[0];
   const double fy = (ny - k.min[1]) * k.inv_voxel[1];
@@ -50,15 +72,28 @@ inline void Step(const AffineWalk& k, Walkers& w, int l) {
   *cur.tail++ = entry;
 }
 
+template <bool kChain>
+void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
+  for (uint64_t s = 0; s < steps; ++s)
+    for (int l = 0; l < kLanes; ++l) Step<kChain>(k, w, l);
+}
+
 }  // namespace
 
 void WalkScalar(const AffineWalk& k, Walkers& w, uint64_t steps) {
-  for (uint64_t s = 0; s < steps; ++s)
-    for (int l = 0; l < kLanes; ++l) Step(k, w, l);
+  if (k.chain)
+    Walk<true>(k, w, steps);
+  else
+    Walk<false>(k, w, steps);
 }
 
 void WalkLane(const AffineWalk& k, Walkers& w, int lane, uint64_t steps) {
-  for (uint64_t s = 0; s < steps; ++s) Step(k, w, lane);
+  for (uint64_t s = 0; s < steps; ++s) {
+    if (k.chain)
+      Step<true>(k, w, lane);
+    else
+      Step<false>(k, w, lane);
+  }
 }
 
 }  // namespace nimbus::walk

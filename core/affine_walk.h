@@ -16,11 +16,27 @@ namespace nimbus::walk {
 /// independent chains to hide the latency of one step.
 inline constexpr int kLanes = 16;
 
-/// @brief Walker state as structure of arrays: positions and the four words
-/// of each walker's own xoshiro256++ stream (the same generator as Rng).
+/// @brief Walker state as structure of arrays: positions, the four words
+/// of each walker's own xoshiro256++ stream (the same generator as Rng) and,
+/// for a Markov chain, the walker's state.
 struct alignas(64) Walkers {
   double x[kLanes], y[kLanes], z[kLanes];
   uint64_t s0[kLanes], s1[kLanes], s2[kLanes], s3[kLanes];
+  uint64_t state[kLanes];
+};
+
+/// @brief A Markov chain over the maps (ChaosGame's MarkovChain) as flat
+/// tables of packed 64-bit words, so the AVX2 kernel needs one gather per
+/// table. State s owns transitions [offset, offset + count), with
+/// state[s] = offset | count << 32; they are sampled with their own alias
+/// table, sample[t] = threshold | alias << 32 (alias indexed within the
+/// state). Taking transition t applies a map and moves to a state:
+/// step[t] = map | plotted << 31 | next << 32, where `plotted` says whether
+/// points in the next state are plotted.
+struct ChainTables {
+  const uint64_t* state = nullptr;
+  const uint64_t* sample = nullptr;
+  const uint64_t* step = nullptr;
 };
 
 /// Write position and end of one bin's current block. A push with
@@ -38,6 +54,8 @@ struct AffineWalk {
   const uint32_t* threshold = nullptr;  // alias table (AliasTable)
   const uint32_t* alias = nullptr;
   uint32_t num_maps = 0;
+  /// When set, maps are drawn by the chain instead of the alias table.
+  const ChainTables* chain = nullptr;
   double min[3] = {0, 0, 0};        // grid bounds' minimum corner
   double inv_voxel[3] = {1, 1, 1};  // voxels per world unit
   double res[3] = {0, 0, 0};        // resolution, as doubles
@@ -47,8 +65,9 @@ struct AffineWalk {
   void* owner = nullptr;
   /// bins[bin] is full (or has no block yet): give it room for one entry.
   void (*refill)(void* owner, uint32_t bin) = nullptr;
-  /// The lane's new point is outside the grid box or not finite. The owner
-  /// may restart the walker by rewriting its lane of Walkers.
+  /// The lane's new point is not finite, or is to be plotted but lies
+  /// outside the grid box. The owner may restart the walker by rewriting
+  /// its lane of Walkers.
   void (*exit)(void* owner, int lane) = nullptr;
 };
 

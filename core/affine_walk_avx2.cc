@@ -25,7 +25,16 @@ struct Tables {
   __m256d coef_lo[12], coef_hi[12];  // [j] = coefficient j of maps 0..3 / 4..7
 };
 
-template <Lookup kLookup>
+inline __m256i Gather32(const uint32_t* table, __m256i index) {
+  return _mm256_cvtepu32_epi64(
+      _mm256_i64gather_epi32(reinterpret_cast<const int*>(table), index, 4));
+}
+
+inline __m256i Gather64(const uint64_t* table, __m256i index) {
+  return _mm256_i64gather_epi64(reinterpret_cast<const long long*>(table), index, 8);
+}
+
+template <Lookup kLookup, bool kChain>
 void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
   alignas(32) Tables tab;
   if constexpr (kLookup != kGather) {
@@ -78,20 +87,40 @@ void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
       _mm256_store_si256(reinterpret_cast<__m256i*>(w.s2 + g), s2);
       _mm256_store_si256(reinterpret_cast<__m256i*>(w.s3 + g), s3);
 
-      // Alias sampling: i = (r_hi * n) >> 32, keep i if r_lo < threshold[i].
-      const __m256i i = _mm256_srli_epi64(_mm256_mul_epu32(_mm256_srli_epi64(r, 32), n), 32);
-      __m256i thr, ali;
-      if constexpr (kLookup == kGather) {
-        thr = _mm256_cvtepu32_epi64(
-            _mm256_i64gather_epi32(reinterpret_cast<const int*>(k.threshold), i, 4));
-        ali = _mm256_cvtepu32_epi64(
-            _mm256_i64gather_epi32(reinterpret_cast<const int*>(k.alias), i, 4));
+      // Alias sampling: i = (r_hi * n) >> 32, keep i if r_lo < threshold[i];
+      // with a chain, over the transitions of the walker's state.
+      __m256i m;
+      __m256i plotted = _mm256_setzero_si256();  // bit 31 set: plot
+      if constexpr (kChain) {
+        const ChainTables& c = *k.chain;
+        const __m256i st = _mm256_load_si256(reinterpret_cast<const __m256i*>(w.state + g));
+        const __m256i info = Gather64(c.state, st);
+        const __m256i off = _mm256_and_si256(info, low32);
+        // mul_epu32 reads the low halves: r's high word times the count.
+        const __m256i i = _mm256_srli_epi64(
+            _mm256_mul_epu32(_mm256_srli_epi64(r, 32), _mm256_srli_epi64(info, 32)), 32);
+        const __m256i sample = Gather64(c.sample, _mm256_add_epi64(off, i));
+        const __m256i keep =
+            _mm256_cmpgt_epi64(_mm256_and_si256(sample, low32), _mm256_and_si256(r, low32));
+        const __m256i t =
+            _mm256_add_epi64(off, _mm256_blendv_epi8(_mm256_srli_epi64(sample, 32), i, keep));
+        const __m256i step = Gather64(c.step, t);
+        m = _mm256_and_si256(step, _mm256_set1_epi64x(0x7fffffff));
+        _mm256_store_si256(reinterpret_cast<__m256i*>(w.state + g), _mm256_srli_epi64(step, 32));
+        plotted = step;
       } else {
-        thr = _mm256_and_si256(_mm256_permutevar8x32_epi32(tab.threshold8, i), low32);
-        ali = _mm256_and_si256(_mm256_permutevar8x32_epi32(tab.alias8, i), low32);
+        const __m256i i = _mm256_srli_epi64(_mm256_mul_epu32(_mm256_srli_epi64(r, 32), n), 32);
+        __m256i thr, ali;
+        if constexpr (kLookup == kGather) {
+          thr = Gather32(k.threshold, i);
+          ali = Gather32(k.alias, i);
+        } else {
+          thr = _mm256_and_si256(_mm256_permutevar8x32_epi32(tab.threshold8, i), low32);
+          ali = _mm256_and_si256(_mm256_permutevar8x32_epi32(tab.alias8, i), low32);
+        }
+        const __m256i keep = _mm256_cmpgt_epi64(thr, _mm256_and_si256(r, low32));
+        m = _mm256_blendv_epi8(ali, i, keep);
       }
-      const __m256i keep = _mm256_cmpgt_epi64(thr, _mm256_and_si256(r, low32));
-      const __m256i m = _mm256_blendv_epi8(ali, i, keep);
 
       // The map's coefficients for each lane.
       __m256i pair, gather_index;
@@ -144,6 +173,16 @@ void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
       in = _mm256_and_pd(in, _mm256_and_pd(_mm256_cmp_pd(fz, zero, _CMP_GE_OQ),
                                            _mm256_cmp_pd(fz, res_z, _CMP_LT_OQ)));
       const int inside = _mm256_movemask_pd(in);
+      // Lanes in an unplotted chain state only need to be finite.
+      const int plot =
+          kChain ? _mm256_movemask_pd(_mm256_castsi256_pd(_mm256_slli_epi64(plotted, 32))) : 0xF;
+      int finite = 0xF;
+      if constexpr (kChain) {
+        __m256d f = _mm256_cmp_pd(_mm256_sub_pd(nx, nx), zero, _CMP_EQ_OQ);
+        f = _mm256_and_pd(f, _mm256_cmp_pd(_mm256_sub_pd(ny, ny), zero, _CMP_EQ_OQ));
+        f = _mm256_and_pd(f, _mm256_cmp_pd(_mm256_sub_pd(nz, nz), zero, _CMP_EQ_OQ));
+        finite = _mm256_movemask_pd(f);
+      }
 
       const __m128i ix = _mm256_cvttpd_epi32(fx), iy = _mm256_cvttpd_epi32(fy),
                     iz = _mm256_cvttpd_epi32(fz);
@@ -166,6 +205,11 @@ void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
       _mm_store_si128(reinterpret_cast<__m128i*>(entry),
                       _mm_or_si128(_mm_slli_epi32(_mm_and_si128(tile, in_bin), 15), local));
       for (int l = 0; l < 4; ++l) {
+        if (!((plot >> l) & 1)) {
+          if (!((finite >> l) & 1)) [[unlikely]]
+            k.exit(k.owner, g + l);
+          continue;
+        }
         if (!((inside >> l) & 1)) [[unlikely]] {
           k.exit(k.owner, g + l);
           continue;
@@ -179,15 +223,23 @@ void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
   }
 }
 
+template <bool kChain>
+void WalkWith(const AffineWalk& k, Walkers& w, uint64_t steps) {
+  if (k.num_maps <= 4)
+    Walk<kPermute4, kChain>(k, w, steps);
+  else if (k.num_maps <= 8)
+    Walk<kPermute8, kChain>(k, w, steps);
+  else
+    Walk<kGather, kChain>(k, w, steps);
+}
+
 }  // namespace
 
 void WalkAvx2(const AffineWalk& k, Walkers& w, uint64_t steps) {
-  if (k.num_maps <= 4)
-    Walk<kPermute4>(k, w, steps);
-  else if (k.num_maps <= 8)
-    Walk<kPermute8>(k, w, steps);
+  if (k.chain)
+    WalkWith<true>(k, w, steps);
   else
-    Walk<kGather>(k, w, steps);
+    WalkWith<false>(k, w, steps);
 }
 
 }  // namespace nimbus::walk

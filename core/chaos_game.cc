@@ -96,6 +96,20 @@ absl::StatusOr<std::unique_ptr<ChaosGame>> ChaosGame::Create(ChaosGameParams par
   for (const PointMap& m : ifs.maps)
     for (const auto& row : m.pre.m)
       game->affine_coef_.insert(game->affine_coef_.end(), row.begin(), row.end());
+  if (game->fast_ && p.chain) {
+    FlatChain& f = game->flat_chain_.emplace();
+    const std::vector<ChainState>& states = p.chain->states;
+    for (size_t s = 0; s < states.size(); ++s) {
+      const AliasTable& table = game->state_tables_[s];
+      f.state.push_back(f.step.size() | uint64_t(states[s].transitions.size()) << 32);
+      for (size_t t = 0; t < states[s].transitions.size(); ++t) {
+        const ChainTransition& tr = states[s].transitions[t];
+        f.sample.push_back(table.thresholds()[t] | uint64_t(table.aliases()[t]) << 32);
+        f.step.push_back(tr.map | uint64_t(states[tr.next_state].plotted ? 1 : 0) << 31 |
+                         uint64_t(tr.next_state) << 32);
+      }
+    }
+  }
   const bool color = p.color.mode != ColorMode::kNone;
   for (int t = 0; t < game->threads_; ++t) game->counts_.emplace_back(r, color);
   // Buffers sized once, so memory stays as estimated.
@@ -178,8 +192,8 @@ size_t BinCapacity(const ChaosGameParams& p) {
 }  // namespace
 
 bool ChaosGame::UsesFastPath(const ChaosGameParams& p) {
-  return !p.chain && !p.ifs.final_map && !p.ifs.arcs && !p.splat &&
-         p.color.mode == ColorMode::kNone && p.ifs.AllAffine();
+  return !p.ifs.final_map && !p.ifs.arcs && !p.splat && p.color.mode == ColorMode::kNone &&
+         p.ifs.AllAffine();
 }
 
 size_t ChaosGame::KeyBatch(const ChaosGameParams& p) {
@@ -310,6 +324,7 @@ struct ChaosGame::FastChunk {
   TileBins* bins = nullptr;
   const ChaosGameParams* p = nullptr;
   const AliasTable* table = nullptr;
+  const std::vector<AliasTable>* state_tables = nullptr;  // with a chain
   uint64_t outside = 0, reseeded = 0;
 
   Rng LoadRng(int l) const {
@@ -324,14 +339,26 @@ struct ChaosGame::FastChunk {
   void WarmUp(int l) {
     Rng rng = LoadRng(l);
     Vec3 pos = RandomPoint(rng, p->frame.bounds);
+    const MarkovChain* chain = p->chain ? &*p->chain : nullptr;
+    uint32_t state = chain ? chain->start_state : 0;
     for (uint32_t i = 0; i < p->warmup; ++i) {
-      pos = p->ifs.maps[table->Sample(rng.Next())].pre.Apply(pos);
+      uint32_t map;
+      if (chain) {
+        const ChainTransition& t =
+            chain->states[state].transitions[(*state_tables)[state].Sample(rng.Next())];
+        map = t.map;
+        state = t.next_state;
+      } else {
+        map = table->Sample(rng.Next());
+      }
+      pos = p->ifs.maps[map].pre.Apply(pos);
       if (!IsFinite(pos)) {
         pos = RandomPoint(rng, p->frame.bounds);
         ++reseeded;
       }
     }
     Store(l, rng, pos);
+    lanes.state[l] = state;
   }
   static void Refill(void* self, uint32_t bin) { static_cast<FastChunk*>(self)->bins->Refill(bin); }
   // RunChunk's advance: a non-finite point restarts the walker, a finite
@@ -355,6 +382,7 @@ void ChaosGame::RunChunkFast(uint64_t chunk, Worker& w) {
   c.bins = w.bins.get();
   c.p = &p;
   c.table = &map_table_;
+  c.state_tables = &state_tables_;
   for (int l = 0; l < kWalkers; ++l) {
     c.Store(l, Rng(p.seed, chunk * kWalkers + uint64_t(l)), {});
     c.WarmUp(l);
@@ -364,6 +392,12 @@ void ChaosGame::RunChunkFast(uint64_t chunk, Worker& w) {
   k.threshold = map_table_.thresholds();
   k.alias = map_table_.aliases();
   k.num_maps = uint32_t(p.ifs.maps.size());
+  walk::ChainTables chain;
+  if (flat_chain_) {
+    const FlatChain& f = *flat_chain_;
+    chain = {f.state.data(), f.sample.data(), f.step.data()};
+    k.chain = &chain;
+  }
   const Vec3 vs = p.frame.VoxelSize();
   for (int a = 0; a < 3; ++a) {
     k.min[a] = p.frame.bounds.min[a];
@@ -398,8 +432,6 @@ void ChaosGame::RunChunk(uint64_t chunk, Worker& w) {
   }
   const uint64_t begin = chunk * kChunkIterations;
   const uint64_t count = std::min(kChunkIterations, p.iterations - begin);
-  Rng rngs[kWalkers];
-  for (int k = 0; k < kWalkers; ++k) rngs[k] = Rng(p.seed, chunk * kWalkers + uint64_t(k));
 
   const Bounds& b = p.frame.bounds;
   const Int3 res = p.frame.resolution;
@@ -415,112 +447,127 @@ void ChaosGame::RunChunk(uint64_t chunk, Worker& w) {
   const double blend = p.color.blend;
   const double inv_maps = 1.0 / double(maps.size());
   const bool splat = p.splat;
-  const size_t keys_per_round = splat ? 8 * kWalkers : kWalkers;
+  const size_t keys_per_step = splat ? 8 : 1;
+  // Counters and the key buffer in locals: stores through `w` could alias
+  // them and would keep them in memory.
+  uint64_t reseeded = 0, outside = 0, final_nonfinite = 0;
+  uint64_t* keys = w.keys.data();
+  const size_t cap = w.keys.size();
+  size_t n_keys = w.n;
+  auto flush = [&] {
+    w.n = n_keys;
+    w.Flush();
+    n_keys = 0;
+  };
 
-  Vec3 pos[kWalkers];
-  uint32_t state[kWalkers];
-  double addr[kWalkers], col[kWalkers];
-  // One step of walker k; returns false if its point went non-finite.
-  auto step = [&](int k) {
-    Rng& rng = rngs[k];
-    uint32_t map;
-    if (chain) {
-      const ChainState& st = chain->states[state[k]];
-      const ChainTransition& t = st.transitions[state_tables_[state[k]].Sample(rng.Next())];
-      map = t.map;
-      state[k] = t.next_state;
-    } else {
-      map = map_table_.Sample(rng.Next());
-    }
-    pos[k] = affine ? maps[map].pre.Apply(pos[k]) : maps[map].Apply(pos[k], rng);
-    if (color_mode != ColorMode::kNone) {
-      addr[k] = (double(map) + addr[k]) * inv_maps;
-      const double target = color_mode == ColorMode::kAddress ? addr[k] : maps[map].color;
-      col[k] += blend * (target - col[k]);
-    }
-    return IsFinite(pos[k]);
-  };
-  auto warm_up = [&](int k) {
-    pos[k] = RandomPoint(rngs[k], b);
-    state[k] = chain ? chain->start_state : 0;
-    if (color_mode != ColorMode::kNone) addr[k] = col[k] = rngs[k].Uniform();
-    for (uint32_t i = 0; i < p.warmup; ++i) {
-      if (!step(k)) {
-        pos[k] = RandomPoint(rngs[k], b);
-        ++w.stats.reseeded;
+  // Walker-major: each walker runs all its steps in turn with its generator
+  // and position in registers. A walker's steps depend on each other only
+  // through the position, which out-of-order execution overlaps.
+  for (int k = 0; k < kWalkers; ++k) {
+    Rng rng(p.seed, chunk * kWalkers + uint64_t(k));
+    Vec3 pos;
+    uint32_t state = 0;
+    double addr = 0, col = 0;
+    // One step; returns false if the point went non-finite.
+    auto step = [&] {
+      uint32_t map;
+      if (chain) {
+        const ChainState& st = chain->states[state];
+        const ChainTransition& t = st.transitions[state_tables_[state].Sample(rng.Next())];
+        map = t.map;
+        state = t.next_state;
+      } else {
+        map = map_table_.Sample(rng.Next());
       }
-    }
-  };
-  // `n` is the global index of the plotted step (the arcs' phase).
-  auto plot = [&](int k, uint64_t n) {
-    if (chain && !chain->states[state[k]].plotted) return;
-    Vec3 q = pos[k];
-    if (has_final) {
-      if (final_map) q = final_map->Apply(q, rngs[k]);
-      if (arcs) q = arcs->Apply(q, n);
-      if (!IsFinite(q)) {
-        ++w.stats.final_nonfinite;
-        ++w.stats.outside;
+      pos = affine ? maps[map].pre.Apply(pos) : maps[map].Apply(pos, rng);
+      if (color_mode != ColorMode::kNone) {
+        addr = (double(map) + addr) * inv_maps;
+        const double target = color_mode == ColorMode::kAddress ? addr : maps[map].color;
+        col += blend * (target - col);
+      }
+      return IsFinite(pos);
+    };
+    auto warm_up = [&] {
+      pos = RandomPoint(rng, b);
+      state = chain ? chain->start_state : 0;
+      if (color_mode != ColorMode::kNone) addr = col = rng.Uniform();
+      for (uint32_t i = 0; i < p.warmup; ++i) {
+        if (!step()) {
+          pos = RandomPoint(rng, b);
+          ++reseeded;
+        }
+      }
+    };
+    // `n` is the global index of the plotted step (the arcs' phase).
+    auto plot = [&](uint64_t n) {
+      if (chain && !chain->states[state].plotted) return;
+      Vec3 q = pos;
+      if (has_final) {
+        if (final_map) q = final_map->Apply(q, rng);
+        if (arcs) q = arcs->Apply(q, n);
+        if (!IsFinite(q)) {
+          ++final_nonfinite;
+          ++outside;
+          return;
+        }
+      }
+      const double fx = (q.x - b.min.x) * ix, fy = (q.y - b.min.y) * iy, fz = (q.z - b.min.z) * iz;
+      // Written so NaN fails the test and counts as outside.
+      if (!(fx >= 0 && fx < res.x && fy >= 0 && fy < res.y && fz >= 0 && fz < res.z)) {
+        ++outside;
         return;
       }
-    }
-    const double fx = (q.x - b.min.x) * ix, fy = (q.y - b.min.y) * iy, fz = (q.z - b.min.z) * iz;
-    // Written so NaN fails the test and counts as outside.
-    if (!(fx >= 0 && fx < res.x && fy >= 0 && fy < res.y && fz >= 0 && fz < res.z)) {
-      ++w.stats.outside;
-      return;
-    }
-    uint64_t color_bits = 0;
-    if (color_mode != ColorMode::kNone) {
-      const double c = std::clamp(col[k], 0.0, 1.0);
-      color_bits = CountGrid::WithColor(0, uint32_t(c * CountGrid::kColorScale + 0.5));
-    }
-    if (!splat) {
-      w.keys[w.n++] = w.grid->Key(int(fx), int(fy), int(fz)) | color_bits;
-      return;
-    }
-    // Voxel centres sit at i + 0.5: the point lies between centres i0 and
-    // i0 + 1 on each axis, at quarter q (0..4) of the way. Corners outside
-    // the grid fold onto the border voxel so every point adds exactly 64.
-    int i0[3], quarter[3];
-    const double f[3] = {fx - 0.5, fy - 0.5, fz - 0.5};
-    for (int a = 0; a < 3; ++a) {
-      const double fl = std::floor(f[a]);
-      i0[a] = int(fl);
-      quarter[a] = int(std::lround((f[a] - fl) * 4));
-    }
-    const int lim[3] = {res.x - 1, res.y - 1, res.z - 1};
-    for (int c = 0; c < 8; ++c) {
-      uint32_t weight = 1;
-      int v[3];
-      for (int a = 0; a < 3; ++a) {
-        const int hi = (c >> a) & 1;
-        weight *= uint32_t(hi ? quarter[a] : 4 - quarter[a]);
-        v[a] = std::clamp(i0[a] + hi, 0, lim[a]);
+      uint64_t color_bits = 0;
+      if (color_mode != ColorMode::kNone) {
+        const double c = std::clamp(col, 0.0, 1.0);
+        color_bits = CountGrid::WithColor(0, uint32_t(c * CountGrid::kColorScale + 0.5));
       }
-      if (weight == 0) continue;
-      w.keys[w.n++] = CountGrid::WithWeight(w.grid->Key(v[0], v[1], v[2]), weight) | color_bits;
-    }
-  };
-  auto advance = [&](int k, uint64_t n) {
-    if (!step(k)) {
-      ++w.stats.reseeded;
-      warm_up(k);
-      return;
-    }
-    plot(k, n);
-  };
+      if (!splat) {
+        keys[n_keys++] = w.grid->Key(int(fx), int(fy), int(fz)) | color_bits;
+        return;
+      }
+      // Voxel centres sit at i + 0.5: the point lies between centres i0 and
+      // i0 + 1 on each axis, at quarter q (0..4) of the way. Corners outside
+      // the grid fold onto the border voxel so every point adds exactly 64.
+      int i0[3], quarter[3];
+      const double f[3] = {fx - 0.5, fy - 0.5, fz - 0.5};
+      for (int a = 0; a < 3; ++a) {
+        const double fl = std::floor(f[a]);
+        i0[a] = int(fl);
+        quarter[a] = int(std::lround((f[a] - fl) * 4));
+      }
+      const int lim[3] = {res.x - 1, res.y - 1, res.z - 1};
+      for (int c = 0; c < 8; ++c) {
+        uint32_t weight = 1;
+        int v[3];
+        for (int a = 0; a < 3; ++a) {
+          const int hi = (c >> a) & 1;
+          weight *= uint32_t(hi ? quarter[a] : 4 - quarter[a]);
+          v[a] = std::clamp(i0[a] + hi, 0, lim[a]);
+        }
+        if (weight == 0) continue;
+        keys[n_keys++] = CountGrid::WithWeight(w.grid->Key(v[0], v[1], v[2]), weight) | color_bits;
+      }
+    };
 
-  for (int k = 0; k < kWalkers; ++k) warm_up(k);
-  const uint64_t rounds = count / kWalkers;
-  const int tail = int(count % kWalkers);
-  uint64_t n = begin;
-  for (uint64_t r = 0; r < rounds; ++r) {
-    if (w.n + keys_per_round > w.keys.size()) w.Flush();
-    for (int k = 0; k < kWalkers; ++k) advance(k, n++);
+    warm_up();
+    // Walker k plots steps k, k + kWalkers, ... of the chunk.
+    const uint64_t steps = count / kWalkers + (uint64_t(k) < count % kWalkers ? 1 : 0);
+    for (uint64_t j = 0; j < steps; ++j) {
+      if (n_keys + keys_per_step > cap) [[unlikely]]
+        flush();
+      if (!step()) [[unlikely]] {
+        ++reseeded;
+        warm_up();
+        continue;
+      }
+      plot(begin + j * kWalkers + uint64_t(k));
+    }
   }
-  if (w.n + keys_per_round > w.keys.size()) w.Flush();
-  for (int k = 0; k < tail; ++k) advance(k, n++);
+  w.n = n_keys;
+  w.stats.reseeded += reseeded;
+  w.stats.outside += outside;
+  w.stats.final_nonfinite += final_nonfinite;
   w.stats.iterations_done += count;
 }
 

@@ -73,8 +73,7 @@ struct ConvergenceParams {
 double DensityChange(const std::vector<uint64_t>& a, const std::vector<uint64_t>& b);
 /// Coarse totals of `parts` for DensityChange: cells of at most
 /// `max_resolution` per axis, x slowest.
-std::vector<uint64_t> CoarseCounts(const std::vector<const CountGrid*>& parts,
-                                   int max_resolution);
+std::vector<uint64_t> CoarseCounts(const std::vector<const CountGrid*>& parts, int max_resolution);
 
 /// What to iterate and where to count it.
 struct ChaosGameParams {
@@ -188,8 +187,9 @@ class ChaosGame {
   /// Keys buffered per thread before a binned flush: scaled with the tiles
   /// the job can reach, capped by its budget.
   static size_t KeyBatch(const ChaosGameParams& params);
-  /// True when `params` take the fast path: plain affine maps, no chain,
-  /// final transform, colour or splatting (core/affine_walk.h).
+  /// True when `params` take the fast path: affine maps (drawn
+  /// independently or by a chain), no final transform, colour or splatting
+  /// (core/affine_walk.h).
   static bool UsesFastPath(const ChaosGameParams& params);
   /// Bytes currently held by the per-thread accumulators and buffers.
   uint64_t MemoryBytes() const;
@@ -216,6 +216,11 @@ class ChaosGame {
   bool fast_ = false;
   SimdLevel simd_ = SimdLevel::kScalar;
   std::vector<double> affine_coef_;  // 12 per map, for the fast path
+  // The chain as flat tables for the fast path (walk::ChainTables).
+  struct FlatChain {
+    std::vector<uint64_t> state, sample, step;
+  };
+  std::optional<FlatChain> flat_chain_;
 };
 
 }  // namespace nimbus

@@ -320,21 +320,31 @@ TEST(ChaosGameColor, SparseAccumulationMatchesAReferenceLoop) {
   ExpectMatchesReference(params, 2);
 }
 
-// The fast path (affine_walk kernels into TileBins) at every SIMD level the
-// CPU has, on a grid that crops the attractor (points leave it) and with a
-// map that overflows to infinity (walkers restart).
-TEST(ChaosGameFastPath, MatchesTheReferenceLoopAtEverySimdLevel) {
-  ChaosGameParams params = OctantCloud(ChaosGame::kChunkIterations * 2 + 777, 40);
+// The octant cloud on a grid that crops it (points leave the grid), plus a
+// ninth map that overflows to infinity (walkers restart).
+ChaosGameParams CroppedWithBlowUp(uint64_t iterations) {
+  ChaosGameParams params = OctantCloud(iterations, 40);
   params.frame.bounds = {{-1.0, -1.2, -0.9}, {1.1, 0.8, 1.2}};
   PointMap blow_up;
   blow_up.pre = Affine3::Scale({1e300, 1e300, 1e300});
   params.ifs.maps.push_back(blow_up);
   params.ifs.probabilities.assign(9, 0.124);
   params.ifs.probabilities.back() = 0.008;
-  ASSERT_TRUE(ChaosGame::UsesFastPath(params));
+  return params;
+}
+
+std::vector<SimdLevel> SimdLevelsOfThisCpu() {
   std::vector<SimdLevel> levels = {SimdLevel::kScalar};
   if (DetectSimd() == SimdLevel::kAvx2) levels.push_back(SimdLevel::kAvx2);
-  for (SimdLevel level : levels) {
+  return levels;
+}
+
+// The fast path (affine_walk kernels into TileBins) at every SIMD level the
+// CPU has.
+TEST(ChaosGameFastPath, MatchesTheReferenceLoopAtEverySimdLevel) {
+  ChaosGameParams params = CroppedWithBlowUp(ChaosGame::kChunkIterations * 2 + 777);
+  ASSERT_TRUE(ChaosGame::UsesFastPath(params));
+  for (SimdLevel level : SimdLevelsOfThisCpu()) {
     SCOPED_TRACE(std::string(SimdName(level)));
     params.simd = level;
     ChaosGameStats stats;
@@ -368,6 +378,41 @@ TEST(ChaosGameFastPath, SimdLevelsAgreeForEveryMapCount) {
     ExpectSameGrids(scalar, avx2);
     EXPECT_EQ(scalar_stats.outside, avx2_stats.outside);
     EXPECT_GT(scalar.Total(), 0u);
+  }
+}
+
+// A Markov chain on the fast path: two states, one unplotted, over the
+// cropped cloud with its overflowing map. Scalar and AVX2 kernels must count
+// exactly what the general path counts (forced by an identity final map).
+TEST(ChaosGameFastPath, ChainsMatchTheGeneralPathAtEverySimdLevel) {
+  ChaosGameParams params = CroppedWithBlowUp(ChaosGame::kChunkIterations * 2 + 99);
+  MarkovChain chain;
+  ChainState plotted, hidden;
+  for (uint32_t m = 0; m < 8; ++m) plotted.transitions.push_back({m, m < 5 ? 0u : 1u});
+  plotted.probabilities.assign(8, 1.0 / 8);
+  hidden.transitions = {{1, 0}, {3, 1}, {8, 0}};
+  hidden.probabilities = {0.6, 0.398, 0.002};
+  hidden.plotted = false;
+  chain.states = {plotted, hidden};
+  chain.start_state = 1;
+  params.chain = chain;
+  ASSERT_TRUE(ChaosGame::UsesFastPath(params));
+
+  ChaosGameParams general = params;
+  general.ifs.final_map = PointMap{};
+  ASSERT_FALSE(ChaosGame::UsesFastPath(general));
+  ChaosGameStats want;
+  const CountGrid reference = RunGame(general, 2, &want);
+  EXPECT_GT(want.reseeded, 100u);
+  EXPECT_GT(want.outside, 1000u);
+
+  for (SimdLevel level : SimdLevelsOfThisCpu()) {
+    SCOPED_TRACE(std::string(SimdName(level)));
+    params.simd = level;
+    ChaosGameStats got;
+    ExpectSameGrids(reference, RunGame(params, 2, &got));
+    EXPECT_EQ(got.reseeded, want.reseeded);
+    EXPECT_EQ(got.outside, want.outside);
   }
 }
 
