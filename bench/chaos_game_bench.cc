@@ -44,6 +44,10 @@ void RunEngine(benchmark::State& state, ChaosGameParams params) {
   state.counters["engine_bytes"] = double(engine_bytes);
   state.counters["estimate_bytes"] =
       double(ChaosGame::EstimateMemory(params, threads, sizeof(float)).peak());
+  // What a job's status reports: the estimate refined by the pilot census.
+  if (auto census = ChaosGame::Pilot(params, uint64_t{1} << 21, nullptr); census.ok())
+    state.counters["pilot_estimate_bytes"] = double(
+        ChaosGame::EstimateMemory(params, threads, sizeof(float), census->estimate).peak());
   state.counters["peak_rss_bytes"] = double(PeakRssBytes());
 }
 
