@@ -51,7 +51,7 @@ struct BinCursor {
 /// voxel's offset in its tile (CountGrid::LocalOffset).
 struct AffineWalk {
   const double* coef = nullptr;         // 12 per map: the rows of [A | b]
-  const uint32_t* threshold = nullptr;  // alias table (AliasTable)
+  const uint32_t* threshold = nullptr;  // alias table (AliasTable); unused with a chain
   const uint32_t* alias = nullptr;
   uint32_t num_maps = 0;
   /// When set, maps are drawn by the chain instead of the alias table.

@@ -38,11 +38,13 @@ template <Lookup kLookup, bool kChain>
 void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
   alignas(32) Tables tab;
   if constexpr (kLookup != kGather) {
-    alignas(32) uint32_t thr[8] = {0}, ali[8] = {0};
+    if constexpr (!kChain) {  // a chain has its own tables, and no map alias table
+      alignas(32) uint32_t thr[8] = {0}, ali[8] = {0};
+      for (uint32_t m = 0; m < k.num_maps; ++m) thr[m] = k.threshold[m], ali[m] = k.alias[m];
+      tab.threshold8 = _mm256_load_si256(reinterpret_cast<const __m256i*>(thr));
+      tab.alias8 = _mm256_load_si256(reinterpret_cast<const __m256i*>(ali));
+    }
     alignas(32) double lo[4], hi[4];
-    for (uint32_t m = 0; m < k.num_maps; ++m) thr[m] = k.threshold[m], ali[m] = k.alias[m];
-    tab.threshold8 = _mm256_load_si256(reinterpret_cast<const __m256i*>(thr));
-    tab.alias8 = _mm256_load_si256(reinterpret_cast<const __m256i*>(ali));
     for (int j = 0; j < 12; ++j) {
       for (uint32_t m = 0; m < 4; ++m) {
         lo[m] = m < k.num_maps ? k.coef[12 * m + j] : 0.0;

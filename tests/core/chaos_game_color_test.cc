@@ -385,34 +385,44 @@ TEST(ChaosGameFastPath, SimdLevelsAgreeForEveryMapCount) {
 // cropped cloud with its overflowing map. Scalar and AVX2 kernels must count
 // exactly what the general path counts (forced by an identity final map).
 TEST(ChaosGameFastPath, ChainsMatchTheGeneralPathAtEverySimdLevel) {
-  ChaosGameParams params = CroppedWithBlowUp(ChaosGame::kChunkIterations * 2 + 99);
-  MarkovChain chain;
-  ChainState plotted, hidden;
-  for (uint32_t m = 0; m < 8; ++m) plotted.transitions.push_back({m, m < 5 ? 0u : 1u});
-  plotted.probabilities.assign(8, 1.0 / 8);
-  hidden.transitions = {{1, 0}, {3, 1}, {8, 0}};
-  hidden.probabilities = {0.6, 0.398, 0.002};
-  hidden.plotted = false;
-  chain.states = {plotted, hidden};
-  chain.start_state = 1;
-  params.chain = chain;
-  ASSERT_TRUE(ChaosGame::UsesFastPath(params));
+  // With 9 maps the AVX2 kernel gathers the coefficients; with 4 it
+  // permutes them.
+  for (const size_t num_maps : {9, 4}) {
+    SCOPED_TRACE(num_maps);
+    ChaosGameParams params = CroppedWithBlowUp(ChaosGame::kChunkIterations * 2 + 99);
+    params.ifs.maps.erase(params.ifs.maps.begin() + (num_maps - 1), params.ifs.maps.end() - 1);
+    params.ifs.probabilities.assign(num_maps, 1.0 / double(num_maps));
+    const uint32_t blow_up = uint32_t(num_maps - 1);
+    MarkovChain chain;
+    ChainState plotted, hidden;
+    for (uint32_t m = 0; m < blow_up; ++m)
+      plotted.transitions.push_back({m, m < blow_up / 2 + 1 ? 0u : 1u});
+    plotted.probabilities.assign(plotted.transitions.size(),
+                                 1.0 / double(plotted.transitions.size()));
+    hidden.transitions = {{1, 0}, {2, 1}, {blow_up, 0}};
+    hidden.probabilities = {0.6, 0.398, 0.002};
+    hidden.plotted = false;
+    chain.states = {plotted, hidden};
+    chain.start_state = 1;
+    params.chain = chain;
+    ASSERT_TRUE(ChaosGame::UsesFastPath(params));
 
-  ChaosGameParams general = params;
-  general.ifs.final_map = PointMap{};
-  ASSERT_FALSE(ChaosGame::UsesFastPath(general));
-  ChaosGameStats want;
-  const CountGrid reference = RunGame(general, 2, &want);
-  EXPECT_GT(want.reseeded, 100u);
-  EXPECT_GT(want.outside, 1000u);
+    ChaosGameParams general = params;
+    general.ifs.final_map = PointMap{};
+    ASSERT_FALSE(ChaosGame::UsesFastPath(general));
+    ChaosGameStats want;
+    const CountGrid reference = RunGame(general, 2, &want);
+    EXPECT_GT(want.reseeded, 100u);
+    EXPECT_GT(want.outside, 1000u);
 
-  for (SimdLevel level : SimdLevelsOfThisCpu()) {
-    SCOPED_TRACE(std::string(SimdName(level)));
-    params.simd = level;
-    ChaosGameStats got;
-    ExpectSameGrids(reference, RunGame(params, 2, &got));
-    EXPECT_EQ(got.reseeded, want.reseeded);
-    EXPECT_EQ(got.outside, want.outside);
+    for (SimdLevel level : SimdLevelsOfThisCpu()) {
+      SCOPED_TRACE(std::string(SimdName(level)));
+      params.simd = level;
+      ChaosGameStats got;
+      ExpectSameGrids(reference, RunGame(params, 2, &got));
+      EXPECT_EQ(got.reseeded, want.reseeded);
+      EXPECT_EQ(got.outside, want.outside);
+    }
   }
 }
 
