@@ -23,7 +23,7 @@ namespace nimbus {
 class TileBins {
  public:
   /// At most this many bins; larger grids put 2^shift tiles in a bin.
-  static constexpr uint32_t kMaxBins = 4096;
+  static constexpr uint32_t kMaxBins = 32768;
 
   /// `capacity`: entries buffered before a flush (at least one block).
   TileBins(CountGrid& grid, size_t capacity);
