@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cstring>
 #include <limits>
+#include <new>
 
 namespace nimbus {
 
@@ -27,13 +28,14 @@ uint32_t* CountGrid::Allocate(uint64_t tile) {
   if (tile_limit_ > 0 && allocated_ >= tile_limit_) {
     overflowed_ = true;
     if (!spill_) {
-      spill_.reset(new uint32_t[kTileVoxels]());
-      if (with_color_) spill_color_.reset(new uint64_t[kTileVoxels]());
+      spill_ = ZeroTile<uint32_t>();
+      if (with_color_) spill_color_ = ZeroTile<uint64_t>();
     }
     return spill_.get();
   }
-  table_[tile].reset(new uint32_t[kTileVoxels]());
-  if (with_color_) color_[tile].reset(new uint64_t[kTileVoxels]());
+  table_[tile] = ZeroTile<uint32_t>();
+  if (with_color_) color_[tile] = ZeroTile<uint64_t>();
+  if (!table_[tile] || (with_color_ && !color_[tile])) throw std::bad_alloc();
   ++allocated_;
   return table_[tile].get();
 }

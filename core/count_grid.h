@@ -3,6 +3,7 @@
 #pragma once
 
 #include <cstdint>
+#include <cstdlib>
 #include <memory>
 #include <vector>
 
@@ -156,14 +157,26 @@ class CountGrid {
   Int3 res_;
   Int3 tiles_;
   bool with_color_ = false;
-  std::vector<std::unique_ptr<uint32_t[]>> table_;
-  std::vector<std::unique_ptr<uint64_t[]>> color_;  // parallel to table_ when with_color_
-  std::vector<uint32_t> offsets_, cursor_;          // AddKeys binning, reused
+  // Tiles come from calloc: fresh pages are already zero, so a new tile
+  // costs no memset on top of the kernel's page clearing.
+  struct Free {
+    void operator()(void* p) const { std::free(p); }
+  };
+  template <typename T>
+  using TilePtr = std::unique_ptr<T[], Free>;
+  template <typename T>
+  static TilePtr<T> ZeroTile() {
+    return TilePtr<T>(static_cast<T*>(std::calloc(kTileVoxels, sizeof(T))));
+  }
+
+  std::vector<TilePtr<uint32_t>> table_;
+  std::vector<TilePtr<uint64_t>> color_;    // parallel to table_ when with_color_
+  std::vector<uint32_t> offsets_, cursor_;  // AddKeys binning, reused
   size_t allocated_ = 0;
   size_t tile_limit_ = 0;
   bool overflowed_ = false;
-  std::unique_ptr<uint32_t[]> spill_;  // the scratch tile, once needed
-  std::unique_ptr<uint64_t[]> spill_color_;
+  TilePtr<uint32_t> spill_;  // the scratch tile, once needed
+  TilePtr<uint64_t> spill_color_;
 };
 
 }  // namespace nimbus
