@@ -115,6 +115,18 @@ absl::Status OffsetError(std::string_view name, size_t offset, std::string_view 
   return absl::InvalidArgumentError(Cat(name, ": byte offset ", offset, ": ", what));
 }
 
+// The three coordinates of an OBJ "v" or ASCII STL "vertex" line, tok[1..3].
+absl::Status ParseVertex(const std::vector<std::string_view>& tok, std::string_view name, int ln,
+                         Vec3& p) {
+  if (tok.size() < 4) return LineError(name, ln, "vertex needs three coordinates");
+  for (int a = 0; a < 3; ++a) {
+    if (!ParseDouble(tok[1 + a], p[a]))
+      return LineError(name, ln, Cat("bad vertex coordinate '", tok[1 + a], "'"));
+  }
+  if (!IsFinite(p)) return LineError(name, ln, "non-finite vertex coordinate");
+  return absl::OkStatus();
+}
+
 // Fan-splits a polygon given by vertex indices.
 void AddPolygon(const std::vector<uint32_t>& poly, TriangleMesh& mesh) {
   for (size_t k = 1; k + 1 < poly.size(); ++k)
@@ -137,13 +149,8 @@ absl::StatusOr<TriangleMesh> ParseObj(std::string_view text, std::string_view na
     const std::vector<std::string_view> tok = Tokens(line);
     if (tok.empty()) continue;
     if (tok[0] == "v") {
-      if (tok.size() < 4) return LineError(name, ln, "vertex needs three coordinates");
       Vec3 p;
-      for (int a = 0; a < 3; ++a) {
-        if (!ParseDouble(tok[1 + a], p[a]))
-          return LineError(name, ln, Cat("bad vertex coordinate '", tok[1 + a], "'"));
-      }
-      if (!IsFinite(p)) return LineError(name, ln, "non-finite vertex coordinate");
+      if (absl::Status st = ParseVertex(tok, name, ln, p); !st.ok()) return st;
       mesh.vertices.push_back(p);
     } else if (tok[0] == "f") {
       if (tok.size() < 4) return LineError(name, ln, "face needs at least three corners");
@@ -498,13 +505,8 @@ absl::StatusOr<TriangleMesh> ParseAsciiStl(std::string_view text, std::string_vi
       poly.clear();
     } else if (tok[0] == "vertex") {
       if (!in_loop) return LineError(name, ln, "vertex outside 'outer loop'");
-      if (tok.size() < 4) return LineError(name, ln, "vertex needs three coordinates");
       Vec3 p;
-      for (int a = 0; a < 3; ++a) {
-        if (!ParseDouble(tok[1 + a], p[a]))
-          return LineError(name, ln, Cat("bad vertex coordinate '", tok[1 + a], "'"));
-      }
-      if (!IsFinite(p)) return LineError(name, ln, "non-finite vertex coordinate");
+      if (absl::Status st = ParseVertex(tok, name, ln, p); !st.ok()) return st;
       poly.push_back(uint32_t(mesh.vertices.size()));
       mesh.vertices.push_back(p);
     } else if (tok[0] == "endloop") {
