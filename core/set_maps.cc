@@ -614,30 +614,33 @@ absl::StatusOr<FeatureField> PrepareCondensation(const GridFrame& frame, const V
 
 }  // namespace
 
+namespace {
+// The one-shot median of two checked sets, with a workspace of its own.
+absl::StatusOr<VoxelSet> MedianOnce(const VoxelSet& a, const VoxelSet& b, const GridFrame& frame,
+                                    const MedianOptions& options, bool symmetric,
+                                    Interrupter* interrupter) {
+  SetMapWorkspace ws;
+  ws.interrupter = interrupter;
+  VoxelSet out;
+  if (absl::Status s = MedianInto(a, b, nullptr, frame.VoxelSize(), options, symmetric, ws, out);
+      !s.ok())
+    return s;
+  return out;
+}
+}  // namespace
+
 absl::StatusOr<VoxelSet> LeftMedian(const VoxelSet& a, const VoxelSet& b, const GridFrame& frame,
                                     const MedianOptions& options, Interrupter* interrupter) {
   if (absl::Status s = CheckPair(a, b, frame); !s.ok()) return s;
   if (b.Empty()) return absl::InvalidArgumentError("left median: the target set is empty");
-  SetMapWorkspace ws;
-  ws.interrupter = interrupter;
-  VoxelSet out;
-  if (absl::Status s = MedianInto(a, b, nullptr, frame.VoxelSize(), options, false, ws, out);
-      !s.ok())
-    return s;
-  return out;
+  return MedianOnce(a, b, frame, options, false, interrupter);
 }
 
 absl::StatusOr<VoxelSet> Median(const VoxelSet& a, const VoxelSet& b, const GridFrame& frame,
                                 const MedianOptions& options, Interrupter* interrupter) {
   if (absl::Status s = CheckPair(a, b, frame); !s.ok()) return s;
   if (a.Empty() || b.Empty()) return absl::InvalidArgumentError("median: a set is empty");
-  SetMapWorkspace ws;
-  ws.interrupter = interrupter;
-  VoxelSet out;
-  if (absl::Status s = MedianInto(a, b, nullptr, frame.VoxelSize(), options, true, ws, out);
-      !s.ok())
-    return s;
-  return out;
+  return MedianOnce(a, b, frame, options, true, interrupter);
 }
 
 absl::StatusOr<VoxelSet> RotatedMedian(const VoxelSet& a, const VoxelSet& b, const GridFrame& frame,
