@@ -20,6 +20,15 @@ std::string Mesh(const std::string& name) {
   return nimbus::testing::SourcePath("examples/meshes/" + name).string();
 }
 
+// The mesh asset of set_ifs.maps[map]'s condensation.
+v1::Asset* MeshAsset(v1::JobSpec& spec, int map) {
+  return spec.mutable_set_ifs()
+      ->mutable_maps(map)
+      ->mutable_condensation()
+      ->mutable_mesh()
+      ->mutable_asset();
+}
+
 v1::JobSpec TwoSpheres() {
   v1::JobSpec spec;
   spec.mutable_grid()->add_resolution(32);
@@ -119,11 +128,7 @@ TEST(SetIfsSpec, ErrorsNameTheField) {
 
 TEST(SetIfsSpec, AssetsByPathAndBySha256) {
   v1::JobSpec spec = TwoSpheres();
-  auto* asset = spec.mutable_set_ifs()
-                    ->mutable_maps(0)
-                    ->mutable_condensation()
-                    ->mutable_mesh()
-                    ->mutable_asset();
+  v1::Asset* asset = MeshAsset(spec, 0);
   asset->set_path("/no/such/cow.obj");
   EXPECT_NE(Error(spec).find("set_ifs.maps[0].condensation.mesh.asset.path: no such file"),
             std::string::npos);
@@ -157,12 +162,7 @@ TEST(SetIfsSpec, BadMeshesAreClearErrorsNamingFieldAndFile) {
   std::ofstream(flat) << "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n";
   for (const auto& file : {nan, empty, flat}) {
     v1::JobSpec spec = TwoSpheres();
-    spec.mutable_set_ifs()
-        ->mutable_maps(1)
-        ->mutable_condensation()
-        ->mutable_mesh()
-        ->mutable_asset()
-        ->set_path(file.string());
+    MeshAsset(spec, 1)->set_path(file.string());
     const std::string e = Error(spec);
     EXPECT_NE(e.find("set_ifs.maps[1].condensation.mesh"), std::string::npos) << e;
     EXPECT_NE(e.find(file.filename().string()), std::string::npos) << e;
@@ -171,12 +171,7 @@ TEST(SetIfsSpec, BadMeshesAreClearErrorsNamingFieldAndFile) {
 
 TEST(SetIfsSpec, NonWatertightMeshWarns) {
   v1::JobSpec spec = TwoSpheres();
-  spec.mutable_set_ifs()
-      ->mutable_maps(0)
-      ->mutable_condensation()
-      ->mutable_mesh()
-      ->mutable_asset()
-      ->set_path(Mesh("teapot.obj"));
+  MeshAsset(spec, 0)->set_path(Mesh("teapot.obj"));
   auto job = ConvertSpec(spec, {}, 2);
   ASSERT_TRUE(job.ok()) << job.status();
   ASSERT_EQ(job->warnings.size(), 1u);
@@ -228,12 +223,7 @@ TEST(SetIfsSpec, BuildsSourcesOnTheGrid) {
 
 TEST(SetIfsSpec, MeshesAreFittedIntoTheGrid) {
   v1::JobSpec spec = TwoSpheres();
-  spec.mutable_set_ifs()
-      ->mutable_maps(0)
-      ->mutable_condensation()
-      ->mutable_mesh()
-      ->mutable_asset()
-      ->set_path(Mesh("suzanne.obj"));
+  MeshAsset(spec, 0)->set_path(Mesh("suzanne.obj"));
   auto job = ConvertSpec(spec, {}, 2);
   ASSERT_TRUE(job.ok()) << job.status();
   auto set = BuildSetSource(*job->set_ifs->maps[0].condensation, job->frame, nullptr);
