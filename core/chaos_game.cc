@@ -24,7 +24,8 @@ Vec3 RandomPoint(Rng& rng, const Bounds& b) {
               rng.Uniform(b.min.z, b.max.z)};
 }
 
-size_t BinCapacity(const ChaosGameParams& p);
+uint64_t ReachableTiles(const ChaosGameParams& p);
+size_t BufferEntries(const ChaosGameParams& p, uint64_t reachable_tiles);
 }  // namespace
 
 struct ChaosGame::Worker {
@@ -113,14 +114,15 @@ absl::StatusOr<std::unique_ptr<ChaosGame>> ChaosGame::Create(ChaosGameParams par
   const bool color = p.color.mode != ColorMode::kNone;
   for (int t = 0; t < game->threads_; ++t) game->counts_.emplace_back(r, color);
   // Buffers sized once, so memory stays as estimated.
+  const size_t entries = BufferEntries(p, ReachableTiles(p));
   for (int t = 0; t < game->threads_; ++t) {
     auto w = std::make_unique<Worker>();
     w->grid = &game->counts_[t];
     if (game->fast_) {
-      w->bins = std::make_unique<TileBins>(game->counts_[t], BinCapacity(p));
+      w->bins = std::make_unique<TileBins>(game->counts_[t], entries);
     } else {
-      w->keys.resize(KeyBatch(p));
-      w->scratch.resize(w->keys.size());
+      w->keys.resize(entries);
+      w->scratch.resize(entries);
     }
     w->weighted = p.splat;
     game->workers_.push_back(std::move(w));
@@ -178,15 +180,21 @@ uint64_t ReachableTiles(const ChaosGameParams& p) {
   return std::min(tiles, all);
 }
 
-// Entries each fast-path thread buffers: about 32768 per reachable tile, so
-// a flush pulls each 128 KiB tile (2048 cache lines) into L2 once for ~16
-// increments per line. Capped at 2^26 entries (256 MiB) per thread.
-size_t BinCapacity(const ChaosGameParams& p) {
-  const uint64_t tiles = ReachableTiles(p);
-  uint64_t want = std::min(tiles * 32768, std::max<uint64_t>(p.iterations, 1));
-  // With a budget, each thread buffers at most an eighth of it.
-  if (p.memory_budget > 0) want = std::min(want, p.memory_budget / 8 / sizeof(uint32_t));
-  return size_t(std::clamp<uint64_t>(want, uint64_t{1} << 16, uint64_t{1} << 26));
+// Entries each thread buffers before a flush. A flush pulls each active
+// 128 KiB tile (2048 cache lines) into L2 once, so more entries per tile
+// mean more increments per line fetched: ~32768 per reachable tile on the
+// fast path (4-byte entries, at most 2^26 = 256 MiB), ~8192 on the general
+// path (16 bytes per key with its sort scratch, at most 2^25 = 512 MiB).
+// Never more than the whole job plots; with a budget, at most an eighth of
+// it per thread.
+size_t BufferEntries(const ChaosGameParams& p, uint64_t reachable_tiles) {
+  const bool fast = ChaosGame::UsesFastPath(p);
+  const uint64_t per_tile = fast ? 32768 : 8192;
+  const uint64_t entry_bytes = fast ? sizeof(uint32_t) : kKeyBytes;
+  const uint64_t most = fast ? uint64_t{1} << 26 : uint64_t{1} << 25;
+  uint64_t want = std::min(reachable_tiles * per_tile, std::max<uint64_t>(p.iterations, 1));
+  if (p.memory_budget > 0) want = std::min(want, p.memory_budget / 8 / entry_bytes);
+  return size_t(std::clamp<uint64_t>(want, uint64_t{1} << 16, most));
 }
 
 }  // namespace
@@ -196,34 +204,22 @@ bool ChaosGame::UsesFastPath(const ChaosGameParams& p) {
          p.ifs.AllAffine();
 }
 
-size_t ChaosGame::KeyBatch(const ChaosGameParams& p) {
-  // A flush pulls each active tile (2048 cache lines) into L2 once; with
-  // ~8192 keys per tile every line fetched serves ~4 increments instead of
-  // one miss per increment. Bounded so the buffers (16 bytes per key with
-  // the binning scratch) stay at 512 MiB per thread, which 1024^3 grids and
-  // larger reach (their counters can take gigabytes).
-  const uint64_t tiles = ReachableTiles(p);
-  // A thread never buffers more keys than the whole job plots.
-  uint64_t batch = std::min(tiles * 8192, std::max<uint64_t>(p.iterations, 1));
-  if (p.memory_budget > 0) batch = std::min(batch, p.memory_budget / 8 / kKeyBytes);
-  return size_t(std::clamp<uint64_t>(batch, uint64_t{1} << 16, uint64_t{1} << 25));
-}
-
 ChaosGameMemory ChaosGame::EstimateMemory(const ChaosGameParams& p, int threads,
                                           uint64_t output_bytes_per_voxel, uint64_t tiles_hint) {
   threads = std::max(1, threads);
   const Int3 r = p.frame.resolution;
   const bool color = p.color.mode != ColorMode::kNone;
-  uint64_t tiles = ReachableTiles(p);
-  if (tiles_hint > 0) tiles = std::min(tiles, tiles_hint);
+  const uint64_t reachable = ReachableTiles(p);
+  const uint64_t tiles = tiles_hint > 0 ? std::min(reachable, tiles_hint) : reachable;
   // Every plotted step lands in at most one tile of one thread, so the
   // tiles of all threads together are bounded by the iterations as well as
   // by threads x the reachable tiles.
   const uint64_t touches = (p.iterations + uint64_t(threads) * kWalkers) * (p.splat ? 8 : 1);
   const uint64_t all_tiles = std::min(tiles * uint64_t(threads), touches);
   ChaosGameMemory m;
-  const uint64_t buffers =
-      UsesFastPath(p) ? TileBins::Bytes(r, BinCapacity(p)) : KeyBatch(p) * kKeyBytes;
+  // The buffers are sized by the geometric bound, as Create sizes them.
+  const size_t entries = BufferEntries(p, reachable);
+  const uint64_t buffers = UsesFastPath(p) ? TileBins::Bytes(r, entries) : entries * kKeyBytes;
   m.accumulation = uint64_t(threads) * CountGrid::BoundedMemoryBytes(r, 0, color) +
                    all_tiles * CountGrid::TileBytes(color) + uint64_t(threads) * buffers;
   // Output: the merged grid, plus one VDB leaf (8^3 voxels, with ~15 %

@@ -184,9 +184,6 @@ class ChaosGame {
   /// thin attractor really touches.
   static absl::StatusOr<TileCensus> Pilot(const ChaosGameParams& params, uint64_t samples,
                                           Interrupter* interrupter);
-  /// Keys buffered per thread before a binned flush: scaled with the tiles
-  /// the job can reach, capped by its budget.
-  static size_t KeyBatch(const ChaosGameParams& params);
   /// True when `params` take the fast path: affine maps (drawn
   /// independently or by a chain), no final transform, colour or splatting
   /// (core/affine_walk.h).
