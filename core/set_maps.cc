@@ -258,6 +258,20 @@ absl::Status AddMidpoints(const VoxelSet& moving, const VoxelSet& source, const 
   return absl::OkStatus();
 }
 
+// ws.field = `target`'s feature transform, computed only over the box the
+// voxels of `moving` need and queried there; timed as nearest-point work.
+absl::Status NearestFieldFor(const VoxelSet& target, const VoxelSet& moving, Vec3 h,
+                             SetMapWorkspace& ws) {
+  const auto t0 = Clock::now();
+  FeatureTransformOptions fo;
+  fo.box = moving.BoundingBox();
+  fo.queries = &moving;
+  if (absl::Status s = ComputeFeatureTransform(target, h, fo, ws.field, ws.interrupter); !s.ok())
+    return s;
+  ws.stats.nearest_seconds += SecondsSince(t0);
+  return absl::OkStatus();
+}
+
 // out = D_a(b) (left only) or M(a, b). `b_field`, when given, is b's
 // feature transform over the whole lattice; otherwise the needed parts of
 // both transforms are computed into ws.field. A voxel moves only when it
@@ -275,13 +289,7 @@ absl::Status MedianInto(const VoxelSet& a, const VoxelSet& b, const FeatureField
   if (!ws.moving_a.Empty()) {
     const FeatureField* field = b_field;
     if (!field) {
-      const auto t0 = Clock::now();
-      FeatureTransformOptions fo;
-      fo.box = ws.moving_a.BoundingBox();
-      fo.queries = &ws.moving_a;
-      if (absl::Status s = ComputeFeatureTransform(b, h, fo, ws.field, ws.interrupter); !s.ok())
-        return s;
-      ws.stats.nearest_seconds += SecondsSince(t0);
+      if (absl::Status s = NearestFieldFor(b, ws.moving_a, h, ws); !s.ok()) return s;
       field = &ws.field;
     }
     if (absl::Status s = AddMidpoints(ws.moving_a, a, *field, options, seed, ws.images, out, intr);
@@ -292,13 +300,7 @@ absl::Status MedianInto(const VoxelSet& a, const VoxelSet& b, const FeatureField
   ws.moving_b = b;
   ws.moving_b -= a;
   if (!ws.moving_b.Empty()) {
-    const auto t0 = Clock::now();
-    FeatureTransformOptions fo;
-    fo.box = ws.moving_b.BoundingBox();
-    fo.queries = &ws.moving_b;
-    if (absl::Status s = ComputeFeatureTransform(a, h, fo, ws.field, ws.interrupter); !s.ok())
-      return s;
-    ws.stats.nearest_seconds += SecondsSince(t0);
+    if (absl::Status s = NearestFieldFor(a, ws.moving_b, h, ws); !s.ok()) return s;
     if (absl::Status s =
             AddMidpoints(ws.moving_b, b, ws.field, options, seed, ws.images, out, intr);
         !s.ok())
