@@ -9,9 +9,9 @@
 #include <memory>
 #include <vector>
 
-#include "core/attractors.h"
-#include "core/chaos_game.h"
-#include "core/cpu_dispatch.h"
+#include "tests/support/attractors.h"
+#include "core/chaos/chaos_game.h"
+#include "core/base/cpu_dispatch.h"
 
 namespace nimbus {
 namespace {

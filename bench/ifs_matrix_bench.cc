@@ -12,8 +12,8 @@
 #include <string>
 #include <vector>
 
-#include "core/chaos_game.h"
-#include "core/ifs_matrix.h"
+#include "core/chaos/chaos_game.h"
+#include "core/matrix/ifs_matrix.h"
 
 namespace nimbus {
 namespace {

@@ -7,11 +7,11 @@
 #include <cstdlib>
 #include <memory>
 
-#include "core/feature_transform.h"
-#include "core/mesh_io.h"
-#include "core/set_ifs.h"
-#include "core/shapes.h"
-#include "core/voxelize.h"
+#include "core/sets/feature_transform.h"
+#include "core/io/mesh_io.h"
+#include "core/sets/set_ifs.h"
+#include "core/sets/shapes.h"
+#include "core/sets/voxelize.h"
 
 namespace nimbus {
 namespace {

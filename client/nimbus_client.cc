@@ -9,7 +9,7 @@
 #include <thread>
 
 #include "absl/strings/str_cat.h"
-#include "core/sha256.h"
+#include "core/base/sha256.h"
 #include "nimbus/v1/nimbus_service.grpc.pb.h"
 #include "proto/convert_set_ifs.h"
 

@@ -6,9 +6,9 @@
 #include <string>
 #include <vector>
 
-#include "core/chaos_game.h"
-#include "core/component_grid.h"
-#include "core/ifs_matrix.h"
+#include "core/chaos/chaos_game.h"
+#include "core/matrix/component_grid.h"
+#include "core/matrix/ifs_matrix.h"
 
 namespace nimbus::spec {
 

@@ -5,8 +5,8 @@
 #include <cmath>
 
 #include "absl/strings/str_join.h"
-#include "core/set_ifs.h"
-#include "core/voxelize.h"
+#include "core/sets/set_ifs.h"
+#include "core/sets/voxelize.h"
 #include "google/protobuf/io/coded_stream.h"
 #include "google/protobuf/io/zero_copy_stream_impl_lite.h"
 #include "proto/convert_internal.h"

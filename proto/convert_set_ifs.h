@@ -13,13 +13,13 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
-#include "core/geometry.h"
-#include "core/interrupter.h"
-#include "core/mesh_io.h"
-#include "core/point_map.h"
-#include "core/set_maps.h"
-#include "core/shapes.h"
-#include "core/voxel_set.h"
+#include "core/base/geometry.h"
+#include "core/base/interrupter.h"
+#include "core/io/mesh_io.h"
+#include "core/chaos/point_map.h"
+#include "core/sets/set_maps.h"
+#include "core/sets/shapes.h"
+#include "core/grid/voxel_set.h"
 #include "nimbus/v1/spec.pb.h"
 #include "proto/spec_convert.h"
 

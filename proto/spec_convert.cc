@@ -3,7 +3,7 @@
 #include <cmath>
 
 #include "absl/strings/str_join.h"
-#include "core/sha256.h"
+#include "core/base/sha256.h"
 #include "proto/convert_internal.h"
 
 namespace nimbus::spec {

@@ -10,9 +10,9 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
-#include "core/chaos_game.h"
-#include "core/geometry.h"
-#include "core/vdb_io.h"
+#include "core/chaos/chaos_game.h"
+#include "core/base/geometry.h"
+#include "core/io/vdb_io.h"
 #include "nimbus/v1/spec.pb.h"
 
 namespace nimbus::spec {

@@ -11,7 +11,7 @@
 #include <string>
 
 #include "absl/status/statusor.h"
-#include "core/sha256.h"
+#include "core/base/sha256.h"
 
 namespace nimbus::server {
 

@@ -4,7 +4,7 @@
 #include <chrono>
 
 #include "absl/strings/str_cat.h"
-#include "core/chaos_game.h"
+#include "core/chaos/chaos_game.h"
 #include "server/job_runner.h"
 
 namespace nimbus::server {

@@ -10,11 +10,11 @@
 #include <vector>
 
 #include "absl/status/status.h"
-#include "core/chaos_game.h"
-#include "core/count_grid.h"
-#include "core/geometry.h"
-#include "core/interrupter.h"
-#include "core/vdb_io.h"
+#include "core/chaos/chaos_game.h"
+#include "core/grid/count_grid.h"
+#include "core/base/geometry.h"
+#include "core/base/interrupter.h"
+#include "core/io/vdb_io.h"
 #include "nimbus/v1/spec.pb.h"
 #include "proto/spec_convert.h"
 

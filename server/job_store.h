@@ -42,6 +42,8 @@ struct JobRecord {
   uint64_t progress_done = 0;
   uint64_t progress_total = 0;
   std::string error;
+  /// absl::StatusCode of a FAILED or CANCELLED job; 0 otherwise.
+  int error_code = 0;
   /// Set when SUCCEEDED.
   std::string result_key;
   uint64_t result_size = 0;
@@ -77,6 +79,8 @@ struct ListPage {
 struct Completion {
   JobState state = JobState::kSucceeded;  // a terminal state
   std::string error;
+  /// absl::StatusCode of the failure (CANCELLED for a cancelled job).
+  int error_code = 0;
   std::string result_key;
   uint64_t result_size = 0;
   std::string result_sha256;

@@ -9,8 +9,8 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
-#include "core/chaos_game.h"
-#include "core/component_grid.h"
+#include "core/chaos/chaos_game.h"
+#include "core/matrix/component_grid.h"
 #include "proto/convert_matrix.h"
 #include "server/job_runner.h"
 

@@ -7,7 +7,7 @@
 #include <thread>
 
 #include "absl/strings/str_cat.h"
-#include "core/set_ifs.h"
+#include "core/sets/set_ifs.h"
 #include "proto/convert_set_ifs.h"
 #include "server/job_runner.h"
 #include "server/result_store.h"

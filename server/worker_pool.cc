@@ -235,13 +235,16 @@ void WorkerPool::RunJob(const JobRecord& record, const std::string& worker_id) {
     } else {
       done.state = JobState::kCancelled;
       done.error = "cancelled by request";
+      done.error_code = int(absl::StatusCode::kCancelled);
     }
   } else if (!status.ok()) {
     done.state = JobState::kFailed;
     done.error = std::string(status.message());
+    done.error_code = int(status.code());
   } else if (auto stored = results_->Commit(id, ctx.ResultScratchPath()); !stored.ok()) {
     done.state = JobState::kFailed;
     done.error = std::string(stored.status().message());
+    done.error_code = int(stored.status().code());
   } else {
     done.state = JobState::kSucceeded;
     done.result_key = stored->key;

@@ -5,12 +5,12 @@
 #include <cmath>
 #include <cstring>
 
-#include "core/attractors.h"
-#include "core/chaos_game.h"
-#include "core/cpu_dispatch.h"
-#include "core/palette.h"
-#include "core/sha256.h"
-#include "core/vdb_io.h"
+#include "tests/support/attractors.h"
+#include "core/chaos/chaos_game.h"
+#include "core/base/cpu_dispatch.h"
+#include "core/grid/palette.h"
+#include "core/base/sha256.h"
+#include "core/io/vdb_io.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus {

@@ -2,8 +2,8 @@
 // before they start, and the budget that stops a run which outgrows it.
 #include <gtest/gtest.h>
 
-#include "core/attractors.h"
-#include "core/chaos_game.h"
+#include "tests/support/attractors.h"
+#include "core/chaos/chaos_game.h"
 
 namespace nimbus {
 namespace {

@@ -1,4 +1,4 @@
-#include "core/chaos_game.h"
+#include "core/chaos/chaos_game.h"
 
 #include <gtest/gtest.h>
 

@@ -1,8 +1,8 @@
-#include "core/geometry.h"
+#include "core/base/geometry.h"
 
 #include <gtest/gtest.h>
 
-#include "core/point_map.h"
+#include "core/chaos/point_map.h"
 
 namespace nimbus {
 namespace {

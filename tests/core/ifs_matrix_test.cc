@@ -1,4 +1,4 @@
-#include "core/ifs_matrix.h"
+#include "core/matrix/ifs_matrix.h"
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>

@@ -1,4 +1,4 @@
-#include "core/mesh_io.h"
+#include "core/io/mesh_io.h"
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>

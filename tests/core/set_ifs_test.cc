@@ -1,12 +1,12 @@
-#include "core/set_ifs.h"
+#include "core/sets/set_ifs.h"
 
 #include <gtest/gtest.h>
 
 #include <algorithm>
 
-#include "core/feature_transform.h"
-#include "core/shapes.h"
-#include "core/voxelize.h"
+#include "core/sets/feature_transform.h"
+#include "core/sets/shapes.h"
+#include "core/sets/voxelize.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus {

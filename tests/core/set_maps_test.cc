@@ -1,15 +1,15 @@
-#include "core/set_maps.h"
+#include "core/sets/set_maps.h"
 
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <deque>
 
-#include "core/feature_transform.h"
-#include "core/random.h"
-#include "core/shapes.h"
-#include "core/voxel_set.h"
-#include "core/voxelize.h"
+#include "core/sets/feature_transform.h"
+#include "core/base/random.h"
+#include "core/sets/shapes.h"
+#include "core/grid/voxel_set.h"
+#include "core/sets/voxelize.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus {

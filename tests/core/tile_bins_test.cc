@@ -1,6 +1,6 @@
 // TileBins: increments binned by tile as they are produced, applied on
 // flush, including pool exhaustion and bins that hold several tiles.
-#include "core/tile_bins.h"
+#include "core/chaos/tile_bins.h"
 
 #include <gtest/gtest.h>
 
@@ -8,7 +8,7 @@
 #include <map>
 #include <tuple>
 
-#include "core/random.h"
+#include "core/base/random.h"
 
 namespace nimbus {
 namespace {

@@ -1,4 +1,4 @@
-#include "core/variations.h"
+#include "core/chaos/variations.h"
 
 #include <gtest/gtest.h>
 

@@ -1,11 +1,11 @@
-#include "core/vdb_io.h"
+#include "core/io/vdb_io.h"
 
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <fstream>
 
-#include "core/sha256.h"
+#include "core/base/sha256.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus {

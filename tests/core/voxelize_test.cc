@@ -1,13 +1,13 @@
-#include "core/voxelize.h"
+#include "core/sets/voxelize.h"
 
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <fstream>
 
-#include "core/mesh_io.h"
-#include "core/shapes.h"
-#include "core/vdb_io.h"
+#include "core/io/mesh_io.h"
+#include "core/sets/shapes.h"
+#include "core/io/vdb_io.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus {

@@ -5,8 +5,8 @@
 #include <gtest/gtest.h>
 
 #include "client/nimbus_client.h"
-#include "core/component_grid.h"
-#include "core/vdb_io.h"
+#include "core/matrix/component_grid.h"
+#include "core/io/vdb_io.h"
 #include "proto/spec_io.h"
 #include "server/server.h"
 #include "tests/support/test_util.h"

@@ -14,8 +14,8 @@
 #include <thread>
 
 #include "client/nimbus_client.h"
-#include "core/sha256.h"
-#include "core/vdb_io.h"
+#include "core/base/sha256.h"
+#include "core/io/vdb_io.h"
 #include "proto/spec_convert.h"
 #include "proto/spec_io.h"
 #include "tests/support/test_util.h"

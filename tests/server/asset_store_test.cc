@@ -4,7 +4,7 @@
 
 #include <gtest/gtest.h>
 
-#include "core/sha256.h"
+#include "core/base/sha256.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus::server {

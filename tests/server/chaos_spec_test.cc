@@ -4,8 +4,8 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
-#include "core/attractors.h"
-#include "core/variations.h"
+#include "tests/support/attractors.h"
+#include "core/chaos/variations.h"
 #include "proto/spec_convert.h"
 #include "proto/spec_io.h"
 #include "server/job_runner.h"

@@ -8,9 +8,9 @@
 #include <cmath>
 #include <map>
 
-#include "core/chaos_game.h"
-#include "core/component_grid.h"
-#include "core/vdb_io.h"
+#include "core/chaos/chaos_game.h"
+#include "core/matrix/component_grid.h"
+#include "core/io/vdb_io.h"
 #include "proto/convert_matrix.h"
 #include "proto/spec_convert.h"
 #include "proto/spec_io.h"

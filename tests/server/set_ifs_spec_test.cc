@@ -5,9 +5,9 @@
 #include <cmath>
 #include <fstream>
 
-#include "core/count_grid.h"
-#include "core/sha256.h"
-#include "core/vdb_io.h"
+#include "core/grid/count_grid.h"
+#include "core/base/sha256.h"
+#include "core/io/vdb_io.h"
 #include "proto/convert_set_ifs.h"
 #include "proto/spec_convert.h"
 #include "proto/spec_io.h"

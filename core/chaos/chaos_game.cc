@@ -1,0 +1,645 @@
+#include "core/chaos/chaos_game.h"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <thread>
+
+#include "absl/strings/str_cat.h"
+#include "core/chaos/affine_walk.h"
+#include "core/chaos/tile_bins.h"
+
+namespace nimbus {
+
+static_assert(ChaosGame::kWalkers == walk::kLanes);
+
+namespace {
+// Bytes per key in a worker's buffer and its binning scratch.
+constexpr uint64_t kKeyBytes = 2 * sizeof(uint64_t);
+
+Vec3 RandomPoint(Rng& rng, const Bounds& b) {
+  // Three draws in x, y, z order: the argument order of a braced list is
+  // fixed, unlike a function call's.
+  return Vec3{rng.Uniform(b.min.x, b.max.x), rng.Uniform(b.min.y, b.max.y),
+              rng.Uniform(b.min.z, b.max.z)};
+}
+
+uint64_t ReachableTiles(const ChaosGameParams& p);
+size_t BufferEntries(const ChaosGameParams& p, uint64_t reachable_tiles);
+}  // namespace
+
+struct ChaosGame::Worker {
+  CountGrid* grid = nullptr;
+  // General path: 64-bit keys, binned at flush time.
+  std::vector<uint64_t> keys;
+  std::vector<uint64_t> scratch;
+  size_t n = 0;
+  // Fast path: binned as produced.
+  std::unique_ptr<TileBins> bins;
+  ChaosGameStats stats;
+
+  bool weighted = true;  // false: plain keys, the cheapest increments
+
+  void Flush() {
+    if (bins) bins->Flush();
+    if (n) grid->AddKeys(keys.data(), n, scratch, weighted);
+    n = 0;
+  }
+};
+
+ChaosGame::ChaosGame(ChaosGameParams params, int threads)
+    : params_(std::move(params)), threads_(std::max(1, threads)) {}
+
+ChaosGame::~ChaosGame() = default;
+
+absl::StatusOr<std::unique_ptr<ChaosGame>> ChaosGame::Create(ChaosGameParams params, int threads) {
+  if (params.ifs.maps.empty()) return absl::InvalidArgumentError("the IFS has no maps");
+  const Int3 r = params.frame.resolution;
+  if (r.x <= 0 || r.y <= 0 || r.z <= 0)
+    return absl::InvalidArgumentError("grid resolution must be positive on every axis");
+  const Vec3 size = params.frame.bounds.Size();
+  if (!(size.x > 0 && size.y > 0 && size.z > 0))
+    return absl::InvalidArgumentError("grid bounds must have max > min on every axis");
+  std::unique_ptr<ChaosGame> game(new ChaosGame(std::move(params), threads));
+  const ChaosGameParams& p = game->params_;
+  const Ifs& ifs = p.ifs;  // the moved-into copy
+  if (p.chain) {
+    if (p.chain->states.empty()) return absl::InvalidArgumentError("the chain has no states");
+    if (p.chain->start_state >= p.chain->states.size())
+      return absl::InvalidArgumentError("the chain's start state does not exist");
+    for (size_t s = 0; s < p.chain->states.size(); ++s) {
+      const ChainState& st = p.chain->states[s];
+      if (st.transitions.empty() || st.transitions.size() != st.probabilities.size())
+        return absl::InvalidArgumentError(
+            absl::StrCat("chain state ", s, " needs transitions with one probability each"));
+      for (const ChainTransition& t : st.transitions)
+        if (t.map >= ifs.maps.size() || t.next_state >= p.chain->states.size())
+          return absl::InvalidArgumentError(
+              absl::StrCat("chain state ", s, " has a transition to a missing map or state"));
+      game->state_tables_.emplace_back(st.probabilities);
+    }
+  } else {
+    if (ifs.probabilities.size() != ifs.maps.size())
+      return absl::InvalidArgumentError("need one probability per map");
+    double total = 0;
+    for (double q : ifs.probabilities) {
+      if (!(q >= 0)) return absl::InvalidArgumentError("probabilities must be >= 0");
+      total += q;
+    }
+    if (!(total > 0)) return absl::InvalidArgumentError("probabilities must not all be 0");
+    game->map_table_ = AliasTable(ifs.probabilities);
+  }
+  if (p.color.mode != ColorMode::kNone && !(p.color.blend > 0 && p.color.blend <= 1))
+    return absl::InvalidArgumentError("colour blend must be in (0, 1]");
+  game->num_chunks_ = (p.iterations + kChunkIterations - 1) / kChunkIterations;
+  game->fast_ = UsesFastPath(p);
+  game->simd_ = std::min(p.simd.value_or(ActiveSimd()), DetectSimd());
+  for (const PointMap& m : ifs.maps)
+    for (const auto& row : m.pre.m)
+      game->affine_coef_.insert(game->affine_coef_.end(), row.begin(), row.end());
+  if (game->fast_ && p.chain) {
+    FlatChain& f = game->flat_chain_.emplace();
+    const std::vector<ChainState>& states = p.chain->states;
+    for (size_t s = 0; s < states.size(); ++s) {
+      const AliasTable& table = game->state_tables_[s];
+      f.state.push_back(f.step.size() | uint64_t(states[s].transitions.size()) << 32);
+      for (size_t t = 0; t < states[s].transitions.size(); ++t) {
+        const ChainTransition& tr = states[s].transitions[t];
+        f.sample.push_back(table.thresholds()[t] | uint64_t(table.aliases()[t]) << 32);
+        f.step.push_back(tr.map | uint64_t(states[tr.next_state].plotted ? 1 : 0) << 31 |
+                         uint64_t(tr.next_state) << 32);
+      }
+    }
+  }
+  const bool color = p.color.mode != ColorMode::kNone;
+  for (int t = 0; t < game->threads_; ++t) game->counts_.emplace_back(r, color);
+  // Buffers sized once, so memory stays as estimated.
+  const size_t entries = BufferEntries(p, ReachableTiles(p));
+  for (int t = 0; t < game->threads_; ++t) {
+    auto w = std::make_unique<Worker>();
+    w->grid = &game->counts_[t];
+    if (game->fast_) {
+      w->bins = std::make_unique<TileBins>(game->counts_[t], entries);
+    } else {
+      w->keys.resize(entries);
+      w->scratch.resize(entries);
+    }
+    w->weighted = p.splat;
+    game->workers_.push_back(std::move(w));
+  }
+  if (p.memory_budget > 0) {
+    // Each thread's grid gets an equal share of what the budget leaves
+    // after the fixed parts (tile tables and buffers).
+    const uint64_t fixed = game->MemoryBytes();  // no tiles yet
+    const uint64_t free_bytes = p.memory_budget > fixed ? p.memory_budget - fixed : 0;
+    const uint64_t tiles = free_bytes / uint64_t(game->threads_) / CountGrid::TileBytes(color);
+    for (CountGrid& g : game->counts_) g.SetTileLimit(size_t(std::max<uint64_t>(tiles, 1)));
+  }
+  return game;
+}
+
+namespace {
+
+// Tiles of the grid that plotted points can reach. For contractive affine
+// maps plotted as they are, the attractor lies in a ball B(c, R) that every
+// map sends into itself: |A_i c + b_i - c| + s_i R <= R, s_i the map's
+// largest singular value. Walkers enter it to within s_max^warmup times
+// their starting distance before they plot. Otherwise: the whole grid.
+uint64_t ReachableTiles(const ChaosGameParams& p) {
+  const Int3 r = p.frame.resolution;
+  const uint64_t all = uint64_t((r.x + 31) / 32) * ((r.y + 31) / 32) * ((r.z + 31) / 32);
+  if (p.ifs.final_map || p.ifs.arcs || !p.ifs.AllAffine() || p.ifs.maps.empty()) return all;
+  Vec3 c;
+  double s_max = 0;
+  for (const PointMap& m : p.ifs.maps) {
+    const double s = m.pre.ContractionFactor();
+    if (!(s < 1)) return all;
+    s_max = std::max(s_max, s);
+    Vec3 fixed;  // the map's fixed point, by iteration
+    for (int i = 0; i < 2000; ++i) fixed = m.pre.Apply(fixed);
+    c = c + fixed;
+  }
+  c = (1.0 / double(p.ifs.maps.size())) * c;
+  double radius = 0;
+  for (const PointMap& m : p.ifs.maps)
+    radius = std::max(radius, Length(m.pre.Apply(c) - c) / (1 - m.pre.ContractionFactor()));
+  const Bounds& b = p.frame.bounds;
+  const double start = Length(b.max - b.min) + Length(c - b.min) + radius;
+  const Vec3 vs = p.frame.VoxelSize();
+  radius += std::pow(s_max, double(p.warmup)) * start + Length(vs);
+  if (!std::isfinite(radius)) return all;
+  uint64_t tiles = 1;
+  for (int a = 0; a < 3; ++a) {
+    const int n = a == 0 ? r.x : (a == 1 ? r.y : r.z);
+    const double lo = std::floor((c[a] - radius - b.min[a]) / vs[a]);
+    const double hi = std::floor((c[a] + radius - b.min[a]) / vs[a]);
+    const int t0 = int(std::clamp(lo, 0.0, double(n - 1))) / 32;
+    const int t1 = int(std::clamp(hi, 0.0, double(n - 1))) / 32;
+    tiles *= uint64_t(t1 - t0 + 1);
+  }
+  return std::min(tiles, all);
+}
+
+// Entries each thread buffers before a flush. A flush pulls each active
+// 128 KiB tile (2048 cache lines) into L2 once, so more entries per tile
+// mean more increments per line fetched: ~32768 per reachable tile on the
+// fast path (4-byte entries, at most 2^26 = 256 MiB), ~8192 on the general
+// path (16 bytes per key with its sort scratch, at most 2^25 = 512 MiB).
+// Never more than the whole job plots; with a budget, at most an eighth of
+// it per thread.
+size_t BufferEntries(const ChaosGameParams& p, uint64_t reachable_tiles) {
+  const bool fast = ChaosGame::UsesFastPath(p);
+  const uint64_t per_tile = fast ? 32768 : 8192;
+  const uint64_t entry_bytes = fast ? sizeof(uint32_t) : kKeyBytes;
+  const uint64_t most = fast ? uint64_t{1} << 26 : uint64_t{1} << 25;
+  uint64_t want = std::min(reachable_tiles * per_tile, std::max<uint64_t>(p.iterations, 1));
+  if (p.memory_budget > 0) want = std::min(want, p.memory_budget / 8 / entry_bytes);
+  return size_t(std::clamp<uint64_t>(want, uint64_t{1} << 16, most));
+}
+
+}  // namespace
+
+bool ChaosGame::UsesFastPath(const ChaosGameParams& p) {
+  return !p.ifs.final_map && !p.ifs.arcs && !p.splat && p.color.mode == ColorMode::kNone &&
+         p.ifs.AllAffine();
+}
+
+ChaosGameMemory ChaosGame::EstimateMemory(const ChaosGameParams& p, int threads,
+                                          uint64_t output_bytes_per_voxel, uint64_t tiles_hint) {
+  threads = std::max(1, threads);
+  const Int3 r = p.frame.resolution;
+  const bool color = p.color.mode != ColorMode::kNone;
+  const uint64_t reachable = ReachableTiles(p);
+  const uint64_t tiles = tiles_hint > 0 ? std::min(reachable, tiles_hint) : reachable;
+  // Every plotted step lands in at most one tile of one thread, so the
+  // tiles of all threads together are bounded by the iterations as well as
+  // by threads x the reachable tiles.
+  const uint64_t touches = (p.iterations + uint64_t(threads) * kWalkers) * (p.splat ? 8 : 1);
+  const uint64_t all_tiles = std::min(tiles * uint64_t(threads), touches);
+  ChaosGameMemory m;
+  // The buffers are sized by the geometric bound, as Create sizes them.
+  const size_t entries = BufferEntries(p, reachable);
+  const uint64_t buffers = UsesFastPath(p) ? TileBins::Bytes(r, entries) : entries * kKeyBytes;
+  m.accumulation = uint64_t(threads) * CountGrid::BoundedMemoryBytes(r, 0, color) +
+                   all_tiles * CountGrid::TileBytes(color) + uint64_t(threads) * buffers;
+  // Output: the merged grid, plus one VDB leaf (8^3 voxels, with ~15 %
+  // tree overhead) per touched leaf.
+  const uint64_t merged = CountGrid::BoundedMemoryBytes(r, std::min(tiles, touches), color);
+  const uint64_t leaves = std::min(tiles * 64, touches);
+  m.output = merged + leaves * 512 * output_bytes_per_voxel * 115 / 100;
+  return m;
+}
+
+absl::StatusOr<TileCensus> ChaosGame::Pilot(const ChaosGameParams& params, uint64_t samples,
+                                            Interrupter* interrupter) {
+  ChaosGameParams p = params;
+  const Int3 r = params.frame.resolution;
+  const Vec3 vs = params.frame.VoxelSize();
+  constexpr int kT = CountGrid::kTileDim;
+  p.frame.resolution = {(r.x + kT - 1) / kT, (r.y + kT - 1) / kT, (r.z + kT - 1) / kT};
+  // Pilot voxel i covers exactly tile i of the real grid.
+  for (int a = 0; a < 3; ++a)
+    p.frame.bounds.max[a] = p.frame.bounds.min[a] + p.frame.resolution[a] * kT * vs[a];
+  p.iterations = std::max<uint64_t>(1, std::min(samples, params.iterations));
+  p.color = {};
+  p.splat = false;
+  p.convergence = {};
+  p.memory_budget = 0;
+  auto game = Create(p, 1);
+  if (!game.ok()) return game.status();
+  if (auto st = (*game)->Run(interrupter); !st.ok()) return st;
+  const CountGrid counts = (*game)->TakeCounts();
+  const Int3 pr = p.frame.resolution;
+  TileCensus c;
+  c.samples = p.iterations;
+  std::vector<uint8_t> hit(size_t(pr.x) * pr.y * pr.z, 0);
+  counts.ForEachTile([&](Int3 o, const uint32_t* t) {
+    for (int i = 0; i < CountGrid::kTileVoxels; ++i) {
+      if (t[i] == 0) continue;
+      const Int3 l = CountGrid::LocalCoord(uint32_t(i));
+      const Int3 v{o.x + l.x, o.y + l.y, o.z + l.z};
+      if (v.x >= pr.x || v.y >= pr.y || v.z >= pr.z) continue;
+      hit[(size_t(v.x) * pr.y + v.y) * pr.z + v.z] = 1;
+      ++c.seen;
+      c.singletons += t[i] == 1;
+      c.doubletons += t[i] == 2;
+    }
+  });
+  const double f1 = double(c.singletons), f2 = double(c.doubletons);
+  const double unseen = f2 > 0 ? f1 * f1 / (2 * f2) : f1 * (f1 - 1) / 2;
+  double factor = 1.25;
+  if (params.splat && c.seen > 0) {
+    // A splatted point reaches at most one voxel into the next tile: count
+    // the tiles within one of a tile seen.
+    uint64_t grown = 0;
+    for (int x = 0; x < pr.x; ++x)
+      for (int y = 0; y < pr.y; ++y)
+        for (int z = 0; z < pr.z; ++z) {
+          bool near = false;
+          for (int dx = -1; dx <= 1 && !near; ++dx)
+            for (int dy = -1; dy <= 1 && !near; ++dy)
+              for (int dz = -1; dz <= 1 && !near; ++dz) {
+                const int X = x + dx, Y = y + dy, Z = z + dz;
+                near = X >= 0 && Y >= 0 && Z >= 0 && X < pr.x && Y < pr.y && Z < pr.z &&
+                       hit[(size_t(X) * pr.y + Y) * pr.z + Z];
+              }
+          grown += near;
+        }
+    factor *= double(grown) / double(c.seen);
+  }
+  c.estimate = uint64_t(std::ceil((double(c.seen) + unseen) * factor)) + 8;
+  return c;
+}
+
+uint64_t ChaosGame::MemoryBytes() const {
+  uint64_t bytes = 0;
+  for (const CountGrid& g : counts_) bytes += g.MemoryBytes();
+  for (const auto& w : workers_) {
+    bytes += (w->keys.capacity() + w->scratch.capacity()) * 8;
+    if (w->bins) bytes += w->bins->MemoryBytes();
+  }
+  return bytes;
+}
+
+ChaosGameStats ChaosGame::stats() const {
+  ChaosGameStats s;
+  for (const auto& w : workers_) {
+    s.iterations_done += w->stats.iterations_done;
+    s.outside += w->stats.outside;
+    s.reseeded += w->stats.reseeded;
+    s.final_nonfinite += w->stats.final_nonfinite;
+  }
+  return s;
+}
+
+// One fast-path chunk: the walkers, the kernel's view of the job and the
+// callbacks it makes for the rare cases (a full bin, a point off the grid).
+struct ChaosGame::FastChunk {
+  walk::Walkers lanes;
+  walk::AffineWalk kernel;
+  TileBins* bins = nullptr;
+  const ChaosGameParams* p = nullptr;
+  const AliasTable* table = nullptr;
+  const std::vector<AliasTable>* state_tables = nullptr;  // with a chain
+  uint64_t outside = 0, reseeded = 0;
+
+  Rng LoadRng(int l) const {
+    return Rng::FromState(lanes.s0[l], lanes.s1[l], lanes.s2[l], lanes.s3[l]);
+  }
+  void Store(int l, const Rng& rng, Vec3 pos) {
+    lanes.s0[l] = rng.state(0), lanes.s1[l] = rng.state(1);
+    lanes.s2[l] = rng.state(2), lanes.s3[l] = rng.state(3);
+    lanes.x[l] = pos.x, lanes.y[l] = pos.y, lanes.z[l] = pos.z;
+  }
+  // RunChunk's warm_up for this case, draw for draw.
+  void WarmUp(int l) {
+    Rng rng = LoadRng(l);
+    Vec3 pos = RandomPoint(rng, p->frame.bounds);
+    const MarkovChain* chain = p->chain ? &*p->chain : nullptr;
+    uint32_t state = chain ? chain->start_state : 0;
+    for (uint32_t i = 0; i < p->warmup; ++i) {
+      uint32_t map;
+      if (chain) {
+        const ChainTransition& t =
+            chain->states[state].transitions[(*state_tables)[state].Sample(rng.Next())];
+        map = t.map;
+        state = t.next_state;
+      } else {
+        map = table->Sample(rng.Next());
+      }
+      pos = p->ifs.maps[map].pre.Apply(pos);
+      if (!IsFinite(pos)) {
+        pos = RandomPoint(rng, p->frame.bounds);
+        ++reseeded;
+      }
+    }
+    Store(l, rng, pos);
+    lanes.state[l] = state;
+  }
+  static void Refill(void* self, uint32_t bin) { static_cast<FastChunk*>(self)->bins->Refill(bin); }
+  // RunChunk's advance: a non-finite point restarts the walker, a finite
+  // one off the grid is counted.
+  static void Exit(void* self, int l) {
+    auto* c = static_cast<FastChunk*>(self);
+    if (IsFinite(Vec3{c->lanes.x[l], c->lanes.y[l], c->lanes.z[l]})) {
+      ++c->outside;
+    } else {
+      ++c->reseeded;
+      c->WarmUp(l);
+    }
+  }
+};
+
+void ChaosGame::RunChunkFast(uint64_t chunk, Worker& w) {
+  const ChaosGameParams& p = params_;
+  const uint64_t begin = chunk * kChunkIterations;
+  const uint64_t count = std::min(kChunkIterations, p.iterations - begin);
+  FastChunk c;
+  c.bins = w.bins.get();
+  c.p = &p;
+  c.table = &map_table_;
+  c.state_tables = &state_tables_;
+  for (int l = 0; l < kWalkers; ++l) {
+    c.Store(l, Rng(p.seed, chunk * kWalkers + uint64_t(l)), {});
+    c.WarmUp(l);
+  }
+  walk::AffineWalk& k = c.kernel;
+  k.coef = affine_coef_.data();
+  k.threshold = map_table_.thresholds();
+  k.alias = map_table_.aliases();
+  k.num_maps = uint32_t(p.ifs.maps.size());
+  walk::ChainTables chain;
+  if (flat_chain_) {
+    const FlatChain& f = *flat_chain_;
+    chain = {f.state.data(), f.sample.data(), f.step.data()};
+    k.chain = &chain;
+  }
+  const Vec3 vs = p.frame.VoxelSize();
+  for (int a = 0; a < 3; ++a) {
+    k.min[a] = p.frame.bounds.min[a];
+    k.inv_voxel[a] = 1.0 / vs[a];
+  }
+  const Int3 res = p.frame.resolution;
+  k.res[0] = res.x, k.res[1] = res.y, k.res[2] = res.z;
+  k.tiles_y = uint32_t(w.grid->tiles().y);
+  k.tiles_z = uint32_t(w.grid->tiles().z);
+  k.bin_shift = c.bins->bin_shift();
+  k.bins = c.bins->cursors();
+  k.owner = &c;
+  k.refill = &FastChunk::Refill;
+  k.exit = &FastChunk::Exit;
+
+  const uint64_t rounds = count / kWalkers;
+  if (simd_ == SimdLevel::kAvx2)
+    walk::WalkAvx2(k, c.lanes, rounds);
+  else
+    walk::WalkScalar(k, c.lanes, rounds);
+  for (int l = 0; l < int(count % kWalkers); ++l) walk::WalkLane(k, c.lanes, l, 1);
+  w.stats.outside += c.outside;
+  w.stats.reseeded += c.reseeded;
+  w.stats.iterations_done += count;
+}
+
+void ChaosGame::RunChunk(uint64_t chunk, Worker& w) {
+  const ChaosGameParams& p = params_;
+  if (fast_) {
+    RunChunkFast(chunk, w);
+    return;
+  }
+  const uint64_t begin = chunk * kChunkIterations;
+  const uint64_t count = std::min(kChunkIterations, p.iterations - begin);
+
+  const Bounds& b = p.frame.bounds;
+  const Int3 res = p.frame.resolution;
+  const Vec3 vs = p.frame.VoxelSize();
+  const double ix = 1.0 / vs.x, iy = 1.0 / vs.y, iz = 1.0 / vs.z;
+  const std::vector<PointMap>& maps = p.ifs.maps;
+  const PointMap* final_map = p.ifs.final_map ? &*p.ifs.final_map : nullptr;
+  const ArcsTransform* arcs = p.ifs.arcs ? &*p.ifs.arcs : nullptr;
+  const bool has_final = final_map || arcs;
+  const MarkovChain* chain = p.chain ? &*p.chain : nullptr;
+  const bool affine = p.ifs.AllAffine();
+  const ColorMode color_mode = p.color.mode;
+  const double blend = p.color.blend;
+  const double inv_maps = 1.0 / double(maps.size());
+  const bool splat = p.splat;
+  const size_t keys_per_step = splat ? 8 : 1;
+  // Counters and the key buffer in locals: stores through `w` could alias
+  // them and would keep them in memory.
+  uint64_t reseeded = 0, outside = 0, final_nonfinite = 0;
+  uint64_t* keys = w.keys.data();
+  const size_t cap = w.keys.size();
+  size_t n_keys = w.n;
+  auto flush = [&] {
+    w.n = n_keys;
+    w.Flush();
+    n_keys = 0;
+  };
+
+  // Walker-major: each walker runs all its steps in turn with its generator
+  // and position in registers. A walker's steps depend on each other only
+  // through the position, which out-of-order execution overlaps.
+  for (int k = 0; k < kWalkers; ++k) {
+    Rng rng(p.seed, chunk * kWalkers + uint64_t(k));
+    Vec3 pos;
+    uint32_t state = 0;
+    double addr = 0, col = 0;
+    // One step; returns false if the point went non-finite.
+    auto step = [&] {
+      uint32_t map;
+      if (chain) {
+        const ChainState& st = chain->states[state];
+        const ChainTransition& t = st.transitions[state_tables_[state].Sample(rng.Next())];
+        map = t.map;
+        state = t.next_state;
+      } else {
+        map = map_table_.Sample(rng.Next());
+      }
+      pos = affine ? maps[map].pre.Apply(pos) : maps[map].Apply(pos, rng);
+      if (color_mode != ColorMode::kNone) {
+        addr = (double(map) + addr) * inv_maps;
+        const double target = color_mode == ColorMode::kAddress ? addr : maps[map].color;
+        col += blend * (target - col);
+      }
+      return IsFinite(pos);
+    };
+    auto warm_up = [&] {
+      pos = RandomPoint(rng, b);
+      state = chain ? chain->start_state : 0;
+      if (color_mode != ColorMode::kNone) addr = col = rng.Uniform();
+      for (uint32_t i = 0; i < p.warmup; ++i) {
+        if (!step()) {
+          pos = RandomPoint(rng, b);
+          ++reseeded;
+        }
+      }
+    };
+    // `n` is the global index of the plotted step (the arcs' phase).
+    auto plot = [&](uint64_t n) {
+      if (chain && !chain->states[state].plotted) return;
+      Vec3 q = pos;
+      if (has_final) {
+        if (final_map) q = final_map->Apply(q, rng);
+        if (arcs) q = arcs->Apply(q, n);
+        if (!IsFinite(q)) {
+          ++final_nonfinite;
+          ++outside;
+          return;
+        }
+      }
+      const double fx = (q.x - b.min.x) * ix, fy = (q.y - b.min.y) * iy, fz = (q.z - b.min.z) * iz;
+      // Written so NaN fails the test and counts as outside.
+      if (!(fx >= 0 && fx < res.x && fy >= 0 && fy < res.y && fz >= 0 && fz < res.z)) {
+        ++outside;
+        return;
+      }
+      uint64_t color_bits = 0;
+      if (color_mode != ColorMode::kNone) {
+        const double c = std::clamp(col, 0.0, 1.0);
+        color_bits = CountGrid::WithColor(0, uint32_t(c * CountGrid::kColorScale + 0.5));
+      }
+      if (!splat) {
+        keys[n_keys++] = w.grid->Key(int(fx), int(fy), int(fz)) | color_bits;
+        return;
+      }
+      // Voxel centres sit at i + 0.5: the point lies between centres i0 and
+      // i0 + 1 on each axis, at quarter q (0..4) of the way. Corners outside
+      // the grid fold onto the border voxel so every point adds exactly 64.
+      int i0[3], quarter[3];
+      const double f[3] = {fx - 0.5, fy - 0.5, fz - 0.5};
+      for (int a = 0; a < 3; ++a) {
+        const double fl = std::floor(f[a]);
+        i0[a] = int(fl);
+        quarter[a] = int(std::lround((f[a] - fl) * 4));
+      }
+      const int lim[3] = {res.x - 1, res.y - 1, res.z - 1};
+      for (int c = 0; c < 8; ++c) {
+        uint32_t weight = 1;
+        int v[3];
+        for (int a = 0; a < 3; ++a) {
+          const int hi = (c >> a) & 1;
+          weight *= uint32_t(hi ? quarter[a] : 4 - quarter[a]);
+          v[a] = std::clamp(i0[a] + hi, 0, lim[a]);
+        }
+        if (weight == 0) continue;
+        keys[n_keys++] = CountGrid::WithWeight(w.grid->Key(v[0], v[1], v[2]), weight) | color_bits;
+      }
+    };
+
+    warm_up();
+    // Walker k plots steps k, k + kWalkers, ... of the chunk.
+    const uint64_t steps = count / kWalkers + (uint64_t(k) < count % kWalkers ? 1 : 0);
+    for (uint64_t j = 0; j < steps; ++j) {
+      if (n_keys + keys_per_step > cap) [[unlikely]]
+        flush();
+      if (!step()) [[unlikely]] {
+        ++reseeded;
+        warm_up();
+        continue;
+      }
+      plot(begin + j * kWalkers + uint64_t(k));
+    }
+  }
+  w.n = n_keys;
+  w.stats.reseeded += reseeded;
+  w.stats.outside += outside;
+  w.stats.final_nonfinite += final_nonfinite;
+  w.stats.iterations_done += count;
+}
+
+absl::Status ChaosGame::RunUntil(uint64_t iterations, Interrupter* interrupter) {
+  Interrupter& intr = OrNull(interrupter);
+  const uint64_t target =
+      std::min(num_chunks_, (iterations + kChunkIterations - 1) / kChunkIterations);
+  if (next_chunk_ >= target) return absl::OkStatus();
+  std::atomic<uint64_t> next{next_chunk_};
+  std::atomic<bool> stop{false}, over_budget{false};
+  auto body = [&](int t) {
+    Worker& w = *workers_[t];
+    while (!stop.load(std::memory_order_relaxed)) {
+      const uint64_t c = next.fetch_add(1);
+      if (c >= target) break;
+      RunChunk(c, w);
+      if (w.grid->overflowed()) over_budget = stop = true;
+      if (intr.WasInterrupted(c * kChunkIterations, params_.iterations)) stop = true;
+    }
+    w.Flush();
+    if (w.grid->overflowed()) over_budget = stop = true;
+  };
+  const int n = int(std::min<uint64_t>(threads_, target - next_chunk_));
+  std::vector<std::thread> pool;
+  for (int t = 1; t < n; ++t) pool.emplace_back(body, t);
+  body(0);
+  for (auto& th : pool) th.join();
+  if (over_budget)
+    return absl::ResourceExhaustedError(absl::StrCat(
+        "the chaos game's counters outgrew the memory budget of ", params_.memory_budget >> 20,
+        " MiB (", threads_, " threads); the attractor covers more of the grid than estimated"));
+  if (stop) return absl::CancelledError("interrupted");
+  next_chunk_ = target;
+  return absl::OkStatus();
+}
+
+std::vector<uint64_t> CoarseCounts(const std::vector<const CountGrid*>& parts, int max_resolution) {
+  if (parts.empty()) return {};
+  const Int3 r = parts[0]->resolution();
+  // Whole tiles per cell keeps this a pass over tile sums.
+  int cell = CountGrid::kTileDim;
+  while ((std::max({r.x, r.y, r.z}) + cell - 1) / cell > max_resolution) cell *= 2;
+  const Int3 c{(r.x + cell - 1) / cell, (r.y + cell - 1) / cell, (r.z + cell - 1) / cell};
+  std::vector<uint64_t> out(size_t(c.x) * c.y * c.z, 0);
+  for (const CountGrid* g : parts) {
+    g->ForEachTile([&](Int3 o, const uint32_t* t) {
+      uint64_t sum = 0;
+      for (int i = 0; i < CountGrid::kTileVoxels; ++i) sum += t[i];
+      out[(size_t(o.x / cell) * c.y + o.y / cell) * c.z + o.z / cell] += sum;
+    });
+  }
+  return out;
+}
+
+double DensityChange(const std::vector<uint64_t>& a, const std::vector<uint64_t>& b) {
+  if (a.size() != b.size()) return 2;
+  uint64_t ta = 0, tb = 0;
+  for (uint64_t v : a) ta += v;
+  for (uint64_t v : b) tb += v;
+  if (ta == 0 || tb == 0) return ta == tb ? 0 : 2;
+  double d = 0;
+  for (size_t i = 0; i < a.size(); ++i) d += std::fabs(double(a[i]) / ta - double(b[i]) / tb);
+  return d;
+}
+
+CountGrid ChaosGame::TakeCounts() {
+  workers_.clear();  // the key buffers first: lowers the merge's peak
+  for (CountGrid& g : counts_) g.SetTileLimit(0);
+  CountGrid out = std::move(counts_[0]);
+  for (size_t t = 1; t < counts_.size(); ++t) {
+    out.Merge(counts_[t]);
+    counts_[t] = CountGrid(params_.frame.resolution);  // release memory early
+  }
+  counts_.clear();
+  workers_.clear();
+  return out;
+}
+
+}  // namespace nimbus

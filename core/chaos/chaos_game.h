@@ -1,0 +1,223 @@
+// The 3D chaos game (random iteration) for point IFS and graph-directed
+// (recurrent) IFS, accumulating integer visit counts.
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "core/grid/count_grid.h"
+#include "core/base/cpu_dispatch.h"
+#include "core/base/geometry.h"
+#include "core/base/interrupter.h"
+#include "core/chaos/point_map.h"
+
+namespace nimbus {
+
+/// One edge of a recurrent IFS seen as a Markov chain: apply `map` (an index
+/// into Ifs::maps) and move to `next_state`.
+struct ChainTransition {
+  uint32_t map = 0;
+  uint32_t next_state = 0;
+};
+
+/// A state of the chain. Points produced while the walker is in a state are
+/// plotted only if `plotted`; `label` tags them for a component grid.
+struct ChainState {
+  std::vector<ChainTransition> transitions;  // must be non-empty
+  std::vector<double> probabilities;         // one per transition, sum 1
+  bool plotted = true;
+  int32_t label = 0;
+};
+
+/// @brief A graph-directed IFS as a Markov chain over states. A plain IFS is
+/// the one-state chain whose transitions are its maps.
+struct MarkovChain {
+  std::vector<ChainState> states;
+  uint32_t start_state = 0;
+};
+
+}  // namespace nimbus
+
+namespace nimbus {
+
+/// Where a walker's colour coordinate comes from (docs/chaos_game.md).
+enum class ColorMode {
+  kNone,     // no colour accumulated
+  kAddress,  // the point's address addr <- (i + addr) / N, blended
+  kMap,      // the colour index of the map just applied (flame-style), blended
+};
+
+/// @brief Per-walker colour: c <- (1 - blend) c + blend * new, where `new` is
+/// the address or the map's colour index. Each visit adds c (16-bit fixed
+/// point) to its voxel's colour sum; the output colour is the palette at the
+/// voxel's mean c.
+struct ColorParams {
+  ColorMode mode = ColorMode::kNone;
+  double blend = 0.05;  // weight of the new value, in (0, 1]
+};
+
+/// @brief Optional early stop: the runner compares normalised coarse
+/// densities at fixed checkpoints (every `check_every` plotted steps, whole
+/// chunks) and stops when their L1 distance is below `tolerance`. Fixed
+/// checkpoints keep the stopping point independent of threads and timing.
+struct ConvergenceParams {
+  double tolerance = 0;  // 0: off
+  uint64_t check_every = uint64_t{1} << 26;
+};
+
+/// L1 distance between the normalised densities of two count sets, each
+/// summed over its parts and downsampled to at most `max_resolution` per
+/// axis; in [0, 2]. Deterministic.
+double DensityChange(const std::vector<uint64_t>& a, const std::vector<uint64_t>& b);
+/// Coarse totals of `parts` for DensityChange: cells of at most
+/// `max_resolution` per axis, x slowest.
+std::vector<uint64_t> CoarseCounts(const std::vector<const CountGrid*>& parts, int max_resolution);
+
+/// What to iterate and where to count it.
+struct ChaosGameParams {
+  Ifs ifs;
+  /// When set, the walk follows this chain over ifs.maps instead of drawing
+  /// maps independently with ifs.probabilities.
+  std::optional<MarkovChain> chain;
+  GridFrame frame;
+  /// Plotted steps in total, over all walkers (warm-up not included).
+  uint64_t iterations = 0;
+  /// Unplotted steps each walker takes first, and again after a re-seed.
+  uint32_t warmup = 100;
+  uint64_t seed = 0;
+  ColorParams color;
+  ConvergenceParams convergence;
+  /// Trilinear splatting: each plotted point spreads over the 8 voxels
+  /// whose centres surround it, with per-axis weights quantised to quarters,
+  /// so counts are in units of 1/kSplatScale visit.
+  bool splat = false;
+  /// SIMD level of the walk kernels; unset means ActiveSimd(). Never above
+  /// what the CPU has. Every level gives the same counts.
+  std::optional<SimdLevel> simd;
+  /// Bytes the accumulation may hold (0: no limit). A run whose counters
+  /// outgrow it stops with ResourceExhausted instead of exhausting the
+  /// machine: the safety net behind EstimateMemory.
+  uint64_t memory_budget = 0;
+};
+
+/// Count units per plotted point when splatting (4 x 4 x 4).
+inline constexpr uint32_t kSplatScale = 64;
+
+/// Counters a run reports; all exact and independent of the thread count.
+struct ChaosGameStats {
+  uint64_t iterations_done = 0;  // plotted-or-outside steps finished
+  uint64_t outside = 0;          // steps whose point fell outside the grid bounds
+  uint64_t reseeded = 0;         // walkers restarted after a non-finite point
+  uint64_t final_nonfinite = 0;  // plotted points the final transform made non-finite
+};
+
+/// @brief What a pilot run saw of the tiles a job touches (ChaosGame::Pilot).
+struct TileCensus {
+  uint64_t samples = 0;     // plotted steps of the pilot
+  uint64_t seen = 0;        // tiles hit at least once
+  uint64_t singletons = 0;  // tiles hit exactly once
+  uint64_t doubletons = 0;  // tiles hit exactly twice
+  /// Tiles a full run is expected to touch: the tiles seen plus the Chao1
+  /// estimate of tiles the pilot missed (singletons^2 / (2 doubletons)),
+  /// with a 25 % margin, grown by one tile around each when splatting.
+  uint64_t estimate = 0;
+};
+
+/// @brief Honest memory bounds of a chaos-game job, in bytes. Each plotted
+/// step touches one tile, so allocated tiles are bounded by both the grid
+/// and the number of iterations.
+struct ChaosGameMemory {
+  uint64_t accumulation = 0;  // all threads' counters and key buffers
+  uint64_t output = 0;        // merged counters plus the output VDB grids
+  uint64_t peak() const { return accumulation > output ? accumulation : output; }
+};
+
+/// @brief The chaos game, split into fixed chunks of work so that any number
+/// of threads produce the same counts: chunk c always runs the same walkers
+/// from the random stream (seed, c), and integer counts add up to the same
+/// totals in any order. Each thread accumulates into its own CountGrid
+/// (writes are deferred into key batches and binned by tile); the grids are
+/// merged at the end.
+///
+/// Run in rounds with RunUntil() so the caller can publish previews between
+/// rounds.
+class ChaosGame {
+ public:
+  /// Work unit: plotted steps per chunk (~5-10 ms on one core).
+  static constexpr uint64_t kChunkIterations = uint64_t{1} << 20;
+  /// Walkers per chunk, each with its own random stream (seed, chunk *
+  /// kWalkers + walker), so SIMD lanes and scalar code walk the same paths.
+  /// Walker k plots every kWalkers-th step of the chunk, starting at k.
+  static constexpr int kWalkers = 16;
+
+  /// Validates `params` (non-empty IFS, probabilities, chain shape).
+  static absl::StatusOr<std::unique_ptr<ChaosGame>> Create(ChaosGameParams params, int threads);
+  ~ChaosGame();
+
+  /// Runs chunks until at least `iterations` steps are done (whole chunks) or
+  /// the job is complete. Returns CancelledError if `interrupter` asks to stop.
+  absl::Status RunUntil(uint64_t iterations, Interrupter* interrupter);
+  /// Runs everything that is left.
+  absl::Status Run(Interrupter* interrupter) { return RunUntil(params_.iterations, interrupter); }
+
+  bool done() const { return next_chunk_ == num_chunks_; }
+  const ChaosGameParams& params() const { return params_; }
+  ChaosGameStats stats() const;
+
+  /// Per-thread partial counts, for previews between rounds (no merge).
+  const std::vector<CountGrid>& partial_counts() const { return counts_; }
+  /// Merges all threads' counts into one grid and returns it; the game is
+  /// spent afterwards.
+  CountGrid TakeCounts();
+
+  /// Worst-case memory of a run of `params` on `threads` threads;
+  /// `output_bytes_per_voxel` is what the output grids add per active voxel.
+  /// `tiles`, when non-zero, is a better bound on the tiles the job
+  /// touches (TileCensus::estimate) than the one from the maps' geometry.
+  static ChaosGameMemory EstimateMemory(const ChaosGameParams& params, int threads,
+                                        uint64_t output_bytes_per_voxel, uint64_t tiles = 0);
+  /// @brief Runs `samples` steps of `params` on a grid with one voxel per
+  /// tile of the real grid and counts the tiles hit. Cheap (a 2048^3 job's
+  /// pilot grid is 64^3); for jobs whose geometric bound is far above what a
+  /// thin attractor really touches.
+  static absl::StatusOr<TileCensus> Pilot(const ChaosGameParams& params, uint64_t samples,
+                                          Interrupter* interrupter);
+  /// True when `params` take the fast path: affine maps (drawn
+  /// independently or by a chain), no final transform, colour or splatting
+  /// (core/affine_walk.h).
+  static bool UsesFastPath(const ChaosGameParams& params);
+  /// Bytes currently held by the per-thread accumulators and buffers.
+  uint64_t MemoryBytes() const;
+
+ private:
+  ChaosGame(ChaosGameParams params, int threads);
+  struct Worker;
+  struct FastChunk;
+  void RunChunk(uint64_t chunk, Worker& worker);
+  // The fast path (UsesFastPath): the walk kernels of core/affine_walk.h
+  // write into per-thread TileBins. Same random streams and arithmetic as
+  // RunChunk, so the same counts.
+  void RunChunkFast(uint64_t chunk, Worker& worker);
+
+  ChaosGameParams params_;
+  int threads_;
+  uint64_t num_chunks_ = 0;
+  uint64_t next_chunk_ = 0;
+  std::vector<CountGrid> counts_;
+  std::vector<std::unique_ptr<Worker>> workers_;
+  // Precomputed sampling tables.
+  AliasTable map_table_;
+  std::vector<AliasTable> state_tables_;
+  bool fast_ = false;
+  SimdLevel simd_ = SimdLevel::kScalar;
+  std::vector<double> affine_coef_;  // 12 per map, for the fast path
+  // The chain as flat tables for the fast path (walk::ChainTables).
+  struct FlatChain {
+    std::vector<uint64_t> state, sample, step;
+  };
+  std::optional<FlatChain> flat_chain_;
+};
+
+}  // namespace nimbus

@@ -1,0 +1,106 @@
+#include "core/chaos/tile_bins.h"
+
+#include <algorithm>
+#include <bit>
+
+namespace nimbus {
+
+namespace {
+
+uint32_t ShiftFor(uint64_t tiles) {
+  uint32_t shift = 0;
+  while ((tiles >> shift) > TileBins::kMaxBins) ++shift;
+  return shift;
+}
+
+uint64_t TileCount(Int3 r) {
+  const auto tiles = [](int n) {
+    return uint64_t((n + CountGrid::kTileDim - 1) / CountGrid::kTileDim);
+  };
+  return tiles(r.x) * tiles(r.y) * tiles(r.z);
+}
+
+}  // namespace
+
+uint32_t TileBins::BlockSize(size_t capacity, size_t bins) {
+  // About four blocks per bin when every bin is busy: small enough that a
+  // thin fractal's few busy bins can take most of the pool, large enough
+  // that block hand-outs are rare.
+  const uint64_t per = std::max<uint64_t>(capacity / (4 * std::max<size_t>(bins, 1)), 1);
+  return uint32_t(std::clamp<uint64_t>(std::bit_floor(per), 256, 4096));
+}
+
+TileBins::TileBins(CountGrid& grid, size_t capacity) : grid_(grid) {
+  const uint64_t tiles = TileCount(grid.resolution());
+  shift_ = ShiftFor(tiles);
+  const size_t bins = size_t(((tiles - 1) >> shift_) + 1);
+  block_ = BlockSize(capacity, bins);
+  blocks_ = uint32_t(std::max<size_t>(capacity / block_, 1));
+  // Not value-initialised: pages are touched only as blocks fill.
+  pool_.reset(new uint32_t[size_t(blocks_) * block_]);
+  next_.assign(blocks_, -1);
+  head_.assign(bins, -1);
+  last_.assign(bins, -1);
+  cursors_.resize(bins);
+}
+
+void TileBins::Refill(uint32_t bin) {
+  if (used_ == blocks_) Flush();
+  const int32_t block = int32_t(used_++);
+  if (last_[bin] < 0)
+    head_[bin] = block;
+  else
+    next_[last_[bin]] = block;
+  last_[bin] = block;
+  next_[block] = -1;
+  uint32_t* begin = pool_.get() + size_t(block) * block_;
+  cursors_[bin] = {begin, begin + block_};
+}
+
+void TileBins::Apply(uint32_t bin, const uint32_t* begin, const uint32_t* end) {
+  if (shift_ == 0) {
+    uint32_t* tile = grid_.MutableTile(bin);
+    for (const uint32_t* e = begin; e != end; ++e) tile[*e]++;
+    return;
+  }
+  const uint64_t first = uint64_t(bin) << shift_;
+  uint32_t current = ~0u;
+  uint32_t* tile = nullptr;
+  for (const uint32_t* e = begin; e != end; ++e) {
+    const uint32_t t = *e >> 15;
+    if (t != current) {
+      current = t;
+      tile = grid_.MutableTile(first + t);
+    }
+    tile[*e & 0x7fff]++;
+  }
+}
+
+void TileBins::Flush() {
+  for (uint32_t bin = 0; bin < head_.size(); ++bin) {
+    for (int32_t b = head_[bin]; b >= 0; b = next_[b]) {
+      const uint32_t* begin = pool_.get() + size_t(b) * block_;
+      Apply(bin, begin, b == last_[bin] ? cursors_[bin].tail : begin + block_);
+    }
+    head_[bin] = last_[bin] = -1;
+    cursors_[bin] = {};
+  }
+  used_ = 0;
+}
+
+uint64_t TileBins::MemoryBytes() const {
+  return uint64_t(blocks_) * block_ * sizeof(uint32_t) + next_.capacity() * sizeof(int32_t) +
+         (head_.capacity() + last_.capacity()) * sizeof(int32_t) +
+         cursors_.capacity() * sizeof(walk::BinCursor);
+}
+
+uint64_t TileBins::Bytes(Int3 resolution, size_t capacity) {
+  const uint64_t tiles = TileCount(resolution);
+  const uint64_t bins = ((tiles - 1) >> ShiftFor(tiles)) + 1;
+  const uint32_t block = BlockSize(capacity, bins);
+  const uint64_t blocks = std::max<uint64_t>(capacity / block, 1);
+  return blocks * block * sizeof(uint32_t) + blocks * sizeof(int32_t) +
+         bins * (2 * sizeof(int32_t) + sizeof(walk::BinCursor));
+}
+
+}  // namespace nimbus

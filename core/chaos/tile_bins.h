@@ -1,0 +1,61 @@
+// Deferred, binned increments into a CountGrid: the write side of the fast
+// chaos-game path.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include "core/chaos/affine_walk.h"
+#include "core/grid/count_grid.h"
+
+namespace nimbus {
+
+/// @brief Collects voxel increments in per-tile bins as they are produced
+/// and applies them bin by bin, so each 128 KiB tile is pulled into L2 once
+/// per flush and then takes thousands of increments, instead of one cache
+/// miss per increment. Entries are 32-bit (see walk::AffineWalk) and live in
+/// blocks from a fixed pool; when the pool runs out every bin is applied and
+/// the pool starts over. Memory is fixed at construction.
+///
+/// Not thread-safe: one per thread, each over its thread's CountGrid.
+class TileBins {
+ public:
+  /// At most this many bins; larger grids put 2^shift tiles in a bin.
+  static constexpr uint32_t kMaxBins = 32768;
+
+  /// `capacity`: entries buffered before a flush (at least one block).
+  TileBins(CountGrid& grid, size_t capacity);
+
+  /// Cursors for walk::AffineWalk::bins and the shift that goes with them.
+  walk::BinCursor* cursors() { return cursors_.data(); }
+  uint32_t bin_shift() const { return shift_; }
+
+  /// Gives `bin` a fresh block, flushing everything first if the pool is
+  /// empty (walk::AffineWalk::refill).
+  void Refill(uint32_t bin);
+  /// Applies every buffered entry to the grid.
+  void Flush();
+
+  /// Bytes held: the pool and the bookkeeping.
+  uint64_t MemoryBytes() const;
+  /// What MemoryBytes() will be for a grid of `resolution` and `capacity`.
+  static uint64_t Bytes(Int3 resolution, size_t capacity);
+
+ private:
+  static uint32_t BlockSize(size_t capacity, size_t bins);
+  void Apply(uint32_t bin, const uint32_t* begin, const uint32_t* end);
+
+  CountGrid& grid_;
+  uint32_t shift_ = 0;
+  uint32_t block_ = 0;   // entries per block
+  uint32_t blocks_ = 0;  // blocks in the pool
+  uint32_t used_ = 0;    // blocks handed out since the last flush
+  std::unique_ptr<uint32_t[]> pool_;
+  std::vector<int32_t> next_;         // per block: the bin's next block, or -1
+  std::vector<int32_t> head_, last_;  // per bin: first and current block, or -1
+  std::vector<walk::BinCursor> cursors_;
+};
+
+}  // namespace nimbus

@@ -1,0 +1,148 @@
+#include "core/grid/count_grid.h"
+
+#include <algorithm>
+#include <cstring>
+#include <limits>
+#include <new>
+
+namespace nimbus {
+
+namespace {
+int CeilDiv(int a, int b) { return (a + b - 1) / b; }
+}  // namespace
+
+CountGrid::CountGrid(Int3 resolution, bool with_color)
+    : res_(resolution),
+      tiles_{CeilDiv(resolution.x, kTileDim), CeilDiv(resolution.y, kTileDim),
+             CeilDiv(resolution.z, kTileDim)},
+      with_color_(with_color),
+      table_(size_t(tiles_.x) * tiles_.y * tiles_.z) {
+  if (with_color_) color_.resize(table_.size());
+}
+
+CountGrid::CountGrid(CountGrid&&) noexcept = default;
+CountGrid& CountGrid::operator=(CountGrid&&) noexcept = default;
+CountGrid::~CountGrid() = default;
+
+uint32_t* CountGrid::Allocate(uint64_t tile) {
+  if (tile_limit_ > 0 && allocated_ >= tile_limit_) {
+    overflowed_ = true;
+    if (!spill_) {
+      spill_ = ZeroTile<uint32_t>();
+      if (with_color_) spill_color_ = ZeroTile<uint64_t>();
+    }
+    return spill_.get();
+  }
+  table_[tile] = ZeroTile<uint32_t>();
+  if (with_color_) color_[tile] = ZeroTile<uint64_t>();
+  if (!table_[tile] || (with_color_ && !color_[tile])) throw std::bad_alloc();
+  ++allocated_;
+  return table_[tile].get();
+}
+
+void CountGrid::AddKeys(const uint64_t* keys, size_t n, std::vector<uint64_t>& scratch,
+                        bool weighted) {
+  // Small batches or tiny grids gain nothing from binning.
+  if (n < 4096 || table_.size() <= 8) {
+    for (size_t i = 0; i < n; ++i) AddKey(keys[i]);
+    return;
+  }
+  // One counting-sort pass on the tile index, bucketed to at most 1024 bins,
+  // then apply bin by bin: each bin touches few tiles, which stay in L2.
+  const size_t tiles = table_.size();
+  int shift = 0;
+  while ((tiles >> shift) > 1024) ++shift;
+  const size_t bins = (tiles >> shift) + 1;
+  const int bin_shift = 15 + shift;
+  offsets_.assign(bins + 1, 0);
+  for (size_t i = 0; i < n; ++i) offsets_[((keys[i] & kVoxelMask) >> bin_shift) + 1]++;
+  for (size_t b = 0; b < bins; ++b) offsets_[b + 1] += offsets_[b];
+  if (scratch.size() < n) scratch.resize(n);
+  cursor_.assign(offsets_.begin(), offsets_.end() - 1);
+  for (size_t i = 0; i < n; ++i) scratch[cursor_[(keys[i] & kVoxelMask) >> bin_shift]++] = keys[i];
+  if (with_color_) {
+    for (size_t i = 0; i < n; ++i) AddKey(scratch[i]);
+    return;
+  }
+  // Count-only fast path: resolve the tile once per run of equal tiles.
+  size_t i = 0;
+  while (i < n) {
+    const uint64_t tile = (scratch[i] & kVoxelMask) >> 15;
+    uint32_t* t = TileFor(tile);
+    size_t j = i;
+    if (weighted) {
+      for (; j < n && ((scratch[j] & kVoxelMask) >> 15) == tile; ++j)
+        t[scratch[j] & 0x7fff] += WeightOf(scratch[j]);
+    } else {
+      for (; j < n && (scratch[j] >> 15) == tile; ++j) t[scratch[j] & 0x7fff]++;
+    }
+    i = j;
+  }
+}
+
+uint32_t CountGrid::Get(int x, int y, int z) const {
+  const uint64_t key = Key(x, y, z);
+  const auto& t = table_[key >> 15];
+  return t ? t[key & 0x7fff] : 0;
+}
+
+uint64_t CountGrid::GetColorSum(int x, int y, int z) const {
+  if (!with_color_) return 0;
+  const uint64_t key = Key(x, y, z);
+  const auto& t = color_[key >> 15];
+  return t ? t[key & 0x7fff] : 0;
+}
+
+void CountGrid::Merge(const CountGrid& other) {
+  for (size_t t = 0; t < other.table_.size(); ++t) {
+    if (!other.table_[t]) continue;
+    if (!table_[t]) Allocate(t);
+    if (with_color_ && other.with_color_) {
+      uint64_t* dst = color_[t].get();
+      const uint64_t* src = other.color_[t].get();
+      for (int i = 0; i < kTileVoxels; ++i) dst[i] += src[i];
+    }
+    uint32_t* dst = table_[t].get();
+    const uint32_t* src = other.table_[t].get();
+    for (int i = 0; i < kTileVoxels; ++i) {
+      const uint64_t s = uint64_t(dst[i]) + src[i];
+      dst[i] = s > std::numeric_limits<uint32_t>::max() ? std::numeric_limits<uint32_t>::max()
+                                                        : uint32_t(s);
+    }
+  }
+}
+
+uint64_t CountGrid::Total() const {
+  uint64_t total = 0;
+  ForEachTile([&](Int3, const uint32_t* t) {
+    for (int i = 0; i < kTileVoxels; ++i) total += t[i];
+  });
+  return total;
+}
+
+uint32_t CountGrid::Max() const {
+  uint32_t m = 0;
+  ForEachTile(
+      [&](Int3, const uint32_t* t) { m = std::max(m, *std::max_element(t, t + kTileVoxels)); });
+  return m;
+}
+
+size_t CountGrid::MemoryBytes() const {
+  return table_.size() * sizeof(table_[0]) * (with_color_ ? 2 : 1) +
+         allocated_ * TileBytes(with_color_);
+}
+
+uint64_t CountGrid::BoundedMemoryBytes(Int3 r, uint64_t max_tiles, bool with_color) {
+  const uint64_t tiles =
+      uint64_t(CeilDiv(r.x, kTileDim)) * CeilDiv(r.y, kTileDim) * CeilDiv(r.z, kTileDim);
+  return tiles * sizeof(void*) * (with_color ? 2 : 1) +
+         std::min(tiles, max_tiles) * TileBytes(with_color);
+}
+
+uint64_t CountGrid::MaxMemoryBytes(Int3 r) {
+  const uint64_t tiles =
+      uint64_t(CeilDiv(r.x, kTileDim)) * CeilDiv(r.y, kTileDim) * CeilDiv(r.z, kTileDim);
+  return tiles * (sizeof(void*) + sizeof(uint32_t) * kTileVoxels);
+}
+
+}  // namespace nimbus

@@ -1,0 +1,182 @@
+// Sparse integer visit counters over a GridFrame: the accumulator of every
+// chaos game and set iteration.
+#pragma once
+
+#include <cstdint>
+#include <cstdlib>
+#include <memory>
+#include <vector>
+
+#include "core/base/geometry.h"
+
+namespace nimbus {
+
+/// @brief Sparse uint32 counters on a voxel lattice, stored as lazily
+/// allocated 32^3 tiles (128 KiB, an eighth of this machine's L2), so memory
+/// follows the active region and a binned batch of increments to one tile
+/// stays in cache. Inside a tile, 8^3 leaves are laid out in OpenVDB's
+/// LeafNode order so conversion to a VDB tree copies whole leaves.
+///
+/// Optionally each voxel also carries a colour sum: the exact integer sum
+/// of the 16-bit fixed-point colour coordinates of its visits, so colour
+/// adds up order-independently (bitwise reproducible for any thread count).
+///
+/// Not thread-safe: each thread owns one CountGrid and they are merged.
+class CountGrid {
+ public:
+  static constexpr int kTileLog2 = 5;
+  static constexpr int kTileDim = 1 << kTileLog2;  // 32
+  static constexpr int kTileVoxels = kTileDim * kTileDim * kTileDim;
+  static constexpr int kLeafDim = 8;
+
+  /// Colour coordinates are quantised to this many levels (16 bits).
+  static constexpr uint32_t kColorScale = 65535;
+  static constexpr int kColorShift = 48;
+  /// Keys may carry a weight (for trilinear splatting) in bits 40..45,
+  /// stored as weight - 1 so plain keys weigh 1.
+  static constexpr int kWeightShift = 40;
+  static constexpr uint32_t kMaxWeight = 64;
+  static constexpr uint64_t kVoxelMask = (uint64_t{1} << kWeightShift) - 1;
+
+  explicit CountGrid(Int3 resolution, bool with_color = false);
+  CountGrid(CountGrid&&) noexcept;
+  CountGrid& operator=(CountGrid&&) noexcept;
+  ~CountGrid();
+
+  Int3 resolution() const { return res_; }
+  Int3 tiles() const { return tiles_; }
+
+  /// Packs a voxel into a key: tile index << 15 | offset inside the tile.
+  uint64_t Key(int x, int y, int z) const {
+    const uint64_t tile =
+        (uint64_t(x >> kTileLog2) * tiles_.y + uint64_t(y >> kTileLog2)) * tiles_.z +
+        uint64_t(z >> kTileLog2);
+    return (tile << 15) | LocalOffset(x & 31, y & 31, z & 31);
+  }
+  static uint32_t LocalOffset(int lx, int ly, int lz) {
+    // leaf (lx>>3, ly>>3, lz>>3) then OpenVDB's (x<<6 | y<<3 | z) in the leaf.
+    return (uint32_t(((lx >> 3) << 4) | ((ly >> 3) << 2) | (lz >> 3)) << 9) |
+           uint32_t(((lx & 7) << 6) | ((ly & 7) << 3) | (lz & 7));
+  }
+
+  /// A key with a quantised colour coordinate (0..kColorScale) attached.
+  static uint64_t WithColor(uint64_t key, uint32_t color16) {
+    return key | (uint64_t(color16) << kColorShift);
+  }
+  bool has_color() const { return with_color_; }
+  /// A key with a weight in 1..kMaxWeight attached.
+  static uint64_t WithWeight(uint64_t key, uint32_t weight) {
+    return key | (uint64_t(weight - 1) << kWeightShift);
+  }
+  static uint32_t WeightOf(uint64_t key) { return uint32_t((key >> kWeightShift) & 63) + 1; }
+
+  /// Adds `n` times the key's weight to the voxel with this key (and as
+  /// many times its colour).
+  void AddKey(uint64_t key, uint32_t n = 1) {
+    const uint64_t tile = (key & kVoxelMask) >> 15;
+    const uint32_t off = uint32_t(key & 0x7fff);
+    const uint32_t add = n * WeightOf(key);
+    TileFor(tile)[off] += add;
+    if (with_color_) ColorTileFor(tile)[off] += uint64_t(add) * (key >> kColorShift);
+  }
+  void Add(int x, int y, int z, uint32_t n = 1) { AddKey(Key(x, y, z), n); }
+  /// Adds a batch of keys. Keys are binned by tile first so each tile's
+  /// increments run in cache; `scratch` is reused between calls. Pass
+  /// `weighted` if any key carries a weight or colour.
+  void AddKeys(const uint64_t* keys, size_t n, std::vector<uint64_t>& scratch,
+               bool weighted = true);
+
+  /// The counters of tile `tile` (allocated on first use), indexed by
+  /// LocalOffset: for writers that bin their own increments.
+  uint32_t* MutableTile(uint64_t tile) { return TileFor(tile); }
+
+  uint32_t Get(int x, int y, int z) const;
+  /// Sum of the colour coordinates (units of 1/kColorScale); 0 without colour.
+  uint64_t GetColorSum(int x, int y, int z) const;
+
+  /// Adds every counter of `other` (same resolution), saturating at 2^32-1.
+  void Merge(const CountGrid& other);
+  /// Sum of all counters and the largest counter.
+  uint64_t Total() const;
+  uint32_t Max() const;
+  size_t AllocatedTiles() const { return allocated_; }
+  /// Caps the tiles this grid allocates (0: no cap). Increments to tiles
+  /// beyond the cap land in a scratch tile and set overflowed(): the owner
+  /// then abandons the run instead of running the machine out of memory.
+  void SetTileLimit(size_t max_tiles) { tile_limit_ = max_tiles; }
+  bool overflowed() const { return overflowed_; }
+  size_t MemoryBytes() const;
+  /// Worst-case bytes for a grid of this resolution (every tile allocated).
+  static uint64_t MaxMemoryBytes(Int3 resolution);
+  /// Bytes of one allocated tile (counts, plus colour sums if enabled).
+  static uint64_t TileBytes(bool with_color) {
+    return uint64_t(kTileVoxels) * (sizeof(uint32_t) + (with_color ? sizeof(uint64_t) : 0));
+  }
+  /// Bytes for a grid whose allocated tiles are bounded by `max_tiles`.
+  static uint64_t BoundedMemoryBytes(Int3 resolution, uint64_t max_tiles, bool with_color);
+
+  /// Calls f(tile_origin, const uint32_t* tile) for every allocated tile,
+  /// in tile-index order (deterministic).
+  template <typename F>
+  void ForEachTile(F&& f) const {
+    for (size_t t = 0; t < table_.size(); ++t)
+      if (table_[t]) f(TileOrigin(t), table_[t].get());
+  }
+  /// Same, with the tile's colour sums (nullptr without colour).
+  template <typename F>
+  void ForEachTileWithColor(F&& f) const {
+    for (size_t t = 0; t < table_.size(); ++t)
+      if (table_[t]) f(TileOrigin(t), table_[t].get(), with_color_ ? color_[t].get() : nullptr);
+  }
+  Int3 TileOrigin(size_t t) const {
+    const int z = int(t % tiles_.z), y = int((t / tiles_.z) % tiles_.y),
+              x = int(t / (size_t(tiles_.z) * tiles_.y));
+    return {x * kTileDim, y * kTileDim, z * kTileDim};
+  }
+  /// Voxel coordinates (relative to its tile's origin) of a local offset.
+  static Int3 LocalCoord(uint32_t offset) {
+    const uint32_t leaf = offset >> 9, v = offset & 511;
+    return {int(((leaf >> 4) & 3) * 8 + (v >> 6)), int(((leaf >> 2) & 3) * 8 + ((v >> 3) & 7)),
+            int((leaf & 3) * 8 + (v & 7))};
+  }
+
+ private:
+  uint32_t* TileFor(uint64_t tile) {
+    auto& p = table_[tile];
+    if (!p) [[unlikely]]
+      return Allocate(tile);
+    return p.get();
+  }
+  uint64_t* ColorTileFor(uint64_t tile) {
+    auto& p = color_[tile];
+    return p ? p.get() : spill_color_.get();  // null only past the tile limit
+  }
+  // Allocates the tile, or returns the scratch tile past the limit.
+  uint32_t* Allocate(uint64_t tile);
+
+  Int3 res_;
+  Int3 tiles_;
+  bool with_color_ = false;
+  // Tiles come from calloc: fresh pages are already zero, so a new tile
+  // costs no memset on top of the kernel's page clearing.
+  struct Free {
+    void operator()(void* p) const { std::free(p); }
+  };
+  template <typename T>
+  using TilePtr = std::unique_ptr<T[], Free>;
+  template <typename T>
+  static TilePtr<T> ZeroTile() {
+    return TilePtr<T>(static_cast<T*>(std::calloc(kTileVoxels, sizeof(T))));
+  }
+
+  std::vector<TilePtr<uint32_t>> table_;
+  std::vector<TilePtr<uint64_t>> color_;    // parallel to table_ when with_color_
+  std::vector<uint32_t> offsets_, cursor_;  // AddKeys binning, reused
+  size_t allocated_ = 0;
+  size_t tile_limit_ = 0;
+  bool overflowed_ = false;
+  TilePtr<uint32_t> spill_;  // the scratch tile, once needed
+  TilePtr<uint64_t> spill_color_;
+};
+
+}  // namespace nimbus

@@ -1,0 +1,40 @@
+// Colour palettes: a scalar colour coordinate in [0, 1] to an RGB colour.
+#pragma once
+
+#include <vector>
+
+#include "core/base/geometry.h"
+
+namespace nimbus {
+
+/// One stop of a gradient palette.
+struct PaletteStop {
+  double position = 0;  // in [0, 1], stops sorted by position
+  Vec3 rgb;             // linear RGB
+};
+
+/// @brief Maps a colour coordinate t in [0, 1] to RGB. The default is the
+/// seed's sine palette (ALGORITHMS.md section 5) with a = 2*pi*t, so the
+/// palette runs through one full period over the coordinate's range:
+///   r = 0.4 + 0.25 sin(0.5 + a), g = 0.6 + 0.25 sin(0.9 + a),
+///   b = 0.7 + 0.25 sin(1.3 + a).
+/// With stops it is the piecewise-linear gradient through them, clamped to
+/// the first and last stop outside their positions.
+class Palette {
+ public:
+  /// The sine palette.
+  Palette() = default;
+  /// A gradient; `stops` must be non-empty and sorted by position.
+  explicit Palette(std::vector<PaletteStop> stops) : stops_(std::move(stops)) {}
+
+  Vec3 Eval(double t) const;
+  bool is_sine() const { return stops_.empty(); }
+  /// Per-channel bounds of every colour Eval can return.
+  Vec3 MinColor() const;
+  Vec3 MaxColor() const;
+
+ private:
+  std::vector<PaletteStop> stops_;
+};
+
+}  // namespace nimbus

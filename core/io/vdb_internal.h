@@ -1,0 +1,37 @@
+// OpenVDB helpers shared by core's .cc files. This header includes OpenVDB,
+// so only .cc files may include it, never a public header.
+#pragma once
+
+#include <openvdb/openvdb.h>
+
+#include <filesystem>
+#include <string>
+
+#include "absl/status/status.h"
+#include "core/base/geometry.h"
+
+namespace nimbus::vdb_internal {
+
+/// openvdb::initialize(), once per process.
+void InitOpenVdb();
+/// The transform of a GridFrame: voxel centres at integer index coordinates.
+openvdb::math::Transform::Ptr FrameTransform(const GridFrame& frame);
+/// Records the frame (nimbus_resolution, nimbus_bounds_min/max) on a grid,
+/// so readers can rebuild the dense lattice.
+void SetFrameMetadata(openvdb::GridBase& grid, const GridFrame& frame);
+/// Every grid of a .vdb file. Throws OpenVDB's exceptions; callers turn
+/// them into statuses.
+openvdb::GridPtrVecPtr ReadAllGrids(const std::filesystem::path& path);
+/// Writes `grids` (Blosc) to `path` + ".partial", stamps the content UUID
+/// and renames it into place, so readers never see a half-written file.
+/// Removes the partial file on failure.
+absl::Status WriteGridsAtomically(const std::filesystem::path& path,
+                                  const openvdb::GridPtrVec& grids);
+/// OpenVDB writes a random UUID into every file; these replace it with one
+/// derived from the SHA-256 of the rest of the file, so the same grids give
+/// the same bytes. The UUID only tells readers whether two files are the
+/// same, which a content hash says truthfully.
+absl::Status StampContentUuid(const std::filesystem::path& path);
+void StampContentUuid(std::string& bytes);
+
+}  // namespace nimbus::vdb_internal

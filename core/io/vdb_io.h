@@ -1,0 +1,114 @@
+// Conversion of visit counts to OpenVDB fog volumes, and VDB file/byte I/O.
+// OpenVDB stays behind this header (pimpl-free: only core types cross it).
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <string>
+#include <utility>
+#include <variant>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "core/grid/count_grid.h"
+#include "core/base/geometry.h"
+#include "core/grid/palette.h"
+
+namespace nimbus {
+
+/// How visit counts become density values before normalisation to [0, 1].
+enum class DensityMapping {
+  kLinear,  // c / max
+  kSqrt,    // sqrt(c / max)
+  kLog,     // log(1 + c) / log(1 + max), flame-style
+  kGamma,   // (c / max)^(1 / gamma)
+};
+
+/// Unnormalised visit counts written next to the density, for compositing
+/// shards (sum the count grids, then map).
+enum class RawCounts {
+  kNone,
+  kFloat,    // FloatGrid "counts" (exact up to 2^24 per voxel)
+  kInteger,  // Int64Grid "counts" (exact uint32 counts)
+};
+
+struct DensityOptions {
+  DensityMapping mapping = DensityMapping::kLinear;
+  double gamma = 2.2;
+  std::string grid_name = "density";
+  /// Write a Vec3f grid "Cd" = palette(mean colour coordinate) for counts
+  /// that carry colour sums.
+  bool color = false;
+  Palette palette;
+  /// Write a float grid "address" with the mean colour coordinate in [0, 1].
+  bool address_grid = false;
+  RawCounts raw_counts = RawCounts::kNone;
+};
+
+/// Bytes per active voxel the output grids of `options` take in memory.
+uint64_t OutputBytesPerVoxel(const DensityOptions& options);
+
+using MetaValue = std::variant<std::string, int64_t, double>;
+using Metadata = std::vector<std::pair<std::string, MetaValue>>;
+
+/// Writes `counts` as a FloatGrid (fog volume, max value 1) whose transform
+/// maps voxels onto `frame.bounds`, Blosc-compressed, through a temporary
+/// file renamed into place so readers never see a partial file. The grid
+/// also records nimbus_resolution / nimbus_bounds_min / nimbus_bounds_max and
+/// the normalisation (nimbus_max_count, nimbus_total_count,
+/// nimbus_density_mapping, nimbus_density_gamma). Optional grids: "Cd",
+/// "address" and "counts" (see DensityOptions), on the same voxels.
+absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid& counts,
+                             const GridFrame& frame, const DensityOptions& options,
+                             const Metadata& metadata);
+
+/// Same grid as WriteDensityVdb, serialised to bytes (a VDB stream).
+absl::StatusOr<std::string> DensityVdbBytes(const CountGrid& counts, const GridFrame& frame,
+                                            const DensityOptions& options,
+                                            const Metadata& metadata);
+
+/// @brief A float grid read back into a dense array, x slowest, z fastest.
+struct DenseVolume {
+  std::string name;
+  GridFrame frame;
+  std::string grid_class;  // "fog volume", ...
+  std::vector<float> values;
+  Metadata metadata;
+  /// World-space position of voxel (0,0,0)'s centre and voxel size, from the
+  /// grid's transform (independent of the metadata).
+  Vec3 origin_center;
+  Vec3 voxel_size;
+
+  float At(int x, int y, int z) const {
+    return values[(size_t(x) * frame.resolution.y + y) * frame.resolution.z + z];
+  }
+  const MetaValue* Find(const std::string& key) const;
+};
+
+/// @brief A Vec3f grid read back densely (x slowest, z fastest).
+struct DenseVec3Volume {
+  Int3 resolution;
+  std::vector<Vec3> values;
+  std::vector<bool> active;
+  const Vec3& At(int x, int y, int z) const {
+    return values[(size_t(x) * resolution.y + y) * resolution.z + z];
+  }
+};
+/// Reads Vec3f grid `name` (e.g. "Cd"), using the density grid's frame.
+absl::StatusOr<DenseVec3Volume> ReadVec3VdbFile(const std::filesystem::path& path,
+                                                const std::string& name = "Cd");
+
+/// Reads grid `name` of a Nimbus VDB file (or stream bytes) into a DenseVolume.
+absl::StatusOr<DenseVolume> ReadVdbFile(const std::filesystem::path& path,
+                                        const std::string& name = "density");
+absl::StatusOr<DenseVolume> ReadVdbBytes(const std::string& bytes,
+                                         const std::string& name = "density");
+
+/// Sums `parts` into a grid coarser by `factor` per axis, for previews.
+CountGrid DownsampleCounts(const std::vector<const CountGrid*>& parts, int factor);
+/// The coarse frame matching DownsampleCounts(…, factor).
+GridFrame DownsampleFrame(const GridFrame& frame, int factor);
+/// The smallest factor that brings every axis to at most `max_resolution`.
+int DownsampleFactor(Int3 resolution, int max_resolution);
+
+}  // namespace nimbus

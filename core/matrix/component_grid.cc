@@ -1,0 +1,133 @@
+#include "core/matrix/component_grid.h"
+
+#include <openvdb/openvdb.h>
+
+#include <mutex>
+
+#include "absl/strings/str_cat.h"
+#include "core/io/vdb_internal.h"
+
+namespace nimbus {
+
+ComponentAccumulator::ComponentAccumulator(Int3 resolution)
+    : density_(resolution), best_(resolution), label_plus_one_(resolution) {}
+
+void ComponentAccumulator::Add(int32_t label, const CountGrid& counts) {
+  density_.Merge(counts);
+  counts.ForEachTile([&](Int3 origin, const uint32_t* tile) {
+    for (uint32_t i = 0; i < uint32_t(CountGrid::kTileVoxels); ++i) {
+      const uint32_t c = tile[i];
+      if (c == 0) continue;
+      const Int3 l = CountGrid::LocalCoord(i);
+      const int x = origin.x + l.x, y = origin.y + l.y, z = origin.z + l.z;
+      const uint32_t best = best_.Get(x, y, z);
+      if (c <= best) continue;
+      // CountGrid only adds, so store the differences.
+      best_.Add(x, y, z, c - best);
+      // Counters are modular uint32, so adding the difference also lowers.
+      const uint32_t old = label_plus_one_.Get(x, y, z);
+      const uint32_t want = uint32_t(label) + 1;
+      if (want != old) label_plus_one_.Add(x, y, z, want - old);
+    }
+  });
+}
+
+int32_t ComponentAccumulator::LabelAt(int x, int y, int z) const {
+  return int32_t(label_plus_one_.Get(x, y, z)) - 1;
+}
+
+std::vector<uint64_t> ComponentAccumulator::VoxelsPerLabel() const {
+  std::vector<uint64_t> out;
+  ForEachLabel([&](int, int, int, int32_t label) {
+    if (size_t(label) >= out.size()) out.resize(size_t(label) + 1, 0);
+    ++out[size_t(label)];
+  });
+  return out;
+}
+
+uint64_t ComponentAccumulator::MaxMemoryBytes(Int3 resolution) {
+  return 3 * CountGrid::MaxMemoryBytes(resolution);
+}
+
+namespace {
+
+template <typename GridT>
+typename GridT::Ptr BuildComponentGrid(const ComponentAccumulator& acc, const GridFrame& frame) {
+  using ValueT = typename GridT::ValueType;
+  auto grid = GridT::create(ValueT(-1));
+  grid->setName("component");
+  grid->setGridClass(openvdb::GRID_UNKNOWN);
+  grid->setTransform(vdb_internal::FrameTransform(frame));
+  auto accessor = grid->getAccessor();
+  acc.ForEachLabel([&](int x, int y, int z, int32_t label) {
+    accessor.setValueOn(openvdb::Coord(x, y, z), ValueT(label));
+  });
+  vdb_internal::SetFrameMetadata(*grid, frame);
+  grid->insertMeta("nimbus_component_labels",
+                   openvdb::StringMetadata("selection index of the dominant component; -1 none"));
+  return grid;
+}
+
+}  // namespace
+
+absl::Status WriteDensityAndComponentVdb(const std::filesystem::path& path,
+                                         const ComponentAccumulator& acc, const GridFrame& frame,
+                                         const DensityOptions& options, ComponentGridType type,
+                                         const Metadata& metadata) {
+  if (type == ComponentGridType::kNone)
+    return WriteDensityVdb(path, acc.density(), frame, options, metadata);
+  vdb_internal::InitOpenVdb();
+  // The density grid comes from vdb_io so both writers agree bit for bit;
+  // it is written to a side file, read back and joined with the labels.
+  const std::filesystem::path density_tmp = path.string() + ".density.partial";
+  if (auto st = WriteDensityVdb(density_tmp, acc.density(), frame, options, metadata); !st.ok())
+    return st;
+  openvdb::GridPtrVecPtr grids;
+  std::error_code ec;
+  try {
+    grids = vdb_internal::ReadAllGrids(density_tmp);
+    if (type == ComponentGridType::kInt)
+      grids->push_back(BuildComponentGrid<openvdb::Int32Grid>(acc, frame));
+    else
+      grids->push_back(BuildComponentGrid<openvdb::FloatGrid>(acc, frame));
+  } catch (const std::exception& e) {
+    std::filesystem::remove(density_tmp, ec);
+    return absl::InternalError(absl::StrCat("writing ", path.string(), ": ", e.what()));
+  }
+  std::filesystem::remove(density_tmp, ec);
+  return vdb_internal::WriteGridsAtomically(path, *grids);
+}
+
+absl::StatusOr<std::vector<int32_t>> ReadComponentGrid(const std::filesystem::path& path,
+                                                       Int3 resolution) {
+  vdb_internal::InitOpenVdb();
+  std::vector<int32_t> out(size_t(resolution.Volume()), -1);
+  auto put = [&](const openvdb::Coord& c, int32_t v) -> absl::Status {
+    if (c.x() < 0 || c.y() < 0 || c.z() < 0 || c.x() >= resolution.x || c.y() >= resolution.y ||
+        c.z() >= resolution.z)
+      return absl::DataLossError("component voxel outside the resolution");
+    out[(size_t(c.x()) * resolution.y + c.y()) * resolution.z + c.z()] = v;
+    return absl::OkStatus();
+  };
+  try {
+    auto grids = vdb_internal::ReadAllGrids(path);
+    for (const auto& g : *grids) {
+      if (g->getName() != "component") continue;
+      if (auto ig = openvdb::gridPtrCast<openvdb::Int32Grid>(g)) {
+        for (auto it = ig->cbeginValueOn(); it; ++it)
+          if (auto st = put(it.getCoord(), *it); !st.ok()) return st;
+        return out;
+      }
+      if (auto fg = openvdb::gridPtrCast<openvdb::FloatGrid>(g)) {
+        for (auto it = fg->cbeginValueOn(); it; ++it)
+          if (auto st = put(it.getCoord(), int32_t(*it)); !st.ok()) return st;
+        return out;
+      }
+    }
+  } catch (const std::exception& e) {
+    return absl::InvalidArgumentError(absl::StrCat("reading ", path.string(), ": ", e.what()));
+  }
+  return absl::NotFoundError(absl::StrCat(path.string(), ": no grid named 'component'"));
+}
+
+}  // namespace nimbus

@@ -1,0 +1,277 @@
+#include "core/sets/feature_transform.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <limits>
+
+#include "absl/strings/str_cat.h"
+
+namespace nimbus {
+namespace {
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+
+// Per-thread buffers for one line of a pass.
+struct LineScratch {
+  std::vector<int> pos;        // site positions along the line
+  std::vector<double> g;       // site costs from earlier axes (scratch)
+  std::vector<PackedVoxel> f;  // site features
+  std::vector<int> hull;       // envelope: indices into the site arrays
+  void Reserve(int n) {
+    pos.resize(n);
+    g.resize(n);
+    f.resize(n);
+    hull.resize(n);
+  }
+};
+
+// Lower envelope of the parabolas g_i + w (q - pos_i)^2 for m sites in
+// increasing position, then the winning feature for every position q in
+// [q0, q0 + n), written to out[(q - q0) * stride]. Positions are lattice
+// coordinates, not box-relative ones, so a line computed inside any box
+// does the same floating-point operations and breaks ties the same way. Works on c_i = g_i + w
+// pos_i^2 and cross-multiplied intersection tests (no divisions: they dominated the pass). Equal
+// curvatures mean the rightmost site always wins far enough right, so each new site is pushed after
+// popping the ones it hides.
+void EnvelopeLine(LineScratch& s, int m, double w, int q0, int n, PackedVoxel* out, size_t stride) {
+  double* c = s.g.data();
+  const int* p = s.pos.data();
+  for (int i = 0; i < m; ++i) c[i] += w * double(p[i]) * p[i];
+  int* hull = s.hull.data();
+  int k = 0;
+  hull[0] = 0;
+  for (int i = 1; i < m; ++i) {
+    // Pop hull[k] while the new parabola overtakes it no later than
+    // hull[k] overtakes hull[k - 1].
+    while (k > 0) {
+      const int u = hull[k - 1], v = hull[k];
+      if ((c[v] - c[u]) * double(p[i] - p[v]) < (c[i] - c[v]) * double(p[v] - p[u])) break;
+      --k;
+    }
+    hull[++k] = i;
+  }
+  int h = 0;
+  for (int i = 0; i < n; ++i) {
+    const int q = q0 + i;
+    // Advance while the next parabola is strictly lower at q.
+    while (h < k && c[hull[h + 1]] - c[hull[h]] < 2.0 * w * q * double(p[hull[h + 1]] - p[hull[h]]))
+      ++h;
+    out[size_t(i) * stride] = s.f[hull[h]];
+  }
+}
+
+int Square(int v) { return v * v; }
+
+}  // namespace
+
+absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
+                                     const FeatureTransformOptions& options, FeatureField& out,
+                                     Interrupter* interrupter) {
+  const Int3 res = set.resolution();
+  if (!(h.x > 0 && h.y > 0 && h.z > 0) || !IsFinite(h))
+    return absl::InvalidArgumentError("feature transform: voxel sizes must be positive");
+  VoxelBox box = options.box.value_or(VoxelBox{{0, 0, 0}, {res.x - 1, res.y - 1, res.z - 1}});
+  if (box.min.x < 0 || box.min.y < 0 || box.min.z < 0 || box.max.x >= res.x || box.max.y >= res.y ||
+      box.max.z >= res.z || box.min.x > box.max.x || box.min.y > box.max.y ||
+      box.min.z > box.max.z) {
+    return absl::InvalidArgumentError("feature transform: box outside the lattice");
+  }
+  const std::optional<VoxelBox> members = set.BoundingBox();
+  if (members) box = VoxelBox::Hull(box, *members);
+  out.box = box;
+  const Int3 b = box.Size();
+  const size_t total = size_t(b.x) * b.y * b.z;
+  out.nearest.resize(total);
+  if (!members) {
+    std::fill(out.nearest.begin(), out.nearest.end(), kNoVoxel);
+    return absl::OkStatus();
+  }
+
+  const double wx = h.x * h.x, wy = h.y * h.y, wz = h.z * h.z;
+  const int x0 = box.min.x, y0 = box.min.y, z0 = box.min.z;
+  const size_t plane = size_t(b.x) * b.y;
+  PackedVoxel* const F = out.nearest.data();
+
+  // Which lines the last two passes must produce. need_x: x columns any
+  // query uses; need_xy[y][x]: (x, y) columns along z holding a query.
+  std::vector<uint8_t> need_x, need_xy;
+  if (options.queries) {
+    need_x.assign(b.x, 0);
+    need_xy.assign(size_t(b.x) * b.y, 0);
+    const VoxelSet& q = *options.queries;
+    for (int z = box.min.z; z <= box.max.z; ++z)
+      for (int y = box.min.y; y <= box.max.y; ++y) {
+        const uint64_t* row = q.Row(y, z);
+        for (int w = x0 >> 6; w <= box.max.x >> 6; ++w)
+          for (uint64_t bits = row[w]; bits; bits &= bits - 1) {
+            const int x = (w << 6) + std::countr_zero(bits);
+            if (x < x0 || x > box.max.x) continue;
+            need_x[x - x0] = 1;
+            need_xy[size_t(y - y0) * b.x + (x - x0)] = 1;
+          }
+      }
+  }
+
+  Interrupter& intr = OrNull(interrupter);
+  std::atomic<bool> cancelled{false};
+  std::atomic<uint64_t> done{0};
+  const uint64_t work = uint64_t(b.z) * 2 + uint64_t(b.y);
+  auto poll = [&](uint64_t units) {
+    const uint64_t d = done.fetch_add(units) + units;
+    if (intr.WasInterrupted(d, work)) cancelled = true;
+  };
+
+  // Pass 1, along x: nearest member within each row.
+  tbb::parallel_for(tbb::blocked_range<int>(0, b.z, 4), [&](const tbb::blocked_range<int>& r) {
+    if (cancelled) return;
+    std::vector<int> xs;
+    for (int zi = r.begin(); zi < r.end(); ++zi) {
+      const int z = z0 + zi;
+      for (int yi = 0; yi < b.y; ++yi) {
+        const int y = y0 + yi;
+        PackedVoxel* line = F + size_t(zi) * plane + size_t(yi) * b.x;
+        const uint64_t* row = set.Row(y, z);
+        xs.clear();
+        for (int w = x0 >> 6; w <= box.max.x >> 6; ++w)
+          for (uint64_t bits = row[w]; bits; bits &= bits - 1) {
+            const int x = (w << 6) + std::countr_zero(bits);
+            if (x >= x0 && x <= box.max.x) xs.push_back(x);
+          }
+        if (xs.empty()) {
+          std::fill(line, line + b.x, kNoVoxel);
+          continue;
+        }
+        const PackedVoxel yz = PackVoxel(0, y, z);
+        size_t next = 0;  // first member at or right of x
+        for (int x = x0; x <= box.max.x; ++x) {
+          while (next < xs.size() && xs[next] < x) ++next;
+          int best;  // ties go left
+          if (next == xs.size()) {
+            best = xs.back();
+          } else if (next == 0) {
+            best = xs[0];
+          } else {
+            best = (x - xs[next - 1] <= xs[next] - x) ? xs[next - 1] : xs[next];
+          }
+          line[x - x0] = yz | uint32_t(best);
+        }
+      }
+    }
+    poll(r.size());
+  });
+  if (cancelled) return absl::CancelledError("feature transform interrupted");
+
+  // Pass 2, along y: combine rows within each z slice.
+  tbb::parallel_for(tbb::blocked_range<int>(0, b.z, 2), [&](const tbb::blocked_range<int>& r) {
+    if (cancelled) return;
+    LineScratch s;
+    s.Reserve(b.y);
+    for (int zi = r.begin(); zi < r.end(); ++zi) {
+      PackedVoxel* slice = F + size_t(zi) * plane;
+      for (int xi = 0; xi < b.x; ++xi) {
+        if (!need_x.empty() && !need_x[xi]) continue;
+        const int x = x0 + xi;
+        PackedVoxel* col = slice + xi;
+        int m = 0;
+        for (int yi = 0; yi < b.y; ++yi) {
+          const PackedVoxel f = col[size_t(yi) * b.x];
+          if (f == kNoVoxel) continue;
+          s.pos[m] = y0 + yi;
+          s.g[m] = wx * Square(int(f & 1023u) - x);
+          s.f[m] = f;
+          ++m;
+        }
+        if (m == 0) continue;  // the column stays kNoVoxel
+        EnvelopeLine(s, m, wy, y0, b.y, col, b.x);
+      }
+    }
+    poll(r.size());
+  });
+  if (cancelled) return absl::CancelledError("feature transform interrupted");
+
+  // Pass 3, along z: combine slices within each y layer. Columns are
+  // gathered kBlock at a time into a contiguous tile, so each slice row read
+  // brings in a whole cache line instead of one value per far-apart page.
+  constexpr int kBlock = 16;
+  tbb::parallel_for(tbb::blocked_range<int>(0, b.y, 2), [&](const tbb::blocked_range<int>& r) {
+    if (cancelled) return;
+    LineScratch s;
+    s.Reserve(b.z);
+    std::vector<PackedVoxel> tile(size_t(b.z) * kBlock);
+    for (int yi = r.begin(); yi < r.end(); ++yi) {
+      const int y = y0 + yi;
+      PackedVoxel* layer = F + size_t(yi) * b.x;
+      for (int xb = 0; xb < b.x; xb += kBlock) {
+        const int nb = std::min(kBlock, b.x - xb);
+        bool any = need_xy.empty();
+        for (int j = 0; j < nb && !any; ++j) any = need_xy[size_t(yi) * b.x + xb + j];
+        if (!any) continue;
+        for (int zi = 0; zi < b.z; ++zi)
+          std::copy_n(layer + size_t(zi) * plane + xb, nb, tile.data() + size_t(zi) * kBlock);
+        for (int j = 0; j < nb; ++j) {
+          if (!need_xy.empty() && !need_xy[size_t(yi) * b.x + xb + j]) continue;
+          const int x = x0 + xb + j;
+          PackedVoxel* col = tile.data() + j;
+          int m = 0;
+          for (int zi = 0; zi < b.z; ++zi) {
+            const PackedVoxel f = col[size_t(zi) * kBlock];
+            if (f == kNoVoxel) continue;
+            s.pos[m] = z0 + zi;
+            s.g[m] = wx * Square(int(f & 1023u) - x) + wy * Square(int((f >> 10) & 1023u) - y);
+            s.f[m] = f;
+            ++m;
+          }
+          if (m > 0) EnvelopeLine(s, m, wz, z0, b.z, col, kBlock);
+        }
+        for (int zi = 0; zi < b.z; ++zi)
+          std::copy_n(tile.data() + size_t(zi) * kBlock, nb, layer + size_t(zi) * plane + xb);
+      }
+    }
+    poll(r.size());
+  });
+  if (cancelled) return absl::CancelledError("feature transform interrupted");
+  return absl::OkStatus();
+}
+
+absl::StatusOr<FeatureField> ComputeFeatureTransform(const VoxelSet& set, Vec3 voxel_size,
+                                                     Interrupter* interrupter) {
+  FeatureField field;
+  absl::Status s = ComputeFeatureTransform(set, voxel_size, {}, field, interrupter);
+  if (!s.ok()) return s;
+  return field;
+}
+
+absl::StatusOr<double> DirectedHausdorff(const VoxelSet& a, const VoxelSet& b, Vec3 h,
+                                         Interrupter* interrupter) {
+  if (!(a.resolution() == b.resolution()))
+    return absl::InvalidArgumentError("Hausdorff distance: sets differ in resolution");
+  if (a.Empty()) return 0.0;
+  if (b.Empty()) return kInf;
+  const VoxelSet outside = a - b;
+  if (outside.Empty()) return 0.0;
+  FeatureTransformOptions opt;
+  opt.box = outside.BoundingBox();
+  opt.queries = &outside;
+  FeatureField field;
+  if (absl::Status s = ComputeFeatureTransform(b, h, opt, field, interrupter); !s.ok()) return s;
+  double worst = 0;
+  outside.ForEach([&](int x, int y, int z) {
+    worst = std::max(worst, SquaredDistance({x, y, z}, UnpackVoxel(field.At(x, y, z)), h));
+  });
+  return std::sqrt(worst);
+}
+
+absl::StatusOr<double> HausdorffDistance(const VoxelSet& a, const VoxelSet& b, Vec3 h,
+                                         Interrupter* interrupter) {
+  absl::StatusOr<double> ab = DirectedHausdorff(a, b, h, interrupter);
+  if (!ab.ok()) return ab.status();
+  absl::StatusOr<double> ba = DirectedHausdorff(b, a, h, interrupter);
+  if (!ba.ok()) return ba.status();
+  return std::max(*ab, *ba);
+}
+
+}  // namespace nimbus

@@ -1,0 +1,252 @@
+#include "core/sets/set_ifs.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+
+#include "absl/strings/str_cat.h"
+#include "core/chaos/point_map.h"
+#include "core/base/random.h"
+#include "core/sets/shapes.h"
+
+namespace nimbus {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double SecondsSince(Clock::time_point t) {
+  return std::chrono::duration<double>(Clock::now() - t).count();
+}
+
+std::vector<double> Normalised(const SetIfs& ifs) {
+  if (ifs.probabilities.empty()) return std::vector<double>(ifs.maps.size(), 1.0 / ifs.maps.size());
+  double sum = 0;
+  for (double p : ifs.probabilities) sum += p;
+  std::vector<double> out;
+  for (double p : ifs.probabilities) out.push_back(p / sum);
+  return out;
+}
+
+std::string Label(const SetIfs& ifs, size_t i) {
+  if (!ifs.labels.empty()) return ifs.labels[i];
+  if (i < 26) return std::string(1, char('A' + i));
+  return absl::StrCat("[", i, "]");
+}
+
+// Adds 1 for every member. Tiles are allocated first, serially; then slabs
+// of 32 slices, which touch disjoint tiles, are counted in parallel.
+void AddToCounts(const VoxelSet& set, CountGrid& counts) {
+  const Int3 r = set.resolution();
+  const int words = set.words_per_row();
+  for (int z = 0; z < r.z; ++z)
+    for (int y = 0; y < r.y; ++y) {
+      const uint64_t* row = set.Row(y, z);
+      for (int w = 0; w < words; ++w) {
+        if (!row[w]) continue;
+        // A word spans two 32-voxel tiles along x.
+        if (row[w] & 0xffffffffULL) counts.Add(w * 64, y, z, 0);
+        if (row[w] >> 32) counts.Add(w * 64 + 32, y, z, 0);
+      }
+    }
+  const int slabs = (r.z + CountGrid::kTileDim - 1) / CountGrid::kTileDim;
+  tbb::parallel_for(tbb::blocked_range<int>(0, slabs, 1), [&](const tbb::blocked_range<int>& b) {
+    for (int s = b.begin(); s < b.end(); ++s) {
+      const int z1 = std::min(r.z, (s + 1) * CountGrid::kTileDim);
+      set.ForEachInSlabs(s * CountGrid::kTileDim, z1,
+                         [&](int x, int y, int z) { counts.Add(x, y, z); });
+    }
+  });
+}
+
+}  // namespace
+
+absl::Status ValidateSetIfs(const SetIfs& ifs) {
+  if (absl::Status s = ValidateSetFrame(ifs.frame); !s.ok()) return s;
+  if (ifs.maps.empty()) return absl::InvalidArgumentError("set IFS has no maps");
+  for (size_t i = 0; i < ifs.maps.size(); ++i) {
+    if (!ifs.maps[i])
+      return absl::InvalidArgumentError(absl::StrCat("set IFS map ", i, " is null"));
+    const GridFrame& f = ifs.maps[i]->frame();
+    if (!(f.resolution == ifs.frame.resolution) || !(f.bounds.min == ifs.frame.bounds.min) ||
+        !(f.bounds.max == ifs.frame.bounds.max)) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("set IFS map ", i, " was built for a different grid frame"));
+    }
+  }
+  if (!ifs.probabilities.empty()) {
+    if (ifs.probabilities.size() != ifs.maps.size())
+      return absl::InvalidArgumentError("set IFS needs one probability per map");
+    double sum = 0;
+    for (double p : ifs.probabilities) {
+      if (!(p >= 0) || !std::isfinite(p))
+        return absl::InvalidArgumentError("set IFS probabilities must be finite and >= 0");
+      sum += p;
+    }
+    if (!(sum > 0)) return absl::InvalidArgumentError("set IFS probabilities sum to zero");
+  }
+  if (!ifs.labels.empty() && ifs.labels.size() != ifs.maps.size())
+    return absl::InvalidArgumentError("set IFS needs one label per map");
+  return absl::OkStatus();
+}
+
+VoxelSet DefaultStartSet(const GridFrame& frame, uint64_t seed) {
+  const Vec3 size = frame.bounds.Size();
+  const double radius = std::min({size.x, size.y, size.z}) / 8;
+  Rng rng(seed, 0x7374617274ULL);  // "start"
+  Vec3 c;
+  for (int a = 0; a < 3; ++a)
+    c[a] = rng.Uniform(frame.bounds.min[a] + radius, frame.bounds.max[a] - radius);
+  absl::StatusOr<VoxelSet> ball = SphereSet(frame, c, radius);
+  VoxelSet set = ball.ok() ? *std::move(ball) : VoxelSet(frame.resolution);
+  // A frame too coarse for the ball still gets one voxel.
+  if (set.Empty()) set.Set(frame.resolution.x / 2, frame.resolution.y / 2, frame.resolution.z / 2);
+  return set;
+}
+
+absl::StatusOr<SetIfsRunStats> RunSetIfs(const SetIfs& ifs, const SetIfsRunOptions& options,
+                                         CountGrid& counts, Interrupter* interrupter) {
+  if (absl::Status s = ValidateSetIfs(ifs); !s.ok()) return s;
+  if (!(counts.resolution() == ifs.frame.resolution))
+    return absl::InvalidArgumentError("set IFS: count grid resolution differs from the frame");
+  if (options.start && !(options.start->resolution() == ifs.frame.resolution))
+    return absl::InvalidArgumentError("set IFS: start set resolution differs from the frame");
+  const auto t_start = Clock::now();
+  Interrupter& intr = OrNull(interrupter);
+  intr.Start("set IFS random iteration");
+  const AliasTable table(Normalised(ifs));
+  Rng rng(options.seed, 0);
+  SetMapWorkspace ws;
+  ws.interrupter = interrupter;
+  VoxelSet current = options.start ? *options.start : DefaultStartSet(ifs.frame, options.seed);
+  VoxelSet next(ifs.frame.resolution);
+  SetIfsRunStats stats;
+  stats.map_uses.assign(ifs.maps.size(), 0);
+  const uint64_t total = options.warmup + options.iterations;
+  absl::Status status;
+  for (uint64_t k = 0; k < total; ++k) {
+    if (intr.WasInterrupted(k, total)) {
+      status = absl::CancelledError("set IFS interrupted");
+      break;
+    }
+    const uint32_t i = table.Sample(rng.Next());
+    ws.seed = HashCoords(options.seed, k, 0x736574ULL);
+    status = ifs.maps[i]->Apply(current, next, ws);
+    if (!status.ok()) break;
+    std::swap(current, next);
+    ++stats.map_uses[i];
+    ++stats.iterations;
+    if (k < options.warmup) continue;
+    const auto t0 = Clock::now();
+    AddToCounts(current, counts);
+    stats.count_seconds += SecondsSince(t0);
+    stats.voxels_counted += uint64_t(current.Count());
+    const uint64_t counted = k + 1 - options.warmup;
+    if (options.observer && options.observe_every > 0 && counted % options.observe_every == 0)
+      options.observer(counted, counts, current);
+  }
+  intr.End();
+  stats.map_seconds = ws.stats.seconds;
+  stats.nearest_seconds = ws.stats.nearest_seconds;
+  stats.seconds = SecondsSince(t_start);
+  if (!status.ok()) return status;
+  return stats;
+}
+
+absl::StatusOr<uint64_t> BookPageCount(size_t maps, int depth) {
+  if (maps == 0) return absl::InvalidArgumentError("book: no maps");
+  if (depth < 0) return absl::InvalidArgumentError("book: depth must be >= 0");
+  uint64_t pages = 1;
+  for (int d = 0; d < depth; ++d) {
+    pages *= maps;
+    if (pages > (uint64_t{1} << 20))
+      return absl::InvalidArgumentError(
+          absl::StrCat("book: ", maps, "^", depth, " pages exceed the limit of 2^20"));
+  }
+  return pages;
+}
+
+absl::Status RunBook(const SetIfs& ifs, const BookOptions& options, const BookPageCallback& on_page,
+                     Interrupter* interrupter) {
+  if (absl::Status s = ValidateSetIfs(ifs); !s.ok()) return s;
+  absl::StatusOr<uint64_t> pages = BookPageCount(ifs.maps.size(), options.depth);
+  if (!pages.ok()) return pages.status();
+  if (options.start && !(options.start->resolution() == ifs.frame.resolution))
+    return absl::InvalidArgumentError("book: start set resolution differs from the frame");
+  const uint64_t n = ifs.maps.size();
+  const int depth = options.depth;
+  const uint64_t set_bytes = VoxelSet(ifs.frame.resolution).MemoryBytes();
+
+  // Pages share inner compositions: the page with address w_1..w_k reads
+  // the cached set for its last `cached` letters (w_{k-c+1}..w_k, applied
+  // first) and applies the remaining outer maps itself. Cache the deepest
+  // level that fits in memory (with the level it is built from).
+  int cached = 0;
+  uint64_t level_size = 1;  // n^cached
+  while (cached + 1 < depth && (level_size * n + level_size) * set_bytes <= options.cache_bytes) {
+    level_size *= n;
+    ++cached;
+  }
+  uint64_t total_work = *pages * uint64_t(depth - cached);
+  for (uint64_t j = 1, s = n; j <= uint64_t(cached); ++j, s *= n) total_work += s;
+  uint64_t done = 0;
+
+  Interrupter& intr = OrNull(interrupter);
+  intr.Start("set IFS book");
+  SetMapWorkspace ws;
+  ws.interrupter = interrupter;
+  // The seed of an application depends only on the suffix it produces, so
+  // pages are the same whatever the cache depth.
+  auto apply = [&](uint32_t map, uint64_t suffix_len, uint64_t suffix, const VoxelSet& in,
+                   VoxelSet& out) -> absl::Status {
+    if (intr.WasInterrupted(done, total_work)) return absl::CancelledError("book interrupted");
+    ws.seed = HashCoords(options.seed, suffix_len, suffix, 0x626f6f6bULL);
+    absl::Status s = ifs.maps[map]->Apply(in, out, ws);
+    ++done;
+    return s;
+  };
+
+  std::vector<VoxelSet> level(
+      1, options.start ? *options.start : DefaultStartSet(ifs.frame, options.seed));
+  absl::Status status;
+  uint64_t prev_size = 1;
+  for (int j = 1; j <= cached && status.ok(); ++j) {
+    std::vector<VoxelSet> next(prev_size * n);
+    for (uint64_t s = 0; s < next.size() && status.ok(); ++s) {
+      next[s] = VoxelSet(ifs.frame.resolution);
+      // Suffix s = (first letter) * n^(j-1) + (inner suffix).
+      status = apply(uint32_t(s / prev_size), j, s, level[s % prev_size], next[s]);
+    }
+    level = std::move(next);
+    prev_size *= n;
+  }
+
+  VoxelSet a(ifs.frame.resolution), b(ifs.frame.resolution);
+  std::vector<uint32_t> digits(static_cast<size_t>(depth));
+  for (uint64_t p = 0; p < *pages && status.ok(); ++p) {
+    // Address digits, outermost (most significant) first.
+    uint64_t rest = p;
+    for (int d = depth - 1; d >= 0; --d) {
+      digits[size_t(d)] = uint32_t(rest % n);
+      rest /= n;
+    }
+    std::string address;
+    for (uint32_t d : digits) address += Label(ifs, d);
+    const VoxelSet* current = &level[p % level_size];
+    uint64_t suffix_scale = level_size;  // n^(letters already applied)
+    for (int d = depth - cached - 1; d >= 0 && status.ok(); --d) {
+      VoxelSet& out = current == &a ? b : a;
+      const uint64_t len = uint64_t(depth - d);
+      suffix_scale *= n;
+      status = apply(digits[size_t(d)], len, p % suffix_scale, *current, out);
+      current = &out;
+    }
+    if (status.ok()) status = on_page(p, address, *current);
+  }
+  intr.End();
+  return status;
+}
+
+}  // namespace nimbus
