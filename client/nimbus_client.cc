@@ -11,7 +11,7 @@
 #include "absl/strings/str_cat.h"
 #include "core/base/sha256.h"
 #include "nimbus/v1/nimbus_service.grpc.pb.h"
-#include "proto/convert_set_ifs.h"
+#include "proto/asset_paths.h"
 
 namespace nimbus::client {
 

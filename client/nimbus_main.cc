@@ -18,7 +18,7 @@
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_format.h"
 #include "client/nimbus_client.h"
-#include "proto/convert_set_ifs.h"
+#include "proto/asset_paths.h"
 #include "proto/spec_convert.h"
 #include "proto/spec_io.h"
 #include "server/server.h"

@@ -21,6 +21,7 @@
 #include "core/sets/shapes.h"
 #include "core/grid/voxel_set.h"
 #include "nimbus/v1/spec.pb.h"
+#include "proto/asset_paths.h"
 #include "proto/spec_convert.h"
 
 namespace nimbus::spec {
@@ -89,20 +90,6 @@ struct SetIfsPlan {
   /// Memory the book may use for shared intermediate pages.
   uint64_t book_cache_bytes = uint64_t{256} << 20;
 };
-
-/// Where a stored asset lives: `dir`/<sha256><ext>. NOT_FOUND names the
-/// hash when no upload has it.
-absl::StatusOr<std::filesystem::path> FindStoredAsset(const std::filesystem::path& dir,
-                                                      const std::string& sha256);
-
-/// Calls `f(path_field, asset)` for every Asset message of the spec (mesh
-/// and grid sources, at any depth), so clients can upload and rewrite them.
-void ForEachAsset(v1::JobSpec& spec,
-                  const std::function<void(const std::string& field, v1::Asset& asset)>& f);
-
-/// Makes relative asset paths absolute against `base_dir` (the spec file's
-/// folder), as the CLI does before uploading.
-void ResolveAssetPaths(v1::JobSpec& spec, const std::filesystem::path& base_dir);
 
 /// @brief Memoises built sets by SetSourcePlan::cache_key.
 struct SetBuildCache {

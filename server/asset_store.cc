@@ -4,7 +4,7 @@
 #include <cctype>
 
 #include "absl/strings/str_cat.h"
-#include "proto/convert_set_ifs.h"
+#include "proto/asset_paths.h"
 
 namespace nimbus::server {
 
