@@ -14,9 +14,13 @@
 
 #include "core/chaos/chaos_game.h"
 #include "core/matrix/ifs_matrix.h"
+#include "tests/support/matrix_oracles.h"
 
 namespace nimbus {
 namespace {
+
+using ::nimbus::testing::IfsMatrixExample;
+using ::nimbus::testing::TreeMatrixExample;
 
 constexpr uint64_t kIterations = uint64_t{1} << 24;
 

@@ -1,4 +1,4 @@
-// Condensation-set figures at the seed's resolution (256^3): voxelising the
+// Condensation-set figures at the reference description's resolution (256^3): voxelising the
 // cow sketch, preparing the median maps, and one random set-iteration of the
 // cow cloud (cow + random balls inside it, p = 2/3 and 1/3).
 #include <benchmark/benchmark.h>

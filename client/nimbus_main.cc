@@ -5,22 +5,30 @@
 #include <spdlog/spdlog.h>
 #include <unistd.h>
 
+#include <atomic>
+#include <chrono>
 #include <csignal>
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
-#include <iostream>
 #include <functional>
+#include <iostream>
+#include <memory>
 #include <set>
+#include <string>
 #include <thread>
+#include <vector>
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_format.h"
 #include "client/nimbus_client.h"
+#include "core/base/status_macros.h"
 #include "proto/asset_paths.h"
 #include "proto/spec_convert.h"
 #include "proto/spec_io.h"
+#include "server/memory_admission.h"
 #include "server/server.h"
 
 namespace {
@@ -221,238 +229,299 @@ int Finished(const v1::Job& job) {
   return kJobFailed;
 }
 
+// Everything the command line sets; each subcommand reads its part.
+struct Options {
+  GlobalOptions global;
+  std::string spec_path, out_path, job_id;
+  std::string frames_dir;    // render
+  std::string fetch_file;    // fetch
+  std::string state_filter;  // jobs
+  int limit = 20;            // jobs
+  WatchArgs watch;           // render, watch
+};
+
 std::atomic<bool> g_interrupted{false};
 void OnSigint(int) { g_interrupted = true; }
 
-}  // namespace
+// While alive, Ctrl-C cancels the job rather than leaving it queued behind.
+// Stop() (or the destructor) ends the watch for it.
+class CancelOnInterrupt {
+ public:
+  CancelOnInterrupt(NimbusClient& client, std::string job_id) {
+    std::signal(SIGINT, OnSigint);
+    thread_ = std::thread([this, &client, id = std::move(job_id)] {
+      while (!finished_) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(50));
+        if (g_interrupted && !finished_) {
+          (void)client.Cancel(id);
+          return;
+        }
+      }
+    });
+  }
+  ~CancelOnInterrupt() {
+    Stop();
+    thread_.join();
+  }
+  void Stop() { finished_ = true; }
 
-int main(int argc, char** argv) {
-  CLI::App app{"nimbus: grow fractal volumes (OpenVDB) with a Nimbus server"};
-  app.require_subcommand(1);
-  GlobalOptions g;
+ private:
+  std::atomic<bool> finished_{false};
+  std::thread thread_;
+};
+
+// The one place that reads a converted spec (the job plan): `nimbus
+// validate`'s summary. Memory is priced as for a two-thread run.
+int PrintValidation(const std::string& spec_path, const v1::JobSpec& spec) {
+  const nimbus::spec::Limits limits;
+  auto plan = nimbus::spec::ConvertSpec(spec, limits);
+  if (!plan.ok()) return ExitFor(plan.status());
+  auto memory = nimbus::server::AdmitMemory(*plan, limits, 2);
+  if (!memory.ok()) return ExitFor(memory.status());
+  const auto r = plan->frame.resolution;
+  std::cout << spec_path << ": ok\n"
+            << "  name: " << plan->name << "\n"
+            << "  grid: " << r.x << " x " << r.y << " x " << r.z << "\n";
+  const std::string peak = absl::StrFormat("  peak memory (estimate): %.1f MiB\n",
+                                           double(memory->estimated_bytes) / (1 << 20));
+  if (const nimbus::SetIfsPlan* p = plan->set_ifs()) {
+    static const char* kKinds[] = {"median", "rotated median", "constant", "point"};
+    std::cout << "  set maps: " << p->maps.size() << "\n";
+    for (size_t i = 0; i < p->maps.size(); ++i)
+      std::cout << absl::StrFormat("    [%s] p=%.4f %s\n", p->labels[i], p->probabilities[i],
+                                   kKinds[int(p->maps[i].kind)]);
+    if (p->book)
+      std::cout << "  book: depth " << p->depth << ", " << p->pages << " pages\n";
+    else
+      std::cout << "  set iterations: " << p->iterations << " after " << p->warmup << " warm-up\n";
+    std::cout << peak;
+  } else {
+    const nimbus::ChaosGameParams& run = *plan->point_run();
+    std::cout << "  maps: " << run.ifs.maps.size() << "\n";
+    for (size_t i = 0; i < run.ifs.maps.size(); ++i)
+      std::cout << absl::StrFormat("    [%d] p=%.4f contraction=%.4f %s\n", i,
+                                   run.ifs.probabilities[i], plan->contraction_factors[i],
+                                   run.ifs.maps[i].name);
+    std::cout << "  iterations: " << run.iterations << "\n"
+              << peak << "  spec sha256: " << nimbus::spec::SpecHash(spec) << "\n";
+  }
+  for (const auto& w : plan->warnings) std::cout << "  warning: " << w << "\n";
+  return 0;
+}
+
+int RunValidate(const Options& o) {
+  auto spec = nimbus::spec::LoadSpecFile(o.spec_path);
+  if (!spec.ok()) return ExitFor(spec.status());
+  nimbus::spec::ResolveAssetPaths(*spec, std::filesystem::path(o.spec_path).parent_path());
+  return PrintValidation(o.spec_path, *spec);
+}
+
+// A connection plus a loaded spec whose local mesh and grid files are
+// already on the server: the common start of render and submit.
+struct SpecSession {
+  Connection conn;
+  v1::JobSpec spec;
+};
+
+absl::StatusOr<SpecSession> OpenWithSpec(const Options& o) {
+  SpecSession s;
+  NIMBUS_ASSIGN_OR_RETURN(s.spec, nimbus::spec::LoadSpecFile(o.spec_path));
+  NIMBUS_ASSIGN_OR_RETURN(s.conn, Connect(o.global));
+  NIMBUS_RETURN_IF_ERROR(
+      s.conn.client->UploadSpecAssets(s.spec, std::filesystem::path(o.spec_path).parent_path()));
+  return s;
+}
+
+// Creates -o's folder (best effort) and --frames; returns where further
+// result files go.
+absl::StatusOr<std::filesystem::path> PrepareOutputs(const Options& o) {
+  const std::filesystem::path out(o.out_path);
+  if (out.has_parent_path()) {
+    std::error_code ec;
+    std::filesystem::create_directories(out.parent_path(), ec);
+  }
+  if (o.frames_dir.empty()) return out.parent_path();
+  std::error_code ec;
+  std::filesystem::create_directories(o.frames_dir, ec);
+  if (ec)
+    return absl::InvalidArgumentError(absl::StrCat("--frames ", o.frames_dir, ": ", ec.message()));
+  return std::filesystem::path(o.frames_dir);
+}
+
+int RunRender(const Options& o) {
+  auto session = OpenWithSpec(o);
+  if (!session.ok()) return ExitFor(session.status());
+  NimbusClient& client = *session->conn.client;
+  auto job = client.Submit(session->spec);
+  if (!job.ok()) return ExitFor(job.status());
+  std::cerr << "job " << job->id() << " queued"
+            << (session->conn.embedded ? " (embedded server)" : " on " + o.global.server) << "\n";
+  CancelOnInterrupt canceller(client, job->id());
+  auto folder = PrepareOutputs(o);
+  if (!folder.ok()) return ExitFor(folder.status());
+  // Book pages are downloaded while later ones are still being made. A
+  // failure here is retried from the final list (downloads resume).
+  FrameFetcher frames(client, job->id(), *folder,
+                      std::filesystem::path(o.out_path).stem().string());
+  auto final_job = WatchJob(client, job->id(), o.watch, false, [&](const v1::Job& j) {
+    if (j.state() == v1::JOB_STATE_RUNNING) (void)frames.FetchNew(j);
+  });
+  canceller.Stop();
+  if (!final_job.ok()) return ExitFor(final_job.status());
+  if (int rc = Finished(*final_job); rc != 0) return rc;
+  // The final list carries every file with its committed hash.
+  if (auto full = client.Get(job->id()); full.ok())
+    if (auto s = frames.FetchNew(*full); !s.ok()) return ExitFor(s);
+  if (auto s = client.Fetch(job->id(), o.out_path); !s.ok()) return ExitFor(s);
+  std::cerr << absl::StrFormat("wrote %s (%s bytes, sha256 %s)\n", o.out_path,
+                               Human(double(final_job->result().size_bytes())),
+                               final_job->result().sha256());
+  if (frames.count() > 0)
+    std::cerr << absl::StrFormat("wrote %d frames, the last %s\n", frames.count(),
+                                 frames.last().string());
+  return 0;
+}
+
+int RunSubmit(const Options& o) {
+  auto session = OpenWithSpec(o);
+  if (!session.ok()) return ExitFor(session.status());
+  auto job = session->conn.client->Submit(session->spec);
+  if (!job.ok()) return ExitFor(job.status());
+  std::cout << job->id() << "\n";
+  if (session->conn.embedded)
+    std::cerr << "note: the embedded server runs jobs only while a nimbus command runs; "
+                 "`nimbus watch "
+              << job->id() << "` runs it to the end\n";
+  return 0;
+}
+
+int RunWatch(const Options& o) {
+  auto conn = Connect(o.global);
+  if (!conn.ok()) return ExitFor(conn.status());
+  auto job = WatchJob(*conn->client, o.job_id, o.watch, false);
+  if (!job.ok()) return ExitFor(job.status());
+  return Finished(*job);
+}
+
+int RunFetch(const Options& o) {
+  auto conn = Connect(o.global);
+  if (!conn.ok()) return ExitFor(conn.status());
+  if (auto s = conn->client->Fetch(o.job_id, o.out_path, o.fetch_file); !s.ok()) return ExitFor(s);
+  std::cerr << "wrote " << o.out_path << "\n";
+  return 0;
+}
+
+int RunGet(const Options& o) {
+  auto conn = Connect(o.global);
+  if (!conn.ok()) return ExitFor(conn.status());
+  auto job = conn->client->Get(o.job_id);
+  if (!job.ok()) return ExitFor(job.status());
+  std::string json;
+  google::protobuf::util::JsonPrintOptions po;
+  po.add_whitespace = true;
+  po.preserve_proto_field_names = true;
+  (void)google::protobuf::util::MessageToJsonString(*job, &json, po);
+  std::cout << json;
+  return 0;
+}
+
+int RunJobs(const Options& o) {
+  auto conn = Connect(o.global);
+  if (!conn.ok()) return ExitFor(conn.status());
+  v1::ListJobsRequest req;
+  req.set_page_size(o.limit);
+  if (!o.state_filter.empty()) {
+    v1::JobState st;
+    if (!v1::JobState_Parse("JOB_STATE_" + absl::AsciiStrToUpper(o.state_filter), &st))
+      return ExitFor(absl::InvalidArgumentError("--state: unknown state " + o.state_filter));
+    req.set_state(st);
+  }
+  auto list = conn->client->List(req);
+  if (!list.ok()) return ExitFor(list.status());
+  std::cout << absl::StrFormat("%-20s %-10s %7s %-24s %s\n", "ID", "STATE", "DONE", "NAME",
+                               "ERROR");
+  for (const auto& j : list->jobs()) {
+    const double f = j.progress().total() ? 100.0 * j.progress().done() / j.progress().total() : 0;
+    std::cout << absl::StrFormat("%-20s %-10s %6.1f%% %-24s %s\n", j.id(), StateName(j.state()), f,
+                                 j.name(), j.error());
+  }
+  return 0;
+}
+
+int RunCancel(const Options& o) {
+  auto conn = Connect(o.global);
+  if (!conn.ok()) return ExitFor(conn.status());
+  auto job = conn->client->Cancel(o.job_id);
+  if (!job.ok()) return ExitFor(job.status());
+  std::cout << job->id() << " " << StateName(job->state()) << "\n";
+  return 0;
+}
+
+struct Command {
+  CLI::App* app;
+  int (*run)(const Options&);
+};
+
+void AddGlobalFlags(CLI::App& app, GlobalOptions& g) {
   app.add_option("--server", g.server,
                  "nimbusd address host:port; without it an embedded server runs in-process");
   app.add_option("--data-dir", g.data_dir,
                  "embedded server's data folder (default $NIMBUS_DATA_DIR or ~/.cache/nimbus)");
   app.add_option("--threads", g.threads, "embedded server: engine threads per job (0: all cores)");
   app.add_flag("-v,--verbose", g.verbose, "show server logs");
+}
 
-  std::string spec_path, out_path, job_id, state_filter;
-  WatchArgs watch_args;
-  int limit = 20;
-  auto add_watch_flags = [&](CLI::App* c) {
-    c->add_option("--previews", watch_args.previews, "save preview grids in this folder");
-    c->add_option("--preview-resolution", watch_args.preview_resolution,
-                  "largest preview axis, voxels")->capture_default_str();
-    c->add_option("--preview-interval", watch_args.preview_interval,
-                  "seconds between previews")->capture_default_str();
-  };
+void AddWatchFlags(CLI::App* c, WatchArgs& w) {
+  c->add_option("--previews", w.previews, "save preview grids in this folder");
+  c->add_option("--preview-resolution", w.preview_resolution, "largest preview axis, voxels")
+      ->capture_default_str();
+  c->add_option("--preview-interval", w.preview_interval, "seconds between previews")
+      ->capture_default_str();
+}
 
+// Declares the subcommands and their flags, bound to `o`; in help order.
+std::vector<Command> AddCommands(CLI::App& app, Options& o) {
   auto* render = app.add_subcommand("render", "submit a spec, show progress, fetch the .vdb");
-  render->add_option("spec", spec_path, "spec file (.json or text format)")->required();
-  render->add_option("-o,--output", out_path, "output .vdb path")->required();
-  std::string frames_dir;
-  render->add_option("--frames", frames_dir,
+  render->add_option("spec", o.spec_path, "spec file (.json or text format)")->required();
+  render->add_option("-o,--output", o.out_path, "output .vdb path")->required();
+  render->add_option("--frames", o.frames_dir,
                      "folder for further result files (book pages, OUT.0001.vdb ...); "
                      "default: next to -o");
-  add_watch_flags(render);
+  AddWatchFlags(render, o.watch);
   auto* submit = app.add_subcommand("submit", "queue a spec and print the job id");
-  submit->add_option("spec", spec_path, "spec file")->required();
+  submit->add_option("spec", o.spec_path, "spec file")->required();
   auto* watch = app.add_subcommand("watch", "follow a job until it ends");
-  watch->add_option("job", job_id)->required();
-  add_watch_flags(watch);
+  watch->add_option("job", o.job_id)->required();
+  AddWatchFlags(watch, o.watch);
   auto* fetch = app.add_subcommand("fetch", "download a finished job's .vdb");
-  fetch->add_option("job", job_id)->required();
-  fetch->add_option("-o,--output", out_path, "output .vdb path")->required();
-  std::string fetch_file;
-  fetch->add_option("--file", fetch_file, "one of the job's further files (e.g. NAME.0003.vdb)");
+  fetch->add_option("job", o.job_id)->required();
+  fetch->add_option("-o,--output", o.out_path, "output .vdb path")->required();
+  fetch->add_option("--file", o.fetch_file, "one of the job's further files (e.g. NAME.0003.vdb)");
   auto* get = app.add_subcommand("get", "print a job as JSON");
-  get->add_option("job", job_id)->required();
+  get->add_option("job", o.job_id)->required();
   auto* jobs = app.add_subcommand("jobs", "list jobs, newest first");
-  jobs->add_option("--state", state_filter, "queued, running, succeeded, failed or cancelled");
-  jobs->add_option("--limit", limit, "how many")->capture_default_str();
+  jobs->add_option("--state", o.state_filter, "queued, running, succeeded, failed or cancelled");
+  jobs->add_option("--limit", o.limit, "how many")->capture_default_str();
   auto* cancel = app.add_subcommand("cancel", "cancel a queued or running job");
-  cancel->add_option("job", job_id)->required();
+  cancel->add_option("job", o.job_id)->required();
   auto* validate = app.add_subcommand("validate", "check a spec locally and summarise it");
-  validate->add_option("spec", spec_path, "spec file")->required();
+  validate->add_option("spec", o.spec_path, "spec file")->required();
+  return {{validate, RunValidate}, {render, RunRender}, {submit, RunSubmit}, {watch, RunWatch},
+          {fetch, RunFetch},       {get, RunGet},       {jobs, RunJobs},     {cancel, RunCancel}};
+}
 
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"nimbus: grow fractal volumes (OpenVDB) with a Nimbus server"};
+  app.require_subcommand(1);
+  Options o;
+  AddGlobalFlags(app, o.global);
+  const std::vector<Command> commands = AddCommands(app, o);
   CLI11_PARSE(app, argc, argv);
-  spdlog::set_level(g.verbose ? spdlog::level::info : spdlog::level::warn);
+  spdlog::set_level(o.global.verbose ? spdlog::level::info : spdlog::level::warn);
   spdlog::set_pattern("%Y-%m-%dT%H:%M:%S.%e %^%l%$ nimbusd %v");
-
-  if (validate->parsed()) {
-    auto spec = nimbus::spec::LoadSpecFile(spec_path);
-    if (!spec.ok()) return ExitFor(spec.status());
-    nimbus::spec::ResolveAssetPaths(*spec, std::filesystem::path(spec_path).parent_path());
-    auto job = nimbus::spec::ConvertSpec(*spec, nimbus::spec::Limits{}, 2);
-    if (!job.ok()) return ExitFor(job.status());
-    const auto r = job->frame.resolution;
-    std::cout << spec_path << ": ok\n"
-              << "  name: " << job->name << "\n"
-              << "  grid: " << r.x << " x " << r.y << " x " << r.z << "\n";
-    if (job->set_ifs) {
-      const nimbus::spec::SetIfsPlan& p = *job->set_ifs;
-      static const char* kKinds[] = {"median", "rotated median", "constant", "point"};
-      std::cout << "  set maps: " << p.maps.size() << "\n";
-      for (size_t i = 0; i < p.maps.size(); ++i)
-        std::cout << absl::StrFormat("    [%s] p=%.4f %s\n", p.labels[i], p.probabilities[i],
-                                     kKinds[int(p.maps[i].kind)]);
-      if (p.book)
-        std::cout << "  book: depth " << p.depth << ", " << p.pages << " pages\n";
-      else
-        std::cout << "  set iterations: " << p.iterations << " after " << p.warmup
-                  << " warm-up\n";
-      std::cout << absl::StrFormat("  peak memory (estimate): %.1f MiB\n",
-                                   double(job->estimated_memory_bytes) / (1 << 20));
-      for (const auto& w : job->warnings) std::cout << "  warning: " << w << "\n";
-      return 0;
-    }
-    std::cout << "  maps: " << job->chaos_game.ifs.maps.size() << "\n";
-    for (size_t i = 0; i < job->chaos_game.ifs.maps.size(); ++i)
-      std::cout << absl::StrFormat("    [%d] p=%.4f contraction=%.4f %s\n", i,
-                                   job->chaos_game.ifs.probabilities[i],
-                                   job->contraction_factors[i],
-                                   job->chaos_game.ifs.maps[i].name);
-    std::cout << "  iterations: " << job->chaos_game.iterations << "\n"
-              << absl::StrFormat("  peak memory (estimate): %.1f MiB\n",
-                                 double(job->estimated_memory_bytes) / (1 << 20))
-              << "  spec sha256: " << nimbus::spec::SpecHash(*spec) << "\n";
-    for (const auto& w : job->warnings) std::cout << "  warning: " << w << "\n";
-    return 0;
-  }
-
-  v1::JobSpec spec;
-  if (render->parsed() || submit->parsed()) {
-    auto loaded = nimbus::spec::LoadSpecFile(spec_path);
-    if (!loaded.ok()) return ExitFor(loaded.status());
-    spec = *loaded;
-  }
-  auto conn = Connect(g);
-  if (!conn.ok()) return ExitFor(conn.status());
-  NimbusClient& client = *conn->client;
-
-  // Local mesh and grid files named in the spec go to the server first.
-  if (render->parsed() || submit->parsed()) {
-    if (auto s = client.UploadSpecAssets(spec, std::filesystem::path(spec_path).parent_path());
-        !s.ok())
-      return ExitFor(s);
-  }
-
-  if (render->parsed()) {
-    auto job = client.Submit(spec);
-    if (!job.ok()) return ExitFor(job.status());
-    std::cerr << "job " << job->id() << " queued"
-              << (conn->embedded ? " (embedded server)" : " on " + g.server) << "\n";
-    // Ctrl-C cancels the job rather than leaving it queued behind.
-    std::signal(SIGINT, OnSigint);
-    std::atomic<bool> finished{false};
-    std::thread canceller([&, id = job->id()] {
-      while (!finished) {
-        std::this_thread::sleep_for(std::chrono::milliseconds(50));
-        if (g_interrupted && !finished) {
-          (void)client.Cancel(id);
-          return;
-        }
-      }
-    });
-    // Stops and joins the canceller on every way out of this block.
-    struct Joiner {
-      std::atomic<bool>& finished;
-      std::thread& thread;
-      ~Joiner() {
-        finished = true;
-        thread.join();
-      }
-    } joiner{finished, canceller};
-    const std::filesystem::path out(out_path);
-    if (out.has_parent_path()) {
-      std::error_code ec;
-      std::filesystem::create_directories(out.parent_path(), ec);
-    }
-    const std::filesystem::path folder =
-        frames_dir.empty() ? out.parent_path() : std::filesystem::path(frames_dir);
-    if (!frames_dir.empty()) {
-      std::error_code ec;
-      std::filesystem::create_directories(folder, ec);
-      if (ec) return ExitFor(absl::InvalidArgumentError(absl::StrCat("--frames ", frames_dir, ": ",
-                                                                     ec.message())));
-    }
-    // Book pages are downloaded while later ones are still being made. A
-    // failure here is retried from the final list (downloads resume).
-    FrameFetcher frames(client, job->id(), folder, out.stem().string());
-    auto final_job = WatchJob(client, job->id(), watch_args, false, [&](const v1::Job& j) {
-      if (j.state() == v1::JOB_STATE_RUNNING) (void)frames.FetchNew(j);
-    });
-    finished = true;
-    if (!final_job.ok()) return ExitFor(final_job.status());
-    if (int rc = Finished(*final_job); rc != 0) return rc;
-    // The final list carries every file with its committed hash.
-    if (auto full = client.Get(job->id()); full.ok())
-      if (auto s = frames.FetchNew(*full); !s.ok()) return ExitFor(s);
-    if (auto s = client.Fetch(job->id(), out_path); !s.ok()) return ExitFor(s);
-    std::cerr << absl::StrFormat("wrote %s (%s bytes, sha256 %s)\n", out_path,
-                                 Human(double(final_job->result().size_bytes())),
-                                 final_job->result().sha256());
-    if (frames.count() > 0)
-      std::cerr << absl::StrFormat("wrote %d frames, the last %s\n", frames.count(),
-                                   frames.last().string());
-    return 0;
-  }
-  if (submit->parsed()) {
-    auto job = client.Submit(spec);
-    if (!job.ok()) return ExitFor(job.status());
-    std::cout << job->id() << "\n";
-    if (conn->embedded)
-      std::cerr << "note: the embedded server runs jobs only while a nimbus command runs; "
-                   "`nimbus watch "
-                << job->id() << "` runs it to the end\n";
-    return 0;
-  }
-  if (watch->parsed()) {
-    auto job = WatchJob(client, job_id, watch_args, false);
-    if (!job.ok()) return ExitFor(job.status());
-    return Finished(*job);
-  }
-  if (fetch->parsed()) {
-    if (auto s = client.Fetch(job_id, out_path, fetch_file); !s.ok()) return ExitFor(s);
-    std::cerr << "wrote " << out_path << "\n";
-    return 0;
-  }
-  if (get->parsed()) {
-    auto job = client.Get(job_id);
-    if (!job.ok()) return ExitFor(job.status());
-    std::string json;
-    google::protobuf::util::JsonPrintOptions po;
-    po.add_whitespace = true;
-    po.preserve_proto_field_names = true;
-    (void)google::protobuf::util::MessageToJsonString(*job, &json, po);
-    std::cout << json;
-    return 0;
-  }
-  if (jobs->parsed()) {
-    v1::ListJobsRequest req;
-    req.set_page_size(limit);
-    if (!state_filter.empty()) {
-      v1::JobState st;
-      if (!v1::JobState_Parse("JOB_STATE_" + absl::AsciiStrToUpper(state_filter), &st))
-        return ExitFor(absl::InvalidArgumentError("--state: unknown state " + state_filter));
-      req.set_state(st);
-    }
-    auto list = client.List(req);
-    if (!list.ok()) return ExitFor(list.status());
-    std::cout << absl::StrFormat("%-20s %-10s %7s %-24s %s\n", "ID", "STATE", "DONE", "NAME", "ERROR");
-    for (const auto& j : list->jobs()) {
-      const double f = j.progress().total() ? 100.0 * j.progress().done() / j.progress().total() : 0;
-      std::cout << absl::StrFormat("%-20s %-10s %6.1f%% %-24s %s\n", j.id(), StateName(j.state()), f,
-                                   j.name(), j.error());
-    }
-    return 0;
-  }
-  if (cancel->parsed()) {
-    auto job = client.Cancel(job_id);
-    if (!job.ok()) return ExitFor(job.status());
-    std::cout << job->id() << " " << StateName(job->state()) << "\n";
-    return 0;
-  }
+  for (const Command& c : commands)
+    if (c.app->parsed()) return c.run(o);
   return 0;
 }

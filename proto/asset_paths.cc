@@ -3,6 +3,8 @@
 // the client includes it without the converters.
 #include "proto/asset_paths.h"
 
+#include <cctype>
+#include <fstream>
 #include <system_error>
 
 #include "absl/strings/str_cat.h"
@@ -39,15 +41,62 @@ void VisitSource(v1::SetSource& s, const std::string& field,
 
 }  // namespace
 
+std::filesystem::path StoredAssetNamesPath(const std::filesystem::path& dir,
+                                           const std::string& sha256) {
+  return dir / (sha256 + ".names");
+}
+
+std::string KnownAssetFormat(const std::string& name) {
+  std::string ext = std::filesystem::path(name).extension().string();
+  for (char& c : ext) c = char(std::tolower(static_cast<unsigned char>(c)));
+  for (const char* known : {".obj", ".ply", ".stl", ".vdb"})
+    if (ext == known) return ext;
+  return {};
+}
+
+absl::StatusOr<StoredAsset> FindStoredAssetInfo(const std::filesystem::path& dir,
+                                                const std::string& sha256) {
+  StoredAsset out;
+  std::error_code ec;
+  // The content-only name first; then the layout that baked the first
+  // upload's extension into the name, whose extension counts as a name.
+  std::string old_name;  // "<sha256><ext>" of the older layout
+  if (std::filesystem::is_regular_file(dir / sha256, ec)) {
+    out.path = dir / sha256;
+  } else {
+    for (const char* ext : {".obj", ".ply", ".stl", ".vdb", ".bin"}) {
+      const std::filesystem::path p = dir / (sha256 + ext);
+      if (!std::filesystem::is_regular_file(p, ec)) continue;
+      out.path = p;
+      old_name = p.filename().string();
+      break;
+    }
+  }
+  if (out.path.empty()) return absl::NotFoundError(StrCat("no stored asset ", sha256));
+  std::ifstream names(StoredAssetNamesPath(dir, sha256));
+  for (std::string line; std::getline(names, line);)
+    if (!line.empty()) out.names.push_back(line);
+  out.format = KnownAssetFormat(old_name);
+  for (size_t i = 0; i < out.names.size() && out.format.empty(); ++i)
+    out.format = KnownAssetFormat(out.names[i]);
+  return out;
+}
+
 absl::StatusOr<std::filesystem::path> FindStoredAsset(const std::filesystem::path& dir,
                                                       const std::string& sha256) {
-  std::error_code ec;
-  // The extension is kept so the format can still be told from the name.
-  for (const char* ext : {".obj", ".ply", ".stl", ".vdb", ".bin"}) {
-    std::filesystem::path p = dir / (sha256 + ext);
-    if (std::filesystem::is_regular_file(p, ec)) return p;
-  }
-  return absl::NotFoundError(StrCat("no stored asset ", sha256));
+  auto info = FindStoredAssetInfo(dir, sha256);
+  if (!info.ok()) return info.status();
+  return info->path;
+}
+
+std::string AssetFormat(const std::string& label, const StoredAsset& stored) {
+  std::string from_label = KnownAssetFormat(label);
+  return from_label.empty() ? stored.format : from_label;
+}
+
+std::string AssetDisplayName(const std::string& label, const std::string& sha256) {
+  if (label.empty()) return StrCat("sha256 ", sha256);
+  return StrCat(label, " (sha256 ", sha256.substr(0, 12), "...)");
 }
 
 void ForEachAsset(v1::JobSpec& spec,

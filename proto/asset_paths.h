@@ -6,16 +6,52 @@
 #include <filesystem>
 #include <functional>
 #include <string>
+#include <vector>
 
 #include "absl/status/statusor.h"
 #include "nimbus/v1/spec.pb.h"
 
 namespace nimbus::spec {
 
-/// Where a stored asset lives: `dir`/<sha256><ext>. NOT_FOUND names the
-/// hash when no upload has it.
+/// A stored asset: its bytes and what it is known as. Assets are stored by
+/// content only, as `dir`/<sha256>; the names of the files it was uploaded
+/// from sit next to it in `dir`/<sha256>.names, one per line, oldest first.
+/// Data dirs from before keep working: `dir`/<sha256><ext> (.obj, .ply,
+/// .stl, .vdb, .bin) is found too, its extension counting as a name.
+struct StoredAsset {
+  std::filesystem::path path;
+  /// Upload file names (no folders), oldest first.
+  std::vector<std::string> names;
+  /// The format those names give (".obj", ".ply", ".stl", ".vdb"), from
+  /// the oldest name that has one, so a later upload under another name
+  /// never changes how a usable asset reads; empty when none gives one.
+  std::string format;
+};
+
+/// The stored asset for a hash. NOT_FOUND names the hash (never a server
+/// path) when no upload has it.
+absl::StatusOr<StoredAsset> FindStoredAssetInfo(const std::filesystem::path& dir,
+                                                const std::string& sha256);
+
+/// Where a stored asset's bytes are (FindStoredAssetInfo(...).path).
 absl::StatusOr<std::filesystem::path> FindStoredAsset(const std::filesystem::path& dir,
                                                       const std::string& sha256);
+
+/// The sidecar listing an asset's upload names: `dir`/<sha256>.names.
+std::filesystem::path StoredAssetNamesPath(const std::filesystem::path& dir,
+                                           const std::string& sha256);
+
+/// The lower-cased extension of `name` when it is a format assets come in
+/// (".obj", ".ply", ".stl", ".vdb"), else empty.
+std::string KnownAssetFormat(const std::string& name);
+
+/// The format to read an asset as: its label's extension when that is a
+/// known format (the spec's word wins), else the one its uploads gave.
+std::string AssetFormat(const std::string& label, const StoredAsset& stored);
+
+/// How messages name an uploaded asset: "cow.obj (sha256 3fa2c81d9e07...)",
+/// or the bare hash without a label. Never a server path.
+std::string AssetDisplayName(const std::string& label, const std::string& sha256);
 
 /// Calls `f(path_field, asset)` for every Asset message of the spec (mesh
 /// and grid sources, at any depth), so clients can upload and rewrite them.

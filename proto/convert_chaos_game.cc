@@ -45,8 +45,7 @@ absl::StatusOr<PointMap> ConvertMap(const v1::Map& m, const std::string& path) {
 }
 
 absl::Status ConvertIfs(const v1::Ifs& ifs, const std::string& path, const Limits& limits,
-                        ConvertedJob& job) {
-  Ifs& out = job.chaos_game.ifs;
+                        Ifs& out, JobPlan& job) {
   if (ifs.maps_size() == 0) return Invalid(path + ".maps", "needs at least one map");
   if (ifs.maps_size() > limits.max_maps)
     return absl::ResourceExhaustedError(StrCat(
@@ -119,11 +118,10 @@ absl::Status ConvertFinal(const v1::Ifs& ifs, const std::string& path, Ifs& out)
   return absl::OkStatus();
 }
 
-absl::Status ConvertColor(const v1::ChaosGame& cg, ConvertedJob& job) {
+absl::Status ConvertColor(const v1::ChaosGame& cg, ColorParams& p, DensityOptions& density) {
   if (!cg.has_color()) return absl::OkStatus();
   const v1::ChaosColor& c = cg.color();
   const std::string path = "chaos_game.color";
-  ColorParams& p = job.chaos_game.color;
   switch (c.mode()) {
     case v1::COLOR_MODE_UNSPECIFIED:
     case v1::COLOR_MODE_ADDRESS:
@@ -148,61 +146,56 @@ absl::Status ConvertColor(const v1::ChaosGame& cg, ConvertedJob& job) {
     if (!Finite(s.rgb())) return Invalid(spath + ".rgb", "must be finite");
     stops.push_back({s.position(), ToVec3(s.rgb())});
   }
-  job.density.color = true;
-  job.density.palette = stops.empty() ? Palette() : Palette(std::move(stops));
-  job.density.address_grid = c.address_grid();
+  density.color = true;
+  density.palette = stops.empty() ? Palette() : Palette(std::move(stops));
+  density.address_grid = c.address_grid();
   return absl::OkStatus();
 }
 
 }  // namespace
 
-absl::Status ConvertChaosGame(const v1::ChaosGame& cg, const Limits& limits, int threads,
-                              ConvertedJob& job) {
-  if (cg.has_matrices()) {
-    if (cg.has_ifs()) return Invalid("chaos_game", "set exactly one of ifs or matrices");
-    return ConvertMatrixChaosGame(cg, limits, threads, job);
-  }
-  job.generator = Generator::kChaosGame;
-  if (!cg.has_ifs()) return Invalid("chaos_game.ifs", "required (or give matrices)");
-  if (auto st = ConvertIfs(cg.ifs(), "chaos_game.ifs", limits, job); !st.ok()) return st;
+absl::Status CheckIterations(const v1::ChaosGame& cg, const Limits& limits) {
   if (cg.iterations() == 0) return Invalid("chaos_game.iterations", "must be > 0");
   if (cg.iterations() > limits.max_iterations)
     return absl::ResourceExhaustedError(StrCat("chaos_game.iterations: ", cg.iterations(),
                                                " exceeds the server limit of ",
                                                limits.max_iterations));
-  job.chaos_game.frame = job.frame;
-  job.chaos_game.iterations = cg.iterations();
-  job.chaos_game.warmup = cg.warmup() == 0 ? 100 : cg.warmup();
-  job.chaos_game.seed = cg.seed();
-  if (auto st = ConvertFinal(cg.ifs(), "chaos_game.ifs", job.chaos_game.ifs); !st.ok()) return st;
-  if (auto st = ConvertEngineOptions(cg, job); !st.ok()) return st;
-  job.total_work = cg.iterations();
-  // Checked here, before anything is allocated, so an oversized job never
-  // starts (docs/chaos_game.md, "Memory").
-  uint64_t pilot = 0;
-  const ChaosGameMemory mem =
-      EstimateChaosGameMemory(job.chaos_game, threads, job.density, limits, &pilot);
-  job.estimated_memory_bytes = mem.peak();
-  if (mem.peak() > limits.max_memory_bytes)
-    return absl::ResourceExhaustedError(
-        StrCat("grid.resolution: the chaos game needs up to ", GiB(mem.peak()), " of memory (",
-               GiB(mem.accumulation), " to accumulate on ", threads, " threads, ", GiB(mem.output),
-               " to write", pilot ? StrCat(", measured by a pilot run of ", pilot, " points") : "",
-               "); the server limit is ", GiB(limits.max_memory_bytes)));
   return absl::OkStatus();
 }
 
-absl::Status ConvertEngineOptions(const v1::ChaosGame& cg, ConvertedJob& job) {
-  if (auto st = ConvertColor(cg, job); !st.ok()) return st;
+absl::Status ConvertChaosGame(const v1::ChaosGame& cg, const Limits& limits, JobPlan& job) {
+  if (cg.has_matrices()) {
+    if (cg.has_ifs()) return Invalid("chaos_game", "set exactly one of ifs or matrices");
+    return ConvertMatrixChaosGame(cg, limits, job);
+  }
+  if (!cg.has_ifs()) return Invalid("chaos_game.ifs", "required (or give matrices)");
+  ChaosGamePlan plan;
+  ChaosGameParams& params = plan.params;
+  NIMBUS_RETURN_IF_ERROR(ConvertIfs(cg.ifs(), "chaos_game.ifs", limits, params.ifs, job));
+  NIMBUS_RETURN_IF_ERROR(CheckIterations(cg, limits));
+  params.frame = job.frame;
+  params.iterations = cg.iterations();
+  params.warmup = cg.warmup() == 0 ? 100 : cg.warmup();
+  params.seed = cg.seed();
+  NIMBUS_RETURN_IF_ERROR(ConvertFinal(cg.ifs(), "chaos_game.ifs", params.ifs));
+  NIMBUS_RETURN_IF_ERROR(ConvertEngineOptions(cg, params, job.density));
+  job.work = {cg.iterations(), "points"};
+  job.kind = std::move(plan);
+  return absl::OkStatus();
+}
+
+absl::Status ConvertEngineOptions(const v1::ChaosGame& cg, ChaosGameParams& params,
+                                  DensityOptions& density) {
+  NIMBUS_RETURN_IF_ERROR(ConvertColor(cg, params.color, density));
   switch (cg.raw_counts()) {
     case v1::RAW_COUNTS_NONE:
-      job.density.raw_counts = RawCounts::kNone;
+      density.raw_counts = RawCounts::kNone;
       break;
     case v1::RAW_COUNTS_FLOAT:
-      job.density.raw_counts = RawCounts::kFloat;
+      density.raw_counts = RawCounts::kFloat;
       break;
     case v1::RAW_COUNTS_UINT32:
-      job.density.raw_counts = RawCounts::kInteger;
+      density.raw_counts = RawCounts::kInteger;
       break;
     default:
       return Invalid("chaos_game.raw_counts", "unknown value");
@@ -211,33 +204,14 @@ absl::Status ConvertEngineOptions(const v1::ChaosGame& cg, ConvertedJob& job) {
     const v1::Convergence& c = cg.convergence();
     if (!(c.tolerance() > 0 && c.tolerance() <= 2))
       return Invalid("chaos_game.convergence.tolerance", "must be in (0, 2]");
-    job.chaos_game.convergence.tolerance = c.tolerance();
+    params.convergence.tolerance = c.tolerance();
     if (c.check_every() > 0) {
       const uint64_t chunk = ChaosGame::kChunkIterations;
-      job.chaos_game.convergence.check_every = (c.check_every() + chunk - 1) / chunk * chunk;
+      params.convergence.check_every = (c.check_every() + chunk - 1) / chunk * chunk;
     }
   }
-  job.chaos_game.splat = cg.splat();
+  params.splat = cg.splat();
   return absl::OkStatus();
-}
-
-ChaosGameMemory EstimateChaosGameMemory(ChaosGameParams& params, int threads,
-                                        const DensityOptions& density, const Limits& limits,
-                                        uint64_t* pilot_samples) {
-  // About 10-40 ms of walking (on the admission thread, never a gRPC one),
-  // paid only by jobs whose cheap bound is large: they run for seconds or
-  // more, and the job status then reports what they will really hold.
-  constexpr uint64_t kPilotSamples = uint64_t{1} << 21;
-  constexpr uint64_t kPilotAbove = uint64_t{1} << 30;
-  *pilot_samples = 0;
-  params.memory_budget = limits.max_memory_bytes;
-  const uint64_t per_voxel = OutputBytesPerVoxel(density);
-  ChaosGameMemory mem = ChaosGame::EstimateMemory(params, threads, per_voxel);
-  if (mem.peak() <= std::min(limits.max_memory_bytes, kPilotAbove)) return mem;
-  auto census = ChaosGame::Pilot(params, kPilotSamples, nullptr);
-  if (!census.ok()) return mem;
-  *pilot_samples = census->samples;
-  return ChaosGame::EstimateMemory(params, threads, per_voxel, census->estimate);
 }
 
 }  // namespace nimbus::spec::internal

@@ -6,6 +6,7 @@
 
 #include "absl/status/statusor.h"
 #include "absl/strings/str_cat.h"
+#include "core/base/status_macros.h"
 #include "proto/spec_convert.h"
 
 namespace nimbus::spec::internal {
@@ -23,26 +24,17 @@ absl::StatusOr<PointMap> ConvertMap(const v1::Map& m, const std::string& path);
 
 /// The engine options shared by plain and matrix chaos games: colour, raw
 /// counts, convergence and splatting.
-absl::Status ConvertEngineOptions(const v1::ChaosGame& cg, ConvertedJob& job);
+absl::Status ConvertEngineOptions(const v1::ChaosGame& cg, ChaosGameParams& params,
+                                  DensityOptions& density);
+/// chaos_game.iterations, within the server limit.
+absl::Status CheckIterations(const v1::ChaosGame& cg, const Limits& limits);
 
-/// Memory a chaos-game run of `params` needs on `threads` threads. When the
-/// geometric bound is above 1 GiB (or the limit), a short pilot run measures
-/// the tiles the attractor really touches (ChaosGame::Pilot) and the
-/// estimate uses those. Also sets params.memory_budget to the limit, the
-/// run-time safety net. `pilot_samples` is set to the pilot's size, or 0.
-ChaosGameMemory EstimateChaosGameMemory(ChaosGameParams& params, int threads,
-                                        const DensityOptions& density, const Limits& limits,
-                                        uint64_t* pilot_samples);
-
-/// Per-generator converters: fill `job` (generator, plan, total_work,
-/// estimated_memory_bytes, warnings) from their part of the spec. The grid
-/// (job.frame) is already converted.
-absl::Status ConvertChaosGame(const v1::ChaosGame& cg, const Limits& limits, int threads,
-                              ConvertedJob& job);
+/// Per-kind converters: fill `plan` (kind, work, warnings) from their part
+/// of the spec. The grid (plan.frame) and output are already converted.
+absl::Status ConvertChaosGame(const v1::ChaosGame& cg, const Limits& limits, JobPlan& plan);
 /// chaos_game.matrices: called by ConvertChaosGame when matrices are set.
-absl::Status ConvertMatrixChaosGame(const v1::ChaosGame& cg, const Limits& limits, int threads,
-                                    ConvertedJob& job);
-absl::Status ConvertSetIfs(const v1::SetIfs& s, const Limits& limits, int threads,
-                           ConvertedJob& job);
+absl::Status ConvertMatrixChaosGame(const v1::ChaosGame& cg, const Limits& limits,
+                                    JobPlan& plan);
+absl::Status ConvertSetIfs(const v1::SetIfs& s, const Limits& limits, JobPlan& plan);
 
 }  // namespace nimbus::spec::internal

@@ -1,13 +1,13 @@
 // Converts chaos_game.matrices: named maps and matrices, expressions over
 // them, the selection and the probabilities, into an expanded IFS matrix,
 // a MarkovChain for the engine and an IfsMatrixPlan for the runner.
-#include "proto/convert_matrix.h"
 
 #include <cmath>
 #include <map>
 #include <set>
 
 #include "absl/strings/str_join.h"
+#include "core/matrix/ifs_matrix_plan.h"
 #include "proto/convert_internal.h"
 
 namespace nimbus::spec::internal {
@@ -147,16 +147,12 @@ std::string SizeLine(const ExpansionStep& s) {
   return StrCat(s.expression, ": ", s.size, "x", s.size, ", ", s.map_references, " map references");
 }
 
-}  // namespace
+// --- Sections of ConvertMatrixChaosGame, in order ------------------------
 
-absl::Status ConvertMatrixChaosGame(const v1::ChaosGame& cg, const Limits& limits, int threads,
-                                    ConvertedJob& job) {
-  job.generator = Generator::kIfsMatrix;
-  const v1::IfsMatrixSystem& ms = cg.matrices();
+// The named base maps. Expanding ones are refused unless allowed.
+absl::StatusOr<std::vector<PointMap>> ConvertBaseMaps(const v1::IfsMatrixSystem& ms,
+                                                      const Limits& limits, JobPlan& job) {
   const std::string path = kPath;
-  auto plan = std::make_shared<IfsMatrixPlan>();
-
-  // --- Maps ---------------------------------------------------------------
   if (ms.maps_size() == 0) return Invalid(path + ".maps", "needs at least one map");
   if (ms.maps_size() > limits.max_maps)
     return absl::ResourceExhaustedError(StrCat(
@@ -171,18 +167,17 @@ absl::Status ConvertMatrixChaosGame(const v1::ChaosGame& cg, const Limits& limit
     if (auto [it, fresh] = map_index.emplace(ms.maps(i).name(), i); !fresh)
       return Invalid(mpath + ".name", StrCat("duplicate map name '", ms.maps(i).name(),
                                              "' (also maps[", it->second, "])"));
-    auto m = ConvertMap(ms.maps(i), mpath);
-    if (!m.ok()) return m.status();
-    const double factor = m->pre.ContractionFactor();
-    if (m->IsAffine() && factor >= 1.0) {
+    NIMBUS_ASSIGN_OR_RETURN(PointMap m, ConvertMap(ms.maps(i), mpath));
+    const double factor = m.pre.ContractionFactor();
+    if (m.IsAffine() && factor >= 1.0) {
       char buf[64];
       std::snprintf(buf, sizeof buf, "%.4g", factor);
-      expanding.push_back(StrCat(mpath, " '", m->name, "' (factor ", buf, ")"));
+      expanding.push_back(StrCat(mpath, " '", m.name, "' (factor ", buf, ")"));
     }
     const double p = ms.maps(i).probability();
     if (!(p >= 0) || !std::isfinite(p))
       return Invalid(mpath + ".probability", "must be finite and >= 0");
-    base.push_back(*std::move(m));
+    base.push_back(std::move(m));
   }
   if (!expanding.empty()) {
     const std::string msg =
@@ -193,145 +188,191 @@ absl::Status ConvertMatrixChaosGame(const v1::ChaosGame& cg, const Limits& limit
                      StrCat(msg, " (set ", path, ".allow_expanding to run anyway)"));
     job.warnings.push_back(msg);
   }
-  const ExpansionLimits expansion_limits;
-  MapTable table(base);
-  table.set_max_maps(expansion_limits.max_table_maps);
+  return base;
+}
 
-  // --- Matrices -----------------------------------------------------------
-  Scope scope;
+// One matrix definition: rows of entries naming maps of `table`.
+absl::StatusOr<IfsMatrix> ConvertMatrixDef(const v1::IfsMatrixDef& def, const std::string& mpath,
+                                           const MapTable& table, const ExpansionLimits& limits) {
+  const int n = def.rows_size();
+  if (n == 0) return Invalid(mpath + ".rows", "needs at least one row");
+  if (uint32_t(n) > limits.max_size)
+    return absl::ResourceExhaustedError(
+        StrCat(mpath, ".rows: ", n, " rows exceed the limit of ", limits.max_size));
+  IfsMatrix matrix{uint32_t(n)};
+  for (int i = 0; i < n; ++i) {
+    const v1::MatrixRow& row = def.rows(i);
+    const std::string rpath = StrCat(mpath, ".rows[", i, "]");
+    if (row.entries_size() != n)
+      return Invalid(rpath + ".entries",
+                     StrCat("matrix '", def.name(), "' has ", n, " rows, so every row needs ", n,
+                            " entries; got ", row.entries_size()));
+    for (int j = 0; j < n; ++j) {
+      const v1::MatrixEntry& entry = row.entries(j);
+      for (int k = 0; k < entry.maps_size(); ++k) {
+        auto index = table.Find(entry.maps(k));
+        if (!index.ok())
+          return Invalid(StrCat(rpath, ".entries[", j, "].maps[", k, "]"),
+                         StrCat("unknown map '", entry.maps(k), "' in matrix '", def.name(),
+                                "' (", std::string(index.status().message()), ")"));
+        matrix.Insert(uint32_t(i), uint32_t(j), *index);
+      }
+    }
+  }
+  return matrix;
+}
+
+absl::Status ConvertMatrixDefs(const v1::IfsMatrixSystem& ms, const MapTable& table,
+                               const ExpansionLimits& limits, Scope& scope) {
   for (int m = 0; m < ms.matrices_size(); ++m) {
     const v1::IfsMatrixDef& def = ms.matrices(m);
-    const std::string mpath = StrCat(path, ".matrices[", m, "]");
+    const std::string mpath = StrCat(kPath, ".matrices[", m, "]");
     if (def.name().empty()) return Invalid(mpath + ".name", "required");
     if (scope.count(def.name()))
       return Invalid(mpath + ".name", StrCat("duplicate matrix name '", def.name(), "'"));
-    const int n = def.rows_size();
-    if (n == 0) return Invalid(mpath + ".rows", "needs at least one row");
-    if (uint32_t(n) > expansion_limits.max_size)
-      return absl::ResourceExhaustedError(
-          StrCat(mpath, ".rows: ", n, " rows exceed the limit of ", expansion_limits.max_size));
-    IfsMatrix matrix{uint32_t(n)};
-    for (int i = 0; i < n; ++i) {
-      const v1::MatrixRow& row = def.rows(i);
-      const std::string rpath = StrCat(mpath, ".rows[", i, "]");
-      if (row.entries_size() != n)
-        return Invalid(rpath + ".entries",
-                       StrCat("matrix '", def.name(), "' has ", n, " rows, so every row needs ", n,
-                              " entries; got ", row.entries_size()));
-      for (int j = 0; j < n; ++j) {
-        const v1::MatrixEntry& entry = row.entries(j);
-        for (int k = 0; k < entry.maps_size(); ++k) {
-          auto index = table.Find(entry.maps(k));
-          if (!index.ok())
-            return Invalid(StrCat(rpath, ".entries[", j, "].maps[", k, "]"),
-                           StrCat("unknown map '", entry.maps(k), "' in matrix '", def.name(),
-                                  "' (", std::string(index.status().message()), ")"));
-          matrix.Insert(uint32_t(i), uint32_t(j), *index);
-        }
-      }
-    }
+    NIMBUS_ASSIGN_OR_RETURN(IfsMatrix matrix, ConvertMatrixDef(def, mpath, table, limits));
     scope.emplace(def.name(), MatrixLeaf(def.name(), std::move(matrix)));
   }
+  return absl::OkStatus();
+}
 
-  // --- Named expressions (checked and sized one by one) --------------------
-  std::vector<std::string> sizes;
+// Named expressions, checked and sized one by one on a scratch table: only
+// the render expression's maps go to the engine, but every step is reported.
+absl::Status ConvertNamedExpressions(const v1::IfsMatrixSystem& ms, const MapTable& table,
+                                     const ExpansionLimits& limits, Scope& scope,
+                                     IfsMatrixPlan& plan, std::vector<std::string>& sizes) {
   for (int x = 0; x < ms.expressions_size(); ++x) {
     const v1::NamedMatrixExpression& named = ms.expressions(x);
-    const std::string xpath = StrCat(path, ".expressions[", x, "]");
+    const std::string xpath = StrCat(kPath, ".expressions[", x, "]");
     if (named.name().empty()) return Invalid(xpath + ".name", "required");
     if (scope.count(named.name()))
       return Invalid(xpath + ".name",
                      StrCat("duplicate matrix or expression name '", named.name(), "'"));
     if (!named.has_expression()) return Invalid(xpath + ".expression", "required");
-    auto expr = ConvertExpr(named.expression(), xpath + ".expression", scope);
-    if (!expr.ok()) return expr.status();
-    MatrixExprPtr labelled = MatrixLabeled(named.name(), *expr);
-    // Expanded on a scratch table: only the render expression's maps go to
-    // the engine, but every step is checked and reported.
+    NIMBUS_ASSIGN_OR_RETURN(MatrixExprPtr expr,
+                            ConvertExpr(named.expression(), xpath + ".expression", scope));
+    MatrixExprPtr labelled = MatrixLabeled(named.name(), expr);
     MapTable scratch = table;
     std::vector<ExpansionStep> report;
-    auto value = EvaluateMatrixExpr(*labelled, scratch, expansion_limits, &report);
+    auto value = EvaluateMatrixExpr(*labelled, scratch, limits, &report);
     if (!value.ok()) return AtPath(value.status(), xpath + ".expression");
     sizes.push_back(SizeLine(report.back()));
-    plan->expansion.push_back(report.back());
+    plan.expansion.push_back(report.back());
     scope.emplace(named.name(), std::move(labelled));
   }
+  return absl::OkStatus();
+}
 
-  // --- The rendered matrix ------------------------------------------------
+// The rendered matrix, expanded into `table`.
+struct Rendered {
+  IfsMatrix matrix;
+  std::string name;
+  BoolMatrix limit;  // components non-empty in the limit
+};
+
+absl::StatusOr<Rendered> ConvertRender(const v1::IfsMatrixSystem& ms, MapTable& table,
+                                       const ExpansionLimits& limits, const Scope& scope,
+                                       IfsMatrixPlan& plan, std::vector<std::string>& sizes,
+                                       JobPlan& job) {
+  const std::string path = kPath;
   if (!ms.has_render())
     return Invalid(path + ".render",
                    "required: the expression to render, e.g. {\"matrix\": "
                    "\"<name>\"}");
-  auto render = ConvertExpr(ms.render(), path + ".render", scope);
-  if (!render.ok()) return render.status();
-  const std::string render_name = DescribeMatrixExpr(**render);
+  NIMBUS_ASSIGN_OR_RETURN(MatrixExprPtr render, ConvertExpr(ms.render(), path + ".render", scope));
+  const std::string render_name = DescribeMatrixExpr(*render);
   std::vector<ExpansionStep> report;
-  auto matrix = EvaluateMatrixExpr(**render, table, expansion_limits, &report);
+  auto matrix = EvaluateMatrixExpr(*render, table, limits, &report);
   if (!matrix.ok()) return AtPath(matrix.status(), path + ".render");
-  plan->expansion.push_back(report.back());
+  plan.expansion.push_back(report.back());
   sizes.push_back(StrCat("render = ", SizeLine(report.back())));
   job.warnings.push_back(StrCat("info: expanded IFS matrices: ", absl::StrJoin(sizes, "; "),
                                 "; map table ", table.size(), " maps"));
-  const uint32_t n = matrix->size();
   auto limit = AperiodicLimitPattern(*matrix, render_name);
   if (!limit.ok()) return AtPath(limit.status(), path + ".render");
+  return Rendered{*std::move(matrix), render_name, *std::move(limit)};
+}
 
-  // --- Selection ----------------------------------------------------------
-  std::vector<Component>& selection = plan->selection;
+absl::Status SelectByComponents(const v1::IfsMatrixSystem& ms, const Rendered& r,
+                                std::vector<Component>& selection) {
+  const uint32_t n = r.matrix.size();
+  std::set<std::pair<uint32_t, uint32_t>> seen;
+  for (int k = 0; k < ms.components_size(); ++k) {
+    const v1::MatrixComponent& c = ms.components(k);
+    const std::string cpath = StrCat(kPath, ".components[", k, "]");
+    if (c.row() >= n || c.col() >= n)
+      return Invalid(cpath, StrCat("component (", c.row(), ", ", c.col(), ") is outside the ", n,
+                                   "x", n, " matrix ", r.name, " (indices are 0-based)"));
+    if (!r.limit.Get(c.row(), c.col()))
+      return Invalid(cpath, StrCat("component (", c.row(), ", ", c.col(), ") of ", r.name,
+                                   " is empty: no path of every length leads from state ",
+                                   c.row(), " to state ", c.col()));
+    if (!seen.emplace(c.row(), c.col()).second)
+      return Invalid(cpath, StrCat("component (", c.row(), ", ", c.col(), ") is selected twice"));
+    selection.push_back({c.row(), c.col()});
+  }
+  return absl::OkStatus();
+}
+
+absl::Status CheckStates(const google::protobuf::RepeatedField<uint32_t>& states,
+                         const std::string& field, const Rendered& r) {
+  const uint32_t n = r.matrix.size();
+  std::set<uint32_t> seen;
+  for (int k = 0; k < states.size(); ++k) {
+    if (states[k] >= n)
+      return Invalid(StrCat(kPath, ".", field, "[", k, "]"),
+                     StrCat("state ", states[k], " is outside the ", n, "x", n, " matrix ",
+                            r.name, " (states are 0-based)"));
+    if (!seen.insert(states[k]).second)
+      return Invalid(StrCat(kPath, ".", field, "[", k, "]"),
+                     StrCat("state ", states[k], " is listed twice"));
+  }
+  return absl::OkStatus();
+}
+
+absl::Status SelectByStates(const v1::IfsMatrixSystem& ms, const Rendered& r,
+                            std::vector<Component>& selection) {
+  const std::string path = kPath;
+  if (ms.initial_states_size() == 0 || ms.final_states_size() == 0)
+    return Invalid(path + (ms.initial_states_size() == 0 ? ".initial_states" : ".final_states"),
+                   "give both initial_states and final_states");
+  NIMBUS_RETURN_IF_ERROR(CheckStates(ms.initial_states(), "initial_states", r));
+  NIMBUS_RETURN_IF_ERROR(CheckStates(ms.final_states(), "final_states", r));
+  for (uint32_t i : ms.initial_states())
+    for (uint32_t j : ms.final_states())
+      if (r.limit.Get(i, j)) selection.push_back({i, j});
+  if (selection.empty())
+    return Invalid(path + ".final_states",
+                   StrCat("every component from initial_states to final_states of ", r.name,
+                          " is empty"));
+  return absl::OkStatus();
+}
+
+absl::Status SelectComponents(const v1::IfsMatrixSystem& ms, const Rendered& r,
+                              std::vector<Component>& selection) {
   const bool by_states = ms.initial_states_size() > 0 || ms.final_states_size() > 0;
   if (by_states == (ms.components_size() > 0))
-    return Invalid(path + ".components",
+    return Invalid(std::string(kPath) + ".components",
                    "select components either by components or by initial_states and "
                    "final_states (exactly one way)");
-  if (!by_states) {
-    std::set<std::pair<uint32_t, uint32_t>> seen;
-    for (int k = 0; k < ms.components_size(); ++k) {
-      const v1::MatrixComponent& c = ms.components(k);
-      const std::string cpath = StrCat(path, ".components[", k, "]");
-      if (c.row() >= n || c.col() >= n)
-        return Invalid(cpath, StrCat("component (", c.row(), ", ", c.col(), ") is outside the ", n,
-                                     "x", n, " matrix ", render_name, " (indices are 0-based)"));
-      if (!limit->Get(c.row(), c.col()))
-        return Invalid(cpath, StrCat("component (", c.row(), ", ", c.col(), ") of ", render_name,
-                                     " is empty: no path of every length leads from state ",
-                                     c.row(), " to state ", c.col()));
-      if (!seen.emplace(c.row(), c.col()).second)
-        return Invalid(cpath, StrCat("component (", c.row(), ", ", c.col(), ") is selected twice"));
-      selection.push_back({c.row(), c.col()});
-    }
-  } else {
-    if (ms.initial_states_size() == 0 || ms.final_states_size() == 0)
-      return Invalid(path + (ms.initial_states_size() == 0 ? ".initial_states" : ".final_states"),
-                     "give both initial_states and final_states");
-    auto check = [&](const google::protobuf::RepeatedField<uint32_t>& states,
-                     const std::string& field) -> absl::Status {
-      std::set<uint32_t> seen;
-      for (int k = 0; k < states.size(); ++k) {
-        if (states[k] >= n)
-          return Invalid(StrCat(path, ".", field, "[", k, "]"),
-                         StrCat("state ", states[k], " is outside the ", n, "x", n, " matrix ",
-                                render_name, " (states are 0-based)"));
-        if (!seen.insert(states[k]).second)
-          return Invalid(StrCat(path, ".", field, "[", k, "]"),
-                         StrCat("state ", states[k], " is listed twice"));
-      }
-      return absl::OkStatus();
-    };
-    if (auto st = check(ms.initial_states(), "initial_states"); !st.ok()) return st;
-    if (auto st = check(ms.final_states(), "final_states"); !st.ok()) return st;
-    for (uint32_t i : ms.initial_states())
-      for (uint32_t j : ms.final_states())
-        if (limit->Get(i, j)) selection.push_back({i, j});
-    if (selection.empty())
-      return Invalid(path + ".final_states",
-                     StrCat("every component from initial_states to final_states of ", render_name,
-                            " is empty"));
-  }
+  return by_states ? SelectByStates(ms, r, selection) : SelectByComponents(ms, r, selection);
+}
 
-  // --- Probabilities ------------------------------------------------------
-  double floor = ms.probability_floor();
-  if (!(floor >= 0 && floor <= 1)) return Invalid(path + ".probability_floor", "must be in [0, 1]");
-  if (floor == 0) floor = 0.01;
+// How maps are drawn: the floor and, in explicit mode, a weight per table
+// map (empty in determinant mode).
+struct Drawing {
+  double floor = 0.01;
+  bool explicit_mode = false;
+  std::vector<double> weights;
+};
+
+absl::StatusOr<Drawing> ConvertDrawing(const v1::IfsMatrixSystem& ms, const MapTable& table) {
+  const std::string path = kPath;
+  Drawing d;
+  d.floor = ms.probability_floor();
+  if (!(d.floor >= 0 && d.floor <= 1))
+    return Invalid(path + ".probability_floor", "must be in [0, 1]");
+  if (d.floor == 0) d.floor = 0.01;
   v1::ProbabilityMode mode = ms.probability_mode();
   if (mode == v1::PROBABILITY_MODE_UNSPECIFIED) {
     // As for a plain IFS: explicit when every map gives a probability.
@@ -339,122 +380,138 @@ absl::Status ConvertMatrixChaosGame(const v1::ChaosGame& cg, const Limits& limit
     for (const auto& m : ms.maps()) all_set &= m.probability() > 0;
     mode = all_set ? v1::PROBABILITY_MODE_EXPLICIT : v1::PROBABILITY_MODE_DETERMINANT;
   }
-  std::vector<double> weights;  // by table index, explicit mode only
-  if (mode == v1::PROBABILITY_MODE_EXPLICIT) {
-    for (int i = 0; i < ms.maps_size(); ++i)
-      if (!(ms.maps(i).probability() > 0))
-        return Invalid(StrCat(path, ".maps[", i, "].probability"),
-                       "explicit mode needs every map's probability > 0");
-    // A composed map is drawn where its factors would have been drawn in
-    // turn, so it gets the product of their weights.
-    for (uint32_t t = 0; t < table.size(); ++t) {
-      double w = 1;
-      for (uint32_t letter : table.word(t)) w *= ms.maps(int(letter)).probability();
-      weights.push_back(w);
-    }
+  d.explicit_mode = mode == v1::PROBABILITY_MODE_EXPLICIT;
+  if (!d.explicit_mode) return d;
+  for (int i = 0; i < ms.maps_size(); ++i)
+    if (!(ms.maps(i).probability() > 0))
+      return Invalid(StrCat(path, ".maps[", i, "].probability"),
+                     "explicit mode needs every map's probability > 0");
+  // A composed map is drawn where its factors would have been drawn in
+  // turn, so it gets the product of their weights.
+  for (uint32_t t = 0; t < table.size(); ++t) {
+    double w = 1;
+    for (uint32_t letter : table.word(t)) w *= ms.maps(int(letter)).probability();
+    d.weights.push_back(w);
   }
+  return d;
+}
 
-  // --- Engine parameters --------------------------------------------------
-  if (cg.iterations() == 0) return Invalid("chaos_game.iterations", "must be > 0");
-  if (cg.iterations() > limits.max_iterations)
-    return absl::ResourceExhaustedError(StrCat("chaos_game.iterations: ", cg.iterations(),
-                                               " exceeds the server limit of ",
-                                               limits.max_iterations));
-  ChaosGameParams& params = job.chaos_game;
+ComponentChainOptions ChainOptions(const Drawing& d) {
+  ComponentChainOptions o;
+  o.probability_floor = d.floor;
+  o.map_weights = d.weights;
+  return o;
+}
+
+// The run of the whole selection: a plain IFS for a 1x1 matrix (the same
+// maps, order and probabilities as the equivalent ifs spec, so the same
+// seed gives the same volume bit for bit), a chain otherwise.
+absl::Status BuildWholeRun(const Rendered& r, const MapTable& table, const Drawing& d,
+                           IfsMatrixPlan& plan) {
+  ChaosGameParams& params = plan.run;
+  if (r.matrix.size() == 1) {
+    const IfsMatrix::Entry& entry = r.matrix.at(0, 0);
+    for (uint32_t t : entry) params.ifs.maps.push_back(table.map(t));
+    if (d.explicit_mode) {
+      double total = 0;
+      for (uint32_t t : entry) total += d.weights[t];
+      for (uint32_t t : entry) params.ifs.probabilities.push_back(d.weights[t] / total);
+    } else {
+      params.ifs.probabilities = DeterminantProbabilities(params.ifs.maps, d.floor);
+    }
+    plan.chain_states = 0;
+    return absl::OkStatus();
+  }
+  auto chain = BuildComponentChain(table.maps(), r.matrix, plan.selection, r.name, ChainOptions(d));
+  if (!chain.ok()) return AtPath(chain.status(), std::string(kPath) + ".render");
+  params.ifs.maps = table.maps();
+  // Unused with a chain, but the engine validates them.
+  params.ifs.probabilities.assign(params.ifs.maps.size(), 1.0 / double(params.ifs.maps.size()));
+  params.chain = std::move(chain->chain);
+  plan.chain_states = params.chain->states.size();
+  return absl::OkStatus();
+}
+
+absl::Status ConvertComponentGrid(const v1::ChaosGame& cg, IfsMatrixPlan& plan) {
+  switch (cg.matrices().component_grid()) {
+    case v1::COMPONENT_GRID_NONE: plan.component_grid = ComponentGridType::kNone; break;
+    case v1::COMPONENT_GRID_INT: plan.component_grid = ComponentGridType::kInt; break;
+    case v1::COMPONENT_GRID_FLOAT: plan.component_grid = ComponentGridType::kFloat; break;
+    default: return Invalid(std::string(kPath) + ".component_grid", "unknown value");
+  }
+  if (plan.component_grid == ComponentGridType::kNone) return absl::OkStatus();
+  // Component runs are summed and labelled by count; these options would
+  // be silently lost there, so they are refused by name.
+  const char* why = "not supported together with chaos_game.matrices.component_grid";
+  if (cg.has_color()) return Invalid("chaos_game.color", why);
+  if (cg.has_convergence()) return Invalid("chaos_game.convergence", why);
+  if (cg.splat()) return Invalid("chaos_game.splat", why);
+  return absl::OkStatus();
+}
+
+// With a component grid: one run per selected component, iterations split
+// evenly, distinct streams per component (component 0 keeps the seed).
+absl::Status BuildComponentRuns(const v1::ChaosGame& cg, const Rendered& r, const MapTable& table,
+                                const Drawing& d, IfsMatrixPlan& plan) {
+  const uint64_t k = plan.selection.size();
+  if (cg.iterations() < k)
+    return Invalid("chaos_game.iterations",
+                   StrCat("a component grid needs at least one iteration per selected "
+                          "component (",
+                          k, ")"));
+  for (uint64_t c = 0; c < k; ++c) {
+    ChaosGameParams run = plan.run;
+    run.iterations = cg.iterations() / k + (c < cg.iterations() % k ? 1 : 0);
+    run.seed = cg.seed() + c * 0x9E3779B97F4A7C15ull;
+    if (r.matrix.size() > 1) {
+      auto chain = BuildComponentChain(table.maps(), r.matrix, {plan.selection[c]}, r.name,
+                                       ChainOptions(d));
+      if (!chain.ok()) return AtPath(chain.status(), StrCat(kPath, ".components"));
+      run.chain = std::move(chain->chain);
+    }
+    plan.component_runs.push_back(std::move(run));
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+absl::Status ConvertMatrixChaosGame(const v1::ChaosGame& cg, const Limits& limits,
+                                    JobPlan& job) {
+  const v1::IfsMatrixSystem& ms = cg.matrices();
+  IfsMatrixPlan plan;
+  NIMBUS_ASSIGN_OR_RETURN(std::vector<PointMap> base, ConvertBaseMaps(ms, limits, job));
+  const ExpansionLimits expansion_limits;
+  MapTable table(base);
+  table.set_max_maps(expansion_limits.max_table_maps);
+  Scope scope;
+  NIMBUS_RETURN_IF_ERROR(ConvertMatrixDefs(ms, table, expansion_limits, scope));
+  std::vector<std::string> sizes;
+  NIMBUS_RETURN_IF_ERROR(
+      ConvertNamedExpressions(ms, table, expansion_limits, scope, plan, sizes));
+  NIMBUS_ASSIGN_OR_RETURN(Rendered rendered,
+                          ConvertRender(ms, table, expansion_limits, scope, plan, sizes, job));
+  NIMBUS_RETURN_IF_ERROR(SelectComponents(ms, rendered, plan.selection));
+  NIMBUS_ASSIGN_OR_RETURN(Drawing drawing, ConvertDrawing(ms, table));
+  NIMBUS_RETURN_IF_ERROR(CheckIterations(cg, limits));
+  ChaosGameParams& params = plan.run;
   params.frame = job.frame;
   params.iterations = cg.iterations();
   params.warmup = cg.warmup() == 0 ? 100 : cg.warmup();
   params.seed = cg.seed();
   // Colour, raw counts, convergence and splatting mean what they mean for a
   // plain IFS: the chain walks the same engine.
-  if (auto st = ConvertEngineOptions(cg, job); !st.ok()) return st;
-  ComponentChainOptions chain_options;
-  chain_options.probability_floor = floor;
-  chain_options.map_weights = weights;
-
-  if (n == 1) {
-    // A plain IFS is a 1x1 matrix, and it runs as one: the same maps in the
-    // same order with the same probabilities, so the same seed gives the
-    // same volume bit for bit.
-    const IfsMatrix::Entry& entry = matrix->at(0, 0);
-    for (uint32_t t : entry) params.ifs.maps.push_back(table.map(t));
-    if (mode == v1::PROBABILITY_MODE_EXPLICIT) {
-      double total = 0;
-      for (uint32_t t : entry) total += weights[t];
-      for (uint32_t t : entry) params.ifs.probabilities.push_back(weights[t] / total);
-    } else {
-      params.ifs.probabilities = DeterminantProbabilities(params.ifs.maps, floor);
-    }
-    plan->chain_states = 0;
-  } else {
-    auto chain = BuildComponentChain(table.maps(), *matrix, selection, render_name, chain_options);
-    if (!chain.ok()) return AtPath(chain.status(), path + ".render");
-    params.ifs.maps = table.maps();
-    // Unused with a chain, but the engine validates them.
-    params.ifs.probabilities.assign(params.ifs.maps.size(), 1.0 / double(params.ifs.maps.size()));
-    params.chain = std::move(chain->chain);
-    plan->chain_states = params.chain->states.size();
-  }
+  NIMBUS_RETURN_IF_ERROR(ConvertEngineOptions(cg, params, job.density));
+  NIMBUS_RETURN_IF_ERROR(BuildWholeRun(rendered, table, drawing, plan));
   for (const PointMap& m : params.ifs.maps)
     job.contraction_factors.push_back(m.pre.ContractionFactor());
-
-  // --- Component grid -----------------------------------------------------
-  switch (ms.component_grid()) {
-    case v1::COMPONENT_GRID_NONE:
-      plan->component_grid = ComponentGridType::kNone;
-      break;
-    case v1::COMPONENT_GRID_INT:
-      plan->component_grid = ComponentGridType::kInt;
-      break;
-    case v1::COMPONENT_GRID_FLOAT:
-      plan->component_grid = ComponentGridType::kFloat;
-      break;
-    default:
-      return Invalid(path + ".component_grid", "unknown value");
-  }
-  if (plan->component_grid != ComponentGridType::kNone) {
-    // Component runs are summed and labelled by count; these options would
-    // be silently lost there, so they are refused by name.
-    const char* why = "not supported together with chaos_game.matrices.component_grid";
-    if (cg.has_color()) return Invalid("chaos_game.color", why);
-    if (cg.has_convergence()) return Invalid("chaos_game.convergence", why);
-    if (cg.splat()) return Invalid("chaos_game.splat", why);
-  }
-  // One engine runs at a time, so its worst case is the job's, plus the
-  // accumulator of a component grid.
-  uint64_t pilot = 0;
-  job.estimated_memory_bytes =
-      EstimateChaosGameMemory(params, threads, job.density, limits, &pilot).peak();
-  if (plan->component_grid != ComponentGridType::kNone) {
-    const uint64_t k = selection.size();
-    if (cg.iterations() < k)
-      return Invalid("chaos_game.iterations",
-                     StrCat("a component grid needs at least one iteration per selected "
-                            "component (",
-                            k, ")"));
-    for (uint64_t c = 0; c < k; ++c) {
-      ChaosGameParams run = params;
-      run.iterations = cg.iterations() / k + (c < cg.iterations() % k ? 1 : 0);
-      // Distinct streams per component; component 0 keeps the job's seed.
-      run.seed = cg.seed() + c * 0x9E3779B97F4A7C15ull;
-      if (n == 1) {
-        plan->component_runs.push_back(std::move(run));
-        continue;
-      }
-      auto chain =
-          BuildComponentChain(table.maps(), *matrix, {selection[c]}, render_name, chain_options);
-      if (!chain.ok()) return AtPath(chain.status(), StrCat(path, ".components"));
-      run.ifs = params.ifs;
-      run.chain = std::move(chain->chain);
-      plan->component_runs.push_back(std::move(run));
-    }
-    // The accumulator's three grids live next to one engine at a time.
-    job.estimated_memory_bytes += ComponentAccumulator::MaxMemoryBytes(job.frame.resolution);
-  }
-  job.total_work = cg.iterations();
-  plan->maps = table.maps();
-  plan->matrix = *std::move(matrix);
-  job.ifs_matrix = std::move(plan);
+  NIMBUS_RETURN_IF_ERROR(ConvertComponentGrid(cg, plan));
+  if (plan.component_grid != ComponentGridType::kNone)
+    NIMBUS_RETURN_IF_ERROR(BuildComponentRuns(cg, rendered, table, drawing, plan));
+  plan.maps = table.maps();
+  plan.matrix = std::move(rendered.matrix);
+  job.work = {cg.iterations(), "points"};
+  job.kind = std::move(plan);
   return absl::OkStatus();
 }
 

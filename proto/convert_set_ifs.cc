@@ -1,14 +1,15 @@
 // Converts the set_ifs generator: set sources (assets, shapes), set maps,
 // probabilities, and the random iteration or book budget.
-#include "proto/convert_set_ifs.h"
 
 #include <cmath>
 
 #include "absl/strings/str_join.h"
 #include "core/sets/set_ifs.h"
+#include "core/sets/set_ifs_plan.h"
 #include "core/sets/voxelize.h"
 #include "google/protobuf/io/coded_stream.h"
 #include "google/protobuf/io/zero_copy_stream_impl_lite.h"
+#include "proto/asset_paths.h"
 #include "proto/convert_internal.h"
 
 namespace nimbus::spec {
@@ -46,15 +47,15 @@ absl::Status ResolveAsset(const v1::Asset& asset, const std::string& field, cons
         return Invalid(field + ".sha256", "must be 64 lower-case hex digits");
       if (limits.asset_dir.empty())
         return Invalid(field + ".sha256", "this server has no asset store");
-      auto p = FindStoredAsset(limits.asset_dir, asset.sha256());
-      if (!p.ok())
+      auto stored = FindStoredAssetInfo(limits.asset_dir, asset.sha256());
+      if (!stored.ok())
         return Invalid(field + ".sha256",
                        StrCat("no uploaded asset ", asset.sha256(), " (upload it first)"));
-      out.file = *p;
-      // Messages name the artist's file when the client said what it was.
-      out.file_label = asset.label().empty() ? asset.sha256()
-                                             : StrCat(asset.label(), " (sha256 ",
-                                                      asset.sha256().substr(0, 12), "...)");
+      out.file = stored->path;
+      // Stored by content: the spec's label, or an upload's name, gives the
+      // format; messages name the artist's file, never a server path.
+      out.file_format = AssetFormat(asset.label(), *stored);
+      out.file_label = AssetDisplayName(asset.label(), asset.sha256());
       return absl::OkStatus();
     }
     case v1::Asset::kPath: {
@@ -68,6 +69,7 @@ absl::Status ResolveAsset(const v1::Asset& asset, const std::string& field, cons
         return Invalid(field + ".path", StrCat("no such file: ", asset.path()));
       out.file = asset.path();
       out.file_label = asset.path();
+      out.file_format = KnownAssetFormat(asset.label());
       return absl::OkStatus();
     }
     case v1::Asset::SOURCE_NOT_SET:
@@ -82,7 +84,7 @@ absl::Status CheckPositive(double v, const std::string& field) {
 }
 
 absl::Status ConvertSource(const v1::SetSource& s, const std::string& field, const Limits& limits,
-                           int depth, ConvertedJob& job, SetSourcePlan& out) {
+                           int depth, JobPlan& job, SetSourcePlan& out) {
   if (depth > kMaxSourceDepth) return Invalid(field, "sources nest too deeply");
   out.field = field;
   out.cache_key = Deterministic(s);
@@ -95,7 +97,7 @@ absl::Status ConvertSource(const v1::SetSource& s, const std::string& field, con
       if (auto st = ResolveAsset(m.asset(), f + ".asset", limits, out); !st.ok()) return st;
       // The file label names the file the way the spec did, so errors read
       // "set_ifs.maps[0].condensation.mesh: cow.obj: ...".
-      auto mesh = LoadMesh(out.file);
+      auto mesh = LoadMesh(out.file, {MeshFileTypeFromName(out.file_format), out.file_label});
       if (!mesh.ok()) return Invalid(f, std::string(mesh.status().message()));
       const MeshTopology topo = AnalyzeTopology(*mesh);
       if (!topo.watertight())
@@ -198,7 +200,7 @@ absl::Status ConvertSource(const v1::SetSource& s, const std::string& field, con
 }
 
 absl::Status ConvertSetMap(const v1::SetMap& m, const std::string& field, const Limits& limits,
-                           ConvertedJob& job, SetMapPlan& out) {
+                           JobPlan& job, SetMapPlan& out) {
   out.field = field;
   switch (m.kind()) {
     case v1::SET_MAP_KIND_UNSPECIFIED:
@@ -255,83 +257,9 @@ absl::Status ConvertSetMap(const v1::SetMap& m, const std::string& field, const 
 
 }  // namespace
 
-absl::StatusOr<VoxelSet> BuildSetSource(const SetSourcePlan& s, const GridFrame& frame,
-                                        SetBuildCache* cache, Interrupter* interrupter) {
-  if (cache) {
-    auto it = cache->sets.find(s.cache_key);
-    if (it != cache->sets.end()) return it->second;
-  }
-  absl::StatusOr<VoxelSet> set;
-  switch (s.kind) {
-    case SetSourcePlan::Kind::kMesh: {
-      TriangleMesh mesh = *s.mesh;
-      // Fit first (in the mesh's units), then the spec's own transform.
-      const Affine3 fit =
-          s.fit ? FitPlacement(mesh.GetBounds(), frame, s.fit_margin_voxels) : Affine3::Identity();
-      const Affine3 place = s.transform * fit;
-      for (Vec3& v : mesh.vertices) v = place.Apply(v);
-      VoxelizeOptions o;
-      o.shell_voxels = s.shell_voxels;
-      auto r = VoxelizeMesh(mesh, frame, o, interrupter);
-      if (!r.ok()) {
-        set = r.status();
-      } else {
-        set = std::move(r->interior);
-      }
-      break;
-    }
-    case SetSourcePlan::Kind::kGrid: {
-      GridSetOptions o;
-      o.grid_name = s.grid_name;
-      o.threshold = s.threshold;
-      set = LoadGridSet(s.file, frame, o, interrupter);
-      break;
-    }
-    case SetSourcePlan::Kind::kSphere:
-      set = SphereSet(frame, s.center, s.radius);
-      break;
-    case SetSourcePlan::Kind::kBox:
-      set = BoxSet(frame, s.box);
-      break;
-    case SetSourcePlan::Kind::kTorus:
-      set = TorusSet(frame, s.center, s.axis, s.major_radius, s.minor_radius);
-      break;
-    case SetSourcePlan::Kind::kRandomBalls: {
-      auto region = BuildSetSource(s.parts[0], frame, cache, interrupter);
-      if (!region.ok()) return region.status();
-      set = RandomBallsInside(*region, frame, s.balls);
-      break;
-    }
-    case SetSourcePlan::Kind::kUnion: {
-      VoxelSet u(frame.resolution);
-      for (const SetSourcePlan& p : s.parts) {
-        auto part = BuildSetSource(p, frame, cache, interrupter);
-        if (!part.ok()) return part.status();
-        u |= *part;
-      }
-      set = std::move(u);
-      break;
-    }
-  }
-  if (!set.ok()) {
-    if (absl::IsCancelled(set.status())) return set.status();
-    const std::string file = s.file_label.empty() ? "" : StrCat(s.file_label, ": ");
-    return absl::Status(set.status().code(), StrCat(s.field, ": ", file, set.status().message()));
-  }
-  if (set->Empty())
-    return absl::InvalidArgumentError(
-        StrCat(s.field,
-               ": the set has no voxels on this grid (it lies outside the bounds or is "
-               "thinner than a voxel)"));
-  if (cache) cache->sets.emplace(s.cache_key, *set);
-  return set;
-}
-
 namespace internal {
 
-absl::Status ConvertSetIfs(const v1::SetIfs& s, const Limits& limits, int threads,
-                           ConvertedJob& job) {
-  job.generator = Generator::kSetIfs;
+absl::Status ConvertSetIfs(const v1::SetIfs& s, const Limits& limits, JobPlan& job) {
   auto plan = std::make_shared<SetIfsPlan>();
   const Int3 r = job.frame.resolution;
   for (int a = 0; a < 3; ++a)
@@ -345,12 +273,10 @@ absl::Status ConvertSetIfs(const v1::SetIfs& s, const Limits& limits, int thread
                                                " maps exceed the limit of ",
                                                std::min(limits.max_maps, 64)));
   double total = 0;
-  int field_maps = 0;  // maps that hold a feature transform of their set
   for (int i = 0; i < s.maps_size(); ++i) {
     const std::string field = StrCat("set_ifs.maps[", i, "]");
     SetMapPlan m;
     if (auto st = ConvertSetMap(s.maps(i), field, limits, job, m); !st.ok()) return st;
-    if (m.kind == SetMapKind::kMedian || m.kind == SetMapKind::kRotatedMedian) ++field_maps;
     const double p = s.maps(i).probability();
     if (!(p >= 0) || !std::isfinite(p))
       return Invalid(field + ".probability", "must be finite and >= 0");
@@ -370,12 +296,6 @@ absl::Status ConvertSetIfs(const v1::SetIfs& s, const Limits& limits, int thread
     if (auto st = ConvertSource(s.start(), "set_ifs.start", limits, 0, job, *plan->start); !st.ok())
       return st;
   }
-  const uint64_t voxels = uint64_t(r.Volume());
-  const uint64_t set_bytes = (uint64_t(r.x + 63) / 64) * 8 * uint64_t(r.y) * uint64_t(r.z);
-  // Per median map: its set and its closest-point field; per step: the
-  // current and next sets, a field over the moving set and image scratch.
-  job.estimated_memory_bytes = uint64_t(field_maps) * (voxels * 4 + set_bytes) +
-                               uint64_t(s.maps_size()) * set_bytes + voxels * 8 + set_bytes * 6;
   switch (s.algorithm_case()) {
     case v1::SetIfs::kRandom:
     case v1::SetIfs::ALGORITHM_NOT_SET: {
@@ -389,7 +309,8 @@ absl::Status ConvertSetIfs(const v1::SetIfs& s, const Limits& limits, int thread
       plan->iterations = ri.iterations();
       plan->warmup = ri.warmup() == 0 ? 16 : ri.warmup();
       plan->seed = ri.seed();
-      job.total_work = plan->warmup + plan->iterations;
+      // Warm-up iterations are preparation: progress counts the counted ones.
+      job.work = {plan->iterations, "set iterations"};
       break;
     }
     case v1::SetIfs::kBook: {
@@ -403,13 +324,11 @@ absl::Status ConvertSetIfs(const v1::SetIfs& s, const Limits& limits, int thread
       plan->depth = b.depth();
       plan->pages = *pages;
       plan->seed = b.seed();
-      job.total_work = *pages;
-      job.estimated_memory_bytes += plan->book_cache_bytes;
+      job.work = {*pages, "pages"};
       break;
     }
   }
-  (void)threads;
-  job.set_ifs = std::move(plan);
+  job.kind = std::move(*plan);
   return absl::OkStatus();
 }
 

@@ -131,49 +131,50 @@ absl::StatusOr<Affine3> ComposeSteps(const google::protobuf::RepeatedPtrField<v1
   return a;
 }
 
-absl::StatusOr<ConvertedJob> ConvertSpec(const v1::JobSpec& spec, const Limits& limits,
-                                         int threads) {
-  ConvertedJob job;
+namespace {
+
+absl::Status ConvertName(const v1::JobSpec& spec, JobPlan& job) {
   job.name = spec.name().empty() ? "nimbus" : spec.name();
   for (char c : job.name)
     if (!(std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-' || c == '.'))
       return Invalid("name", "use letters, digits, '_', '-' and '.' only");
-  auto frame = ConvertGrid(spec, limits);
-  if (!frame.ok()) return frame.status();
-  job.frame = *frame;
+  return absl::OkStatus();
+}
 
+absl::Status ConvertOutput(const v1::Output& o, DensityOptions& density) {
+  density.grid_name = o.grid_name().empty() ? "density" : o.grid_name();
+  switch (o.density_mapping()) {
+    case v1::DENSITY_MAPPING_UNSPECIFIED:
+    case v1::DENSITY_MAPPING_LINEAR: density.mapping = DensityMapping::kLinear; break;
+    case v1::DENSITY_MAPPING_SQRT: density.mapping = DensityMapping::kSqrt; break;
+    case v1::DENSITY_MAPPING_LOG: density.mapping = DensityMapping::kLog; break;
+    case v1::DENSITY_MAPPING_GAMMA: density.mapping = DensityMapping::kGamma; break;
+    default: return Invalid("output.density_mapping", "unknown value");
+  }
+  if (o.gamma() < 0 || !std::isfinite(o.gamma())) return Invalid("output.gamma", "must be > 0");
+  density.gamma = o.gamma() == 0 ? 2.2 : o.gamma();
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+absl::StatusOr<JobPlan> ConvertSpec(const v1::JobSpec& spec, const Limits& limits) {
+  JobPlan job;
+  NIMBUS_RETURN_IF_ERROR(ConvertName(spec, job));
+  NIMBUS_ASSIGN_OR_RETURN(job.frame, ConvertGrid(spec, limits));
+  // Every kind's converter sees the output options (colour adds to them).
+  NIMBUS_RETURN_IF_ERROR(ConvertOutput(spec.output(), job.density));
+  // The job-kind seam: one converter per generator of the spec's oneof.
   switch (spec.generator_case()) {
     case v1::JobSpec::kChaosGame:
-      if (auto st = ConvertChaosGame(spec.chaos_game(), limits, threads, job); !st.ok()) return st;
+      NIMBUS_RETURN_IF_ERROR(ConvertChaosGame(spec.chaos_game(), limits, job));
       break;
     case v1::JobSpec::kSetIfs:
-      if (auto st = ConvertSetIfs(spec.set_ifs(), limits, threads, job); !st.ok()) return st;
+      NIMBUS_RETURN_IF_ERROR(ConvertSetIfs(spec.set_ifs(), limits, job));
       break;
     case v1::JobSpec::GENERATOR_NOT_SET:
       return Invalid("generator", "set one of: chaos_game, set_ifs");
   }
-  // Point generators bound their output by the region they can reach (in
-  // their own estimate); set IFS work on dense sets, so their output grid
-  // can be as large as one full counter grid.
-  if (job.generator == Generator::kSetIfs)
-    job.estimated_memory_bytes += CountGrid::MaxMemoryBytes(job.frame.resolution);
-  if (job.estimated_memory_bytes > limits.max_memory_bytes)
-    return absl::ResourceExhaustedError(
-        StrCat("grid.resolution: the job needs up to ", GiB(job.estimated_memory_bytes),
-               " of memory; the server limit is ", GiB(limits.max_memory_bytes)));
-
-  const v1::Output& o = spec.output();
-  job.density.grid_name = o.grid_name().empty() ? "density" : o.grid_name();
-  switch (o.density_mapping()) {
-    case v1::DENSITY_MAPPING_UNSPECIFIED:
-    case v1::DENSITY_MAPPING_LINEAR: job.density.mapping = DensityMapping::kLinear; break;
-    case v1::DENSITY_MAPPING_SQRT: job.density.mapping = DensityMapping::kSqrt; break;
-    case v1::DENSITY_MAPPING_LOG: job.density.mapping = DensityMapping::kLog; break;
-    case v1::DENSITY_MAPPING_GAMMA: job.density.mapping = DensityMapping::kGamma; break;
-    default: return Invalid("output.density_mapping", "unknown value");
-  }
-  if (o.gamma() < 0 || !std::isfinite(o.gamma())) return Invalid("output.gamma", "must be > 0");
-  job.density.gamma = o.gamma() == 0 ? 2.2 : o.gamma();
   return job;
 }
 

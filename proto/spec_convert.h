@@ -1,5 +1,5 @@
 // The one place where a nimbus.v1.JobSpec is validated and converted into
-// core objects. Every error names the offending field by its path, e.g.
+// a protobuf-free JobPlan (core/plan/job_plan.h). Every error names the offending field by its path, e.g.
 // "chaos_game.ifs.maps[2].steps[0].rotate.axis: must not be zero".
 #pragma once
 
@@ -10,9 +10,7 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
-#include "core/chaos/chaos_game.h"
-#include "core/base/geometry.h"
-#include "core/io/vdb_io.h"
+#include "core/plan/job_plan.h"
 #include "nimbus/v1/spec.pb.h"
 
 namespace nimbus::spec {
@@ -21,6 +19,7 @@ namespace nimbus::spec {
 struct Limits {
   int32_t max_resolution = 4096;             // per axis
   int64_t max_voxels = int64_t{2048} * 2048 * 2048;
+  /// Checked by the server's memory admission, not by ConvertSpec.
   uint64_t max_memory_bytes = uint64_t{16} << 30;
   uint64_t max_iterations = uint64_t{1} << 40;
   int32_t max_maps = 4096;
@@ -31,38 +30,12 @@ struct Limits {
   bool allow_local_paths = true;
 };
 
-/// Which generator a job runs; selects the runner in the server.
-enum class Generator { kChaosGame, kSetIfs, kIfsMatrix };
-
-/// The set-IFS plan; defined in proto/convert_set_ifs.h.
-struct SetIfsPlan;
-/// The IFS-matrix plan; defined in proto/convert_matrix.h.
-struct IfsMatrixPlan;
-
-/// @brief A validated job, ready for the engine.
-struct ConvertedJob {
-  std::string name;
-  Generator generator = Generator::kChaosGame;
-  GridFrame frame;
-  /// Set for Generator::kChaosGame.
-  ChaosGameParams chaos_game;
-  /// Set for Generator::kSetIfs.
-  std::shared_ptr<const SetIfsPlan> set_ifs;
-  /// Set for Generator::kIfsMatrix (chaos_game.matrices).
-  std::shared_ptr<const IfsMatrixPlan> ifs_matrix;
-  DensityOptions density;
-  std::vector<std::string> warnings;
-  /// Largest singular value of each map's affine part.
-  std::vector<double> contraction_factors;
-  uint64_t estimated_memory_bytes = 0;
-  /// Units of progress the job reports in total.
-  uint64_t total_work = 0;
-};
-
-/// Validates `spec` against `limits` for a run on `threads` threads.
-/// INVALID_ARGUMENT for malformed specs, RESOURCE_EXHAUSTED beyond limits.
-absl::StatusOr<ConvertedJob> ConvertSpec(const v1::JobSpec& spec, const Limits& limits,
-                                         int threads);
+/// Validates `spec` against `limits` and converts it into a JobPlan.
+/// INVALID_ARGUMENT for malformed specs, RESOURCE_EXHAUSTED beyond the
+/// structural limits (resolution, voxels, maps, iterations). Pure: the same
+/// spec and asset files give the same plan; memory admission (pilot census,
+/// memory limit) is the server's next step (server/memory_admission.h).
+absl::StatusOr<JobPlan> ConvertSpec(const v1::JobSpec& spec, const Limits& limits);
 
 /// Composes Step messages right to left into one affine map. `path` prefixes
 /// error messages.

@@ -1,7 +1,7 @@
 #include "server/asset_store.h"
 
 #include <atomic>
-#include <cctype>
+#include <fstream>
 
 #include "absl/strings/str_cat.h"
 #include "proto/asset_paths.h"
@@ -21,11 +21,14 @@ std::atomic<uint64_t> g_upload_counter{0};
 
 }  // namespace
 
-std::string AssetExtension(const std::string& file_name) {
-  std::string ext = std::filesystem::path(file_name).extension().string();
-  for (char& c : ext) c = char(std::tolower(static_cast<unsigned char>(c)));
-  if (ext == ".obj" || ext == ".ply" || ext == ".stl" || ext == ".vdb") return ext;
-  return ".bin";
+std::string CleanAssetName(const std::string& file_name) {
+  // Only the name part: a client's folders say nothing about the content.
+  const size_t slash = file_name.find_last_of("/\\");
+  std::string name = slash == std::string::npos ? file_name : file_name.substr(slash + 1);
+  std::erase_if(name, [](char c) { return static_cast<unsigned char>(c) < 0x20 || c == 0x7f; });
+  if (name.size() > 255) name.resize(255);
+  if (name == "." || name == "..") name.clear();
+  return name;
 }
 
 absl::StatusOr<std::unique_ptr<AssetStore>> AssetStore::Open(const std::filesystem::path& dir) {
@@ -43,11 +46,48 @@ absl::StatusOr<std::unique_ptr<AssetStore>> AssetStore::Open(const std::filesyst
 absl::StatusOr<AssetInfo> AssetStore::Find(const std::string& sha256) const {
   if (!IsHexSha256(sha256))
     return absl::InvalidArgumentError("sha256: must be 64 lower-case hex digits");
-  auto path = spec::FindStoredAsset(dir_, sha256);
-  if (!path.ok()) return path.status();
+  auto stored = spec::FindStoredAssetInfo(dir_, sha256);
+  if (!stored.ok()) return stored.status();
   std::error_code ec;
-  AssetInfo info{sha256, std::filesystem::file_size(*path, ec), *path, true};
+  AssetInfo info;
+  info.sha256 = sha256;
+  info.size = std::filesystem::file_size(stored->path, ec);
+  info.path = stored->path;
+  info.already_present = true;
+  info.names = std::move(stored->names);
+  info.format = std::move(stored->format);
   return info;
+}
+
+absl::Status AssetStore::RememberName(const std::string& sha256, const std::string& name) {
+  if (name.empty()) return absl::OkStatus();
+  std::lock_guard<std::mutex> lock(names_mu_);
+  const std::filesystem::path names_path = spec::StoredAssetNamesPath(dir_, sha256);
+  std::string text;
+  size_t count = 0;
+  {
+    std::ifstream in(names_path);
+    for (std::string line; std::getline(in, line);) {
+      if (line == name) return absl::OkStatus();
+      text += line + "\n";
+      ++count;
+    }
+  }
+  if (count >= kMaxNames) return absl::OkStatus();
+  text += name + "\n";
+  // Rewritten whole and renamed, so a reader never sees half a name.
+  const std::filesystem::path tmp =
+      dir_ / "incoming" / absl::StrCat(sha256, ".names.", g_upload_counter++, ".partial");
+  std::ofstream out(tmp, std::ios::trunc);
+  out << text;
+  out.close();
+  std::error_code ec;
+  if (out) std::filesystem::rename(tmp, names_path, ec);
+  if (!out || ec) {
+    std::filesystem::remove(tmp, ec);
+    return absl::InternalError(absl::StrCat("cannot record the name of asset ", sha256));
+  }
+  return absl::OkStatus();
 }
 
 absl::StatusOr<std::unique_ptr<AssetStore::Upload>> AssetStore::Begin(
@@ -61,7 +101,7 @@ absl::StatusOr<std::unique_ptr<AssetStore::Upload>> AssetStore::Begin(
   std::unique_ptr<Upload> u(new Upload());
   u->store_ = this;
   u->sha256_ = sha256;
-  u->ext_ = AssetExtension(file_name);
+  u->name_ = CleanAssetName(file_name);
   u->expected_ = size;
   u->tmp_ = dir_ / "incoming" / absl::StrCat(sha256, ".", g_upload_counter++, ".partial");
   u->out_.open(u->tmp_, std::ios::binary | std::ios::trunc);
@@ -96,13 +136,20 @@ absl::StatusOr<AssetInfo> AssetStore::Upload::Finish() {
   if (digest != sha256_)
     return absl::DataLossError(
         absl::StrCat("upload hashes to ", digest, ", not the announced ", sha256_));
-  if (auto existing = store_->Find(sha256_); existing.ok()) return existing;
-  const std::filesystem::path final_path = store_->dir_ / (sha256_ + ext_);
+  bool fresh = false;
   std::error_code ec;
-  std::filesystem::rename(tmp_, final_path, ec);
-  if (ec) return absl::InternalError(absl::StrCat("cannot store the asset: ", ec.message()));
-  done_ = true;
-  return AssetInfo{sha256_, expected_, final_path, false};
+  // Same bytes, same file: a second upload only adds its name.
+  if (!store_->Find(sha256_).ok()) {
+    std::filesystem::rename(tmp_, store_->dir_ / sha256_, ec);
+    if (ec) return absl::InternalError(absl::StrCat("cannot store the asset: ", ec.message()));
+    done_ = true;
+    fresh = true;
+  }
+  if (auto st = store_->RememberName(sha256_, name_); !st.ok()) return st;
+  auto info = store_->Find(sha256_);
+  if (!info.ok()) return info.status();
+  info->already_present = !fresh;
+  return info;
 }
 
 }  // namespace nimbus::server

@@ -8,7 +8,9 @@
 #include <filesystem>
 #include <fstream>
 #include <memory>
+#include <mutex>
 #include <string>
+#include <vector>
 
 #include "absl/status/statusor.h"
 #include "core/base/sha256.h"
@@ -21,10 +23,17 @@ struct AssetInfo {
   std::filesystem::path path;
   /// The store had the file before this upload.
   bool already_present = false;
+  /// File names it was uploaded under, oldest first.
+  std::vector<std::string> names;
+  /// The format those names give (".obj", ...), or empty (spec::StoredAsset).
+  std::string format;
 };
 
-/// @brief Assets as `dir`/<sha256><ext>, the extension (.obj, .ply, .stl,
-/// .vdb) taken from the uploaded file's name so formats stay recognisable.
+/// @brief Assets by content as `dir`/<sha256>, with the names they were
+/// uploaded under in `dir`/<sha256>.names (spec::FindStoredAssetInfo), so
+/// the same bytes uploaded as "blob" and later as "cow.obj" become usable as
+/// an OBJ. Data dirs of the older `dir`/<sha256><ext> layout are read as
+/// they are.
 class AssetStore {
  public:
   /// Largest accepted upload.
@@ -50,7 +59,7 @@ class AssetStore {
     friend class AssetStore;
     Upload() = default;
     AssetStore* store_ = nullptr;
-    std::string sha256_, ext_;
+    std::string sha256_, name_;
     uint64_t expected_ = 0, received_ = 0;
     std::filesystem::path tmp_;
     std::ofstream out_;
@@ -59,7 +68,8 @@ class AssetStore {
   };
 
   /// Starts an upload of `size` bytes announced to hash to `sha256`
-  /// (lower-case hex). `file_name` gives the extension.
+  /// (lower-case hex). `file_name` (its last component) is remembered as a
+  /// name of the asset.
   absl::StatusOr<std::unique_ptr<Upload>> Begin(const std::string& sha256, uint64_t size,
                                                 const std::string& file_name);
 
@@ -68,11 +78,18 @@ class AssetStore {
 
  private:
   explicit AssetStore(std::filesystem::path dir) : dir_(std::move(dir)) {}
+  /// Adds `name` to the hash's names file unless it is there already.
+  absl::Status RememberName(const std::string& sha256, const std::string& name);
+
+  /// Most names kept per asset; further ones are not recorded.
+  static constexpr size_t kMaxNames = 64;
+
   std::filesystem::path dir_;
+  std::mutex names_mu_;  // serialises rewrites of the names files
 };
 
-/// The extension an asset is stored with: the file name's (lower-cased) if
-/// it is a known mesh or grid format, ".bin" otherwise.
-std::string AssetExtension(const std::string& file_name);
+/// The part of an uploaded file name that is kept as an asset name: the
+/// last path component, without control characters, at most 255 bytes.
+std::string CleanAssetName(const std::string& file_name);
 
 }  // namespace nimbus::server

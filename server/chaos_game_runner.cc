@@ -1,17 +1,38 @@
-// Runs chaos-game jobs in rounds of ~0.2 s, publishing progress and
-// previews between rounds, and stopping early on convergence.
+// Runs chaos-game jobs in rounds of ~0.2 s through the job driver,
+// publishing progress and previews between rounds, and stopping early on
+// convergence at fixed checkpoints.
 #include <algorithm>
-#include <chrono>
 
 #include "absl/strings/str_cat.h"
+#include "core/base/status_macros.h"
 #include "core/chaos/chaos_game.h"
-#include "server/job_runner.h"
+#include "server/chaos_runs.h"
+#include "server/job_driver.h"
 
 namespace nimbus::server {
 
 namespace {
 // Coarse cells per axis for the convergence check.
 constexpr int kConvergenceResolution = 32;
+
+// Compares coarse densities at the checkpoints; remembers the last change.
+struct ConvergenceCheck {
+  double tolerance = 0;
+  std::vector<uint64_t> last_coarse;
+  double last_change = -1;
+  bool converged = false;
+
+  bool AtCheckpoint(const std::vector<const CountGrid*>& parts) {
+    std::vector<uint64_t> coarse = CoarseCounts(parts, kConvergenceResolution);
+    if (!last_coarse.empty()) {
+      last_change = DensityChange(last_coarse, coarse);
+      converged = last_change < tolerance;
+    }
+    last_coarse = std::move(coarse);
+    return converged;
+  }
+};
+
 }  // namespace
 
 void ReportChaosGameStats(const ChaosGameStats& stats, JobContext& ctx) {
@@ -30,71 +51,64 @@ void ReportChaosGameStats(const ChaosGameStats& stats, JobContext& ctx) {
                                 " points fell outside the grid bounds"));
 }
 
-absl::Status RunChaosGameJob(const spec::ConvertedJob& job, JobContext& ctx) {
-  using Clock = std::chrono::steady_clock;
-  auto game = ChaosGame::Create(job.chaos_game, ctx.threads());
-  if (!game.ok()) return game.status();
-  const uint64_t total = job.chaos_game.iterations;
-  const ConvergenceParams& conv = job.chaos_game.convergence;
-  const bool check_convergence = conv.tolerance > 0;
-  uint64_t next_check = conv.check_every;
-  std::vector<uint64_t> last_coarse;
-  double last_change = -1;
-  bool converged = false;
+JobDriver::Rounds ChaosRounds(ChaosGame& game, JobDriver& driver, uint64_t offset,
+                              std::vector<const CountGrid*> fixed_parts, uint64_t* peak_bytes) {
+  JobDriver::Rounds r;
+  r.offset = offset;
+  r.total = game.params().iterations;
+  r.min_step = ChaosGame::kChunkIterations;
+  r.first_step = ChaosGame::kChunkIterations * uint64_t(driver.ctx().threads());
+  r.advance = [&game, &driver, peak_bytes](uint64_t target) -> absl::StatusOr<uint64_t> {
+    NIMBUS_RETURN_IF_ERROR(game.RunUntil(target, driver.interrupter()));
+    if (peak_bytes) *peak_bytes = std::max(*peak_bytes, game.MemoryBytes());
+    return game.stats().iterations_done;
+  };
+  r.finished = [&game] { return game.done(); };
+  r.parts = [&game, fixed_parts] {
+    std::vector<const CountGrid*> parts = fixed_parts;
+    for (const CountGrid& g : game.partial_counts()) parts.push_back(&g);
+    return parts;
+  };
+  return r;
+}
+
+absl::Status RunChaosGameParams(const JobPlan& plan, ChaosGameParams params, JobContext& ctx) {
+  JobDriver d(plan, ctx);
+  params.memory_budget = ctx.memory_budget();
+  NIMBUS_ASSIGN_OR_RETURN(auto game, ChaosGame::Create(std::move(params), ctx.threads()));
+  NIMBUS_RETURN_IF_ERROR(d.BeginPhase(JobPhase::kIterating, plan.work.total, plan.work.unit));
   uint64_t peak_bytes = 0;
-  uint64_t step = ChaosGame::kChunkIterations * uint64_t(ctx.threads());
-  while (!(*game)->done() && !converged) {
-    const uint64_t before = (*game)->stats().iterations_done;
-    const auto round_start = Clock::now();
-    uint64_t target = before + step;
-    // Rounds end on the fixed checkpoints, so where the job stops depends
-    // only on the spec, never on timing or the thread count.
-    if (check_convergence) target = std::min(target, next_check);
-    if (auto st = (*game)->RunUntil(target, ctx.interrupter()); !st.ok()) return st;
-    const uint64_t done = (*game)->stats().iterations_done;
-    const double round_s =
-        std::max(1e-4, std::chrono::duration<double>(Clock::now() - round_start).count());
-    step = std::clamp<uint64_t>(uint64_t(double(done - before) * 0.2 / round_s),
-                                ChaosGame::kChunkIterations, std::max<uint64_t>(total, 1));
-    peak_bytes = std::max(peak_bytes, (*game)->MemoryBytes());
-    if (auto st = ctx.ReportProgress(done, total); !st.ok()) return st;
-    std::vector<const CountGrid*> parts;
-    for (const CountGrid& g : (*game)->partial_counts()) parts.push_back(&g);
-    if (check_convergence && done >= next_check && !(*game)->done()) {
-      std::vector<uint64_t> coarse = CoarseCounts(parts, kConvergenceResolution);
-      if (!last_coarse.empty()) {
-        last_change = DensityChange(last_coarse, coarse);
-        converged = last_change < conv.tolerance;
-      }
-      last_coarse = std::move(coarse);
-      next_check += conv.check_every;
-    }
-    ctx.MaybePublishPreview(parts, job.frame, job.density, done);
+  JobDriver::Rounds rounds = ChaosRounds(*game, d, 0, {}, &peak_bytes);
+  ConvergenceCheck conv{game->params().convergence.tolerance};
+  if (conv.tolerance > 0) {
+    rounds.checkpoint_every = game->params().convergence.check_every;
+    rounds.at_checkpoint = [&](uint64_t) { return conv.AtCheckpoint(rounds.parts()); };
   }
-  const ChaosGameStats stats = (*game)->stats();
+  NIMBUS_RETURN_IF_ERROR(d.RunRounds(rounds));
+  const ChaosGameStats stats = game->stats();
   ReportChaosGameStats(stats, ctx);
-  const std::string stop_reason = converged ? "converged" : "iterations";
-  const CountGrid counts = (*game)->TakeCounts();
+  const CountGrid counts = game->TakeCounts();
   // The output grids come on top of the merged counters.
   uint64_t active_voxels = 0;
   counts.ForEachTile([&](Int3, const uint32_t* t) {
     for (int i = 0; i < CountGrid::kTileVoxels; ++i) active_voxels += t[i] != 0;
   });
   peak_bytes = std::max(peak_bytes, uint64_t(counts.MemoryBytes()) +
-                                        active_voxels * OutputBytesPerVoxel(job.density));
+                                        active_voxels * OutputBytesPerVoxel(plan.density));
   ctx.SetStat("peak_memory_bytes", peak_bytes);
-  Metadata meta = ctx.BaseMetadata();
-  meta.emplace_back("nimbus_seed", int64_t(job.chaos_game.seed));
-  meta.emplace_back("nimbus_iterations", int64_t(stats.iterations_done));
-  meta.emplace_back("nimbus_outside", int64_t(stats.outside));
-  meta.emplace_back("nimbus_reseeded", int64_t(stats.reseeded));
-  meta.emplace_back("nimbus_final_nonfinite", int64_t(stats.final_nonfinite));
-  meta.emplace_back("nimbus_stop_reason", stop_reason);
-  // Count units per plotted point: raw counts divide by this.
-  meta.emplace_back("nimbus_count_scale",
-                    int64_t(job.chaos_game.splat ? kSplatScale : 1));
-  if (last_change >= 0) meta.emplace_back("nimbus_convergence_change", last_change);
-  return WriteDensityVdb(ctx.ResultScratchPath(), counts, job.frame, job.density, meta);
+  MetadataBuilder meta = d.Metadata();
+  meta.Add(meta_key::kSeed, int64_t(game->params().seed))
+      .ChaosStats(stats)
+      .Add(meta_key::kFinalNonfinite, int64_t(stats.final_nonfinite))
+      .Add(meta_key::kStopReason, conv.converged ? "converged" : "iterations")
+      // Count units per plotted point: raw counts divide by this.
+      .Add(meta_key::kCountScale, int64_t(game->params().splat ? kSplatScale : 1));
+  if (conv.last_change >= 0) meta.Add(meta_key::kConvergenceChange, conv.last_change);
+  return d.WriteResult(counts, meta.Build());
+}
+
+absl::Status RunKind(const JobPlan& plan, const ChaosGamePlan& kind, JobContext& ctx) {
+  return RunChaosGameParams(plan, kind.params, ctx);
 }
 
 }  // namespace nimbus::server

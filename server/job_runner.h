@@ -1,24 +1,35 @@
-// The seam between the worker pool and the generators. A runner turns one
-// validated job into result files; the JobContext gives it progress,
-// previews, cancellation and where to write. One runner per generator
-// (chaos_game_runner.cc, ...), so generators grow without touching the pool.
+// @brief The seam between the worker pool and the engines. A runner turns
+// one JobPlan into result files; the JobContext gives it progress,
+// previews, cancellation and where to write. One RunKind overload per job
+// kind (chaos_game_runner.cc, ...), selected by std::visit in RunJobPlan, so
+// a kind without a runner does not compile. Runners drive their engine
+// through the one loop of server/job_driver.h.
 #pragma once
 
 #include <cstdint>
 #include <filesystem>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "absl/status/status.h"
-#include "core/chaos/chaos_game.h"
-#include "core/grid/count_grid.h"
-#include "core/base/geometry.h"
 #include "core/base/interrupter.h"
+#include "core/grid/count_grid.h"
 #include "core/io/vdb_io.h"
-#include "nimbus/v1/spec.pb.h"
-#include "proto/spec_convert.h"
+#include "core/plan/job_plan.h"
 
 namespace nimbus::server {
+
+/// What a job is doing; the phases follow each other in this order.
+enum class JobPhase { kPreparing, kIterating, kWriting };
+
+/// @brief Progress of the current phase, in its own units.
+struct JobProgress {
+  JobPhase phase = JobPhase::kPreparing;
+  uint64_t done = 0;
+  uint64_t total = 0;
+  std::string_view unit;
+};
 
 /// @brief What the worker offers a running job. Called from the worker
 /// thread only (the interrupter is also polled by engine threads).
@@ -26,13 +37,16 @@ class JobContext {
  public:
   virtual ~JobContext() = default;
   virtual const std::string& job_id() const = 0;
-  /// Engine threads this job may use.
+  /// Engine threads this job may use (the size of its task arena).
   virtual int threads() const = 0;
+  /// Bytes the engines may hold before they stop with RESOURCE_EXHAUSTED
+  /// (the run-time safety net behind memory admission); 0 = no limit.
+  virtual uint64_t memory_budget() const = 0;
   /// Stops on cancel or shutdown; pass it to every core computation.
   virtual Interrupter* interrupter() = 0;
   /// Publishes progress to watchers and keeps the job's lease alive. Call
   /// every ~0.2 s. Returns AbortedError if the claim was lost.
-  virtual absl::Status ReportProgress(uint64_t done, uint64_t total) = 0;
+  virtual absl::Status ReportProgress(const JobProgress& progress) = 0;
   /// Builds and publishes previews if a watcher is due one. `parts` are
   /// summed (per-thread partial counts).
   virtual void MaybePublishPreview(const std::vector<const CountGrid*>& parts,
@@ -40,21 +54,20 @@ class JobContext {
                                    uint64_t done) = 0;
   virtual void SetStat(const std::string& key, uint64_t value) = 0;
   virtual void AddWarning(const std::string& warning) = 0;
-  /// Where the job's main result (one .vdb) must be written.
+  /// Where the job's main result (one .vdb) must be written; further files
+  /// (frames, pages) go to ExtraFilesDir() of it.
   virtual std::filesystem::path ResultScratchPath() = 0;
-  /// Metadata every result grid carries (seed is added by the runner).
+  /// Metadata every result grid carries (spec hash, version).
   virtual Metadata BaseMetadata() const = 0;
 };
 
-/// Publishes a chaos game's counters as job stats and warns when many
-/// points went non-finite or fell outside the grid.
-void ReportChaosGameStats(const ChaosGameStats& stats, JobContext& ctx);
+// One runner per job kind. Each writes ResultScratchPath() (and further
+// files) and returns CANCELLED when interrupted.
+absl::Status RunKind(const JobPlan& plan, const ChaosGamePlan& kind, JobContext& ctx);
+absl::Status RunKind(const JobPlan& plan, const IfsMatrixPlan& kind, JobContext& ctx);
+absl::Status RunKind(const JobPlan& plan, const SetIfsPlan& kind, JobContext& ctx);
 
-/// Runs a chaos-game job (plain or recurrent IFS) into ResultScratchPath().
-absl::Status RunChaosGameJob(const spec::ConvertedJob& job, JobContext& ctx);
-/// Runs a recurrent-IFS (IFS matrix) job into ResultScratchPath().
-absl::Status RunIfsMatrixJob(const spec::ConvertedJob& job, JobContext& ctx);
-/// Runs a set-IFS job (random iteration or book) into ResultScratchPath().
-absl::Status RunSetIfsJob(const spec::ConvertedJob& job, JobContext& ctx);
+/// Runs `plan` with the runner of its kind.
+absl::Status RunJobPlan(const JobPlan& plan, JobContext& ctx);
 
 }  // namespace nimbus::server

@@ -53,6 +53,16 @@ v1::Job ToProto(const JobRecord& r, bool with_spec) {
   j.mutable_progress()->set_done(r.progress_done);
   j.mutable_progress()->set_total(r.progress_total);
   j.set_error(r.error);
+  if (r.state == JobState::kFailed || r.state == JobState::kCancelled) {
+    // Records written before codes were stored have none: CANCELLED for a
+    // cancelled job, UNKNOWN for a failed one.
+    int code = r.error_code;
+    if (code == 0) code = r.state == JobState::kCancelled ? 1 : 2;
+    j.mutable_status()->set_code(code);
+    j.mutable_status()->set_message(r.error);
+  }
+  // Only while it still matters: a finished job has stopped either way.
+  j.set_cancel_requested(r.cancel_requested && !IsTerminal(r.state));
   if (r.state == JobState::kSucceeded) {
     j.mutable_result()->set_size_bytes(r.result_size);
     j.mutable_result()->set_sha256(r.result_sha256);

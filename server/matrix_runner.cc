@@ -1,82 +1,85 @@
 // Runs IFS-matrix jobs (chaos_game.matrices). Without a component grid the
-// converted job is an ordinary chaos game (a chain over the expanded map
-// table, or a plain IFS for 1x1 matrices) and runs as one. With a component
-// grid each selected component runs on its own chain, because the engine
-// counts plotted points without their labels; the runs are summed into the
-// density and their argmax per voxel becomes the `component` grid.
-#include <algorithm>
-#include <chrono>
-
+// plan's whole run is an ordinary chaos game and runs as one. With a
+// component grid each selected component runs on its own chain, because the
+// engine counts plotted points without their labels; the runs are summed
+// into the density and their argmax per voxel becomes the `component` grid.
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
-#include "core/chaos/chaos_game.h"
+#include "core/base/status_macros.h"
 #include "core/matrix/component_grid.h"
-#include "proto/convert_matrix.h"
-#include "server/job_runner.h"
+#include "server/chaos_runs.h"
+#include "server/job_driver.h"
 
 namespace nimbus::server {
 
-absl::Status RunIfsMatrixJob(const spec::ConvertedJob& job, JobContext& ctx) {
-  const spec::IfsMatrixPlan* plan = job.ifs_matrix.get();
-  if (plan == nullptr) return absl::InternalError("IFS-matrix job without a plan");
-  ctx.SetStat("matrix_size", plan->matrix.size());
-  ctx.SetStat("matrix_map_references", plan->matrix.MapReferences());
-  ctx.SetStat("matrix_table_maps", plan->maps.size());
-  ctx.SetStat("matrix_chain_states", plan->chain_states);
-  ctx.SetStat("matrix_components", plan->selection.size());
-  if (plan->component_grid == ComponentGridType::kNone) return RunChaosGameJob(job, ctx);
+namespace {
 
-  using Clock = std::chrono::steady_clock;
-  const uint64_t total = job.chaos_game.iterations;
-  ComponentAccumulator acc(job.frame.resolution);
+void ReportMatrix(const IfsMatrixPlan& plan, JobContext& ctx) {
+  ctx.SetStat("matrix_size", plan.matrix.size());
+  ctx.SetStat("matrix_map_references", plan.matrix.MapReferences());
+  ctx.SetStat("matrix_table_maps", plan.maps.size());
+  ctx.SetStat("matrix_chain_states", plan.chain_states);
+  ctx.SetStat("matrix_components", plan.selection.size());
+}
+
+void Accumulate(ChaosGameStats& sum, const ChaosGameStats& s) {
+  sum.iterations_done += s.iterations_done;
+  sum.outside += s.outside;
+  sum.reseeded += s.reseeded;
+  sum.final_nonfinite += s.final_nonfinite;
+}
+
+// Runs the component runs one after another into `acc`.
+absl::StatusOr<ChaosGameStats> RunComponents(const IfsMatrixPlan& plan, JobDriver& d,
+                                             ComponentAccumulator& acc) {
   ChaosGameStats sum;
-  uint64_t finished = 0;  // iterations of completed component runs
-  for (size_t c = 0; c < plan->component_runs.size(); ++c) {
-    auto game = ChaosGame::Create(plan->component_runs[c], ctx.threads());
-    if (!game.ok()) return game.status();
-    uint64_t step = ChaosGame::kChunkIterations * uint64_t(ctx.threads());
-    const uint64_t run_total = plan->component_runs[c].iterations;
-    while (!(*game)->done()) {
-      const uint64_t before = (*game)->stats().iterations_done;
-      const auto round_start = Clock::now();
-      if (auto st = (*game)->RunUntil(before + step, ctx.interrupter()); !st.ok()) return st;
-      const uint64_t done = (*game)->stats().iterations_done;
-      const double round_s =
-          std::max(1e-4, std::chrono::duration<double>(Clock::now() - round_start).count());
-      step = std::clamp<uint64_t>(uint64_t(double(done - before) * 0.2 / round_s),
-                                  ChaosGame::kChunkIterations, std::max<uint64_t>(run_total, 1));
-      if (auto st = ctx.ReportProgress(finished + done, total); !st.ok()) return st;
-      // Previews show the finished components plus the running one.
-      std::vector<const CountGrid*> parts{&acc.density()};
-      for (const CountGrid& g : (*game)->partial_counts()) parts.push_back(&g);
-      ctx.MaybePublishPreview(parts, job.frame, job.density, finished + done);
-    }
-    const ChaosGameStats stats = (*game)->stats();
-    sum.iterations_done += stats.iterations_done;
-    sum.outside += stats.outside;
-    sum.reseeded += stats.reseeded;
-    sum.final_nonfinite += stats.final_nonfinite;
-    finished += stats.iterations_done;
-    const CountGrid counts = (*game)->TakeCounts();
-    acc.Add(int32_t(c), counts);
+  for (size_t c = 0; c < plan.component_runs.size(); ++c) {
+    ChaosGameParams params = plan.component_runs[c];
+    params.memory_budget = d.ctx().memory_budget();
+    NIMBUS_ASSIGN_OR_RETURN(auto game, ChaosGame::Create(std::move(params), d.ctx().threads()));
+    // Previews show the finished components plus the running one.
+    NIMBUS_RETURN_IF_ERROR(
+        d.RunRounds(ChaosRounds(*game, d, sum.iterations_done, {&acc.density()}, nullptr)));
+    Accumulate(sum, game->stats());
+    acc.Add(int32_t(c), game->TakeCounts());
   }
+  return sum;
+}
+
+}  // namespace
+
+absl::Status RunKind(const JobPlan& plan, const IfsMatrixPlan& kind, JobContext& ctx) {
+  ReportMatrix(kind, ctx);
+  if (kind.component_grid == ComponentGridType::kNone)
+    return RunChaosGameParams(plan, kind.run, ctx);
+  JobDriver d(plan, ctx);
+  NIMBUS_RETURN_IF_ERROR(d.BeginPhase(JobPhase::kIterating, plan.work.total, plan.work.unit));
+  ComponentAccumulator acc(plan.frame.resolution);
+  NIMBUS_ASSIGN_OR_RETURN(const ChaosGameStats sum, RunComponents(kind, d, acc));
   ReportChaosGameStats(sum, ctx);
   const std::vector<uint64_t> voxels = acc.VoxelsPerLabel();
-  for (size_t c = 0; c < plan->selection.size(); ++c)
-    ctx.SetStat(absl::StrCat("component_", c, "_voxels"), c < voxels.size() ? voxels[c] : 0);
-
   std::vector<std::string> labels;
-  for (size_t c = 0; c < plan->selection.size(); ++c)
+  for (size_t c = 0; c < kind.selection.size(); ++c) {
+    ctx.SetStat(absl::StrCat("component_", c, "_voxels"), c < voxels.size() ? voxels[c] : 0);
     labels.push_back(
-        absl::StrCat(c, "=(", plan->selection[c].row, ",", plan->selection[c].col, ")"));
-  Metadata meta = ctx.BaseMetadata();
-  meta.emplace_back("nimbus_seed", int64_t(job.chaos_game.seed));
-  meta.emplace_back("nimbus_iterations", int64_t(sum.iterations_done));
-  meta.emplace_back("nimbus_outside", int64_t(sum.outside));
-  meta.emplace_back("nimbus_reseeded", int64_t(sum.reseeded));
-  meta.emplace_back("nimbus_components", absl::StrJoin(labels, " "));
-  return WriteDensityAndComponentVdb(ctx.ResultScratchPath(), acc, job.frame, job.density,
-                                     plan->component_grid, meta);
+        absl::StrCat(c, "=(", kind.selection[c].row, ",", kind.selection[c].col, ")"));
+  }
+  MetadataBuilder meta = d.Metadata();
+  meta.Add(meta_key::kSeed, int64_t(kind.run.seed))
+      .ChaosStats(sum)
+      .Add(meta_key::kComponents, absl::StrJoin(labels, " "));
+  NIMBUS_RETURN_IF_ERROR(d.BeginPhase(JobPhase::kWriting, 1, "files"));
+  // Int32 ids go to a file of their own beside the result: pyopenvdb and
+  // Blender cannot open a file holding an Int32 grid, and the result always
+  // carries the ids as floats.
+  std::filesystem::path int32_path;
+  if (kind.component_grid == ComponentGridType::kInt) {
+    NIMBUS_ASSIGN_OR_RETURN(int32_path, d.ExtraFilePath(plan.name + ".component.vdb"));
+  }
+  NIMBUS_RETURN_IF_ERROR(WriteDensityAndComponentVdb(ctx.ResultScratchPath(), acc, plan.frame,
+                                                     plan.density, kind.component_grid,
+                                                     meta.Build(), int32_path));
+  return d.Progress(1, true);
 }
 
 }  // namespace nimbus::server

@@ -3,10 +3,12 @@
 #include <spdlog/spdlog.h>
 
 #include <chrono>
+#include <condition_variable>
 #include <random>
 
 #include "absl/strings/str_cat.h"
 #include "server/job_view.h"
+#include "server/memory_admission.h"
 
 namespace nimbus::server {
 
@@ -24,10 +26,10 @@ std::string NewJobId() {
   return id;
 }
 
-grpc::ServerUnaryReactor* Done(grpc::CallbackServerContext* ctx, const grpc::Status& s) {
-  auto* r = ctx->DefaultReactor();
-  r->Finish(s);
-  return r;
+grpc::Status Busy(const BlockingExecutor& blocking) {
+  return grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
+                      absl::StrCat("server busy: ", blocking.max_pending(),
+                                   " store and file operations are waiting; retry shortly"));
 }
 
 bool IsTerminal(v1::JobState s) {
@@ -35,7 +37,8 @@ bool IsTerminal(v1::JobState s) {
 }
 
 // Adds the result's further files (book pages) to a job view: the committed
-// list once it succeeded, the pages finished so far while it runs.
+// list once it succeeded, the pages finished so far while it runs. Reads the
+// disk, so only ever called on the blocking executor.
 void AddResultFiles(ResultStore* results, v1::Job& job) {
   const bool running = job.state() == v1::JOB_STATE_RUNNING;
   if (!running && job.state() != v1::JOB_STATE_SUCCEEDED) return;
@@ -53,96 +56,138 @@ void AddResultFiles(ResultStore* results, v1::Job& job) {
 
 // Streams job snapshots to one watcher. Holds only the newest snapshot, so a
 // slow client skips intermediate states instead of queueing them.
+//
+// Reading the store and listing result files happen on the blocking
+// executor. One "turn" (the start step, a queued or running Pump, or a write
+// in flight) exists at a time; only its holder may finish the call, so the
+// reactor is never deleted while a task of its own is still queued.
 class WatchReactor : public grpc::ServerWriteReactor<v1::WatchJobResponse> {
  public:
-  WatchReactor(JobHub* hub, JobStore* store, ResultStore* results, const v1::WatchJobRequest& req,
-               const v1::Job& initial)
+  WatchReactor(JobHub* hub, JobStore* store, ResultStore* results, BlockingExecutor* blocking,
+               const v1::WatchJobRequest& req)
       : hub_(hub),
+        store_(store),
         results_(results),
+        blocking_(blocking),
         job_id_(req.job_id()),
+        resolution_(req.preview_resolution()),
         interval_(req.preview_interval_seconds() > 0 ? req.preview_interval_seconds() : 1.0) {
-    latest_.job = std::make_shared<v1::Job>(initial);
-    latest_.version = 0;
-    // The first write carries the store's record; hub snapshots follow.
-    {
-      std::lock_guard<std::mutex> lock(mu_);
-      WriteLocked();
-    }
-    subscription_ = hub_->Subscribe(job_id_, req.preview_resolution(), interval_,
-                                    [this](const JobSnapshot& s) { OnSnapshot(s); });
-    // The job may have finished (and left the hub) between the first read
-    // and the subscription: read the store once more so we never wait forever.
-    if (auto rec = store->Get(job_id_); rec.ok() && IsTerminal(ToProto(rec->state))) {
-      JobSnapshot s;
-      s.job = std::make_shared<v1::Job>(ToProto(*rec, false));
-      OnSnapshot(s);
-    }
+    std::lock_guard<std::mutex> lock(mu_);
+    busy_ = true;  // the start step holds the turn
+    if (!blocking_->Post([this] { Start(); })) FinishLocked(Busy(*blocking_));
   }
 
   void OnWriteDone(bool ok) override {
     std::lock_guard<std::mutex> lock(mu_);
-    writing_ = false;
-    if (!ok) {
-      FinishLocked(grpc::Status::OK);
-      return;
-    }
-    if (sent_terminal_) {
-      FinishLocked(grpc::Status::OK);
-      return;
-    }
-    WriteLocked();
+    if (!ok || sent_terminal_) return FinishLocked(grpc::Status::OK);
+    if (cancelled_) return FinishLocked(grpc::Status::CANCELLED);
+    busy_ = false;
+    KickLocked();
   }
 
   void OnCancel() override {
     std::lock_guard<std::mutex> lock(mu_);
-    FinishLocked(grpc::Status::CANCELLED);
+    cancelled_ = true;
+    if (!busy_) FinishLocked(grpc::Status::CANCELLED);
   }
 
   void OnDone() override {
-    hub_->Unsubscribe(job_id_, subscription_);
+    if (subscribed_) hub_->Unsubscribe(job_id_, subscription_);
     delete this;
   }
 
  private:
+  // Executor: the store's record first, then the hub's live snapshots.
+  void Start() {
+    auto rec = store_->Get(job_id_);
+    if (!rec.ok()) {
+      std::lock_guard<std::mutex> lock(mu_);
+      return FinishLocked(ToGrpc(rec.status()));
+    }
+    v1::Job initial = ToProto(*rec, false);
+    if (auto live = hub_->Latest(job_id_); live && live->state() == initial.state())
+      initial = *live;
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      if (cancelled_) return FinishLocked(grpc::Status::CANCELLED);
+      latest_.job = std::make_shared<v1::Job>(std::move(initial));
+      pending_ = true;
+    }
+    // Snapshots arriving now only mark themselves pending: we hold the turn.
+    subscription_ = hub_->Subscribe(job_id_, resolution_, interval_,
+                                    [this](const JobSnapshot& s) { OnSnapshot(s); });
+    subscribed_ = true;
+    // The job may have finished (and left the hub) between the first read
+    // and the subscription: read the store once more so we never wait forever.
+    if (auto again = store_->Get(job_id_); again.ok() && IsTerminal(ToProto(again->state))) {
+      JobSnapshot s;
+      s.job = std::make_shared<v1::Job>(ToProto(*again, false));
+      OnSnapshot(s);
+    }
+    Pump();
+  }
+
+  // Hub side (under the hub's lock): keep the newest, wake the pump.
   void OnSnapshot(const JobSnapshot& s) {
     std::lock_guard<std::mutex> lock(mu_);
-    if (!s.job || sent_terminal_) return;
+    if (!s.job || sent_terminal_ || finished_) return;
+    if (latest_.job && IsTerminal(latest_.job->state()) && !IsTerminal(s.job->state())) return;
     // Keep the preview we have when a snapshot without one arrives.
     auto preview = s.preview ? s.preview : latest_.preview;
     latest_ = s;
     latest_.preview = preview;
-    if (!writing_ && !finished_) WriteLocked();
+    pending_ = true;
+    KickLocked();
   }
 
-  // Writes the newest state if it differs from what the client has.
-  void WriteLocked() {
-    if (writing_ || finished_) return;
-    const v1::Job& job = *latest_.job;
-    const bool job_changed = !sent_job_ || job.state() != sent_state_ ||
-                             job.progress().done() != sent_done_ ||
-                             job.attempts() != sent_attempts_;
+  // Takes the turn and queues a Pump if something new waits to be sent.
+  void KickLocked() {
+    if (busy_ || finished_ || !pending_) return;
+    busy_ = true;
+    if (!blocking_->Post([this] { Pump(); })) FinishLocked(Busy(*blocking_));
+  }
+
+  // Executor, holding the turn: writes the newest state if it differs from
+  // what the client has, or gives the turn back.
+  void Pump() {
+    JobSnapshot s;
     bool send_preview = false;
-    if (latest_.preview && latest_.preview->sequence() != sent_preview_seq_) {
-      const auto now = std::chrono::steady_clock::now();
-      send_preview = sent_preview_seq_ == 0 ||
-                     std::chrono::duration<double>(now - last_preview_).count() >= interval_;
-      if (send_preview) last_preview_ = now;
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      if (cancelled_) return FinishLocked(grpc::Status::CANCELLED);
+      pending_ = false;
+      s = latest_;
+      const v1::Job& job = *s.job;
+      const bool job_changed = !sent_job_ || job.state() != sent_state_ ||
+                               job.progress().done() != sent_done_ ||
+                               job.attempts() != sent_attempts_;
+      if (s.preview && s.preview->sequence() != sent_preview_seq_) {
+        const auto now = std::chrono::steady_clock::now();
+        send_preview = sent_preview_seq_ == 0 ||
+                       std::chrono::duration<double>(now - last_preview_).count() >= interval_;
+        if (send_preview) last_preview_ = now;
+      }
+      if (!job_changed && !send_preview) {
+        busy_ = false;
+        return;
+      }
     }
-    if (!job_changed && !send_preview) return;
-    resp_.Clear();
-    *resp_.mutable_job() = job;
-    AddResultFiles(results_, *resp_.mutable_job());
-    if (send_preview) {
-      *resp_.mutable_preview() = *latest_.preview;
-      sent_preview_seq_ = latest_.preview->sequence();
-    }
+    // Built outside the lock: listing files must not hold up the hub.
+    v1::WatchJobResponse next;
+    *next.mutable_job() = *s.job;
+    AddResultFiles(results_, *next.mutable_job());
+    if (send_preview) *next.mutable_preview() = *s.preview;
+
+    std::lock_guard<std::mutex> lock(mu_);
+    if (cancelled_) return FinishLocked(grpc::Status::CANCELLED);
+    resp_ = std::move(next);
+    if (send_preview) sent_preview_seq_ = s.preview->sequence();
     sent_job_ = true;
-    sent_state_ = job.state();
-    sent_done_ = job.progress().done();
-    sent_attempts_ = job.attempts();
-    sent_terminal_ = IsTerminal(job.state());
-    writing_ = true;
-    StartWrite(&resp_);
+    sent_state_ = s.job->state();
+    sent_done_ = s.job->progress().done();
+    sent_attempts_ = s.job->attempts();
+    sent_terminal_ = IsTerminal(s.job->state());
+    StartWrite(&resp_);  // keeps the turn until OnWriteDone
   }
 
   void FinishLocked(const grpc::Status& s) {
@@ -152,14 +197,20 @@ class WatchReactor : public grpc::ServerWriteReactor<v1::WatchJobResponse> {
   }
 
   JobHub* hub_;
+  JobStore* store_;
   ResultStore* results_;
+  BlockingExecutor* blocking_;
   std::string job_id_;
+  uint32_t resolution_;
   double interval_;
   uint64_t subscription_ = 0;
+  bool subscribed_ = false;
   std::mutex mu_;
   JobSnapshot latest_;
   v1::WatchJobResponse resp_;
-  bool writing_ = false;
+  bool busy_ = false;     // the turn is taken
+  bool pending_ = false;  // latest_ has news for the client
+  bool cancelled_ = false;
   bool finished_ = false;
   bool sent_job_ = false;
   bool sent_terminal_ = false;
@@ -170,37 +221,78 @@ class WatchReactor : public grpc::ServerWriteReactor<v1::WatchJobResponse> {
   std::chrono::steady_clock::time_point last_preview_;
 };
 
-// Streams a result file in chunks from the requested offset.
+// Streams a result file in chunks from the requested offset. The lookup and
+// every chunk read run on the blocking executor; gRPC threads only write.
+// Exactly one step (a queued read or a write) is outstanding at a time.
 class FetchReactor : public grpc::ServerWriteReactor<v1::FetchResultResponse> {
  public:
-  // `file_name` empty: the main file; otherwise one of the further files,
-  // read from the running job's folder when `running`.
-  FetchReactor(ResultStore* results, std::string key, std::string file_name, bool running,
-               uint64_t offset, uint64_t size, std::string sha256)
-      : results_(results),
-        key_(std::move(key)),
-        file_name_(std::move(file_name)),
-        running_(running),
-        offset_(offset),
-        size_(size) {
-    resp_.set_total_size(size_);
-    resp_.set_sha256(std::move(sha256));
-    Next();
+  FetchReactor(JobStore* store, ResultStore* results, BlockingExecutor* blocking,
+               const v1::FetchResultRequest& req)
+      : store_(store),
+        results_(results),
+        blocking_(blocking),
+        job_id_(req.job_id()),
+        file_name_(req.file_name()),
+        offset_(req.offset()) {
+    if (!blocking_->Post([this] { Start(); })) Finish(Busy(*blocking_));
   }
   void OnWriteDone(bool ok) override {
     if (!ok) return Finish(grpc::Status::CANCELLED);
-    resp_.Clear();
-    Next();
+    if (!blocking_->Post([this] { Next(); })) Finish(Busy(*blocking_));
   }
   void OnDone() override { delete this; }
 
  private:
+  void Start() {
+    if (grpc::Status s = Open(); !s.ok()) return Finish(s);
+    Next();
+  }
+
+  // Finds the file and checks the request against it.
+  grpc::Status Open() {
+    auto rec = store_->Get(job_id_);
+    if (!rec.ok()) return ToGrpc(rec.status());
+    // Further files (book pages) of a running job can be fetched as soon as
+    // they are listed; everything else waits for success.
+    running_ = rec->state == JobState::kRunning;
+    if (rec->state != JobState::kSucceeded && !(running_ && !file_name_.empty()))
+      return grpc::Status(
+          grpc::StatusCode::FAILED_PRECONDITION,
+          absl::StrCat("job ", rec->id, " is ", v1::JobState_Name(ToProto(rec->state)),
+                       "; results exist only for JOB_STATE_SUCCEEDED"));
+    size_ = rec->result_size;
+    std::string sha256 = rec->result_sha256;
+    // Committed further files live under the job id (the result key).
+    key_ = file_name_.empty() ? rec->result_key : rec->id;
+    if (!file_name_.empty()) {
+      bool found = false;
+      for (const StoredFile& f : results_->ListFiles(rec->id, running_))
+        if (f.name == file_name_) {
+          size_ = f.size;
+          sha256 = f.sha256;
+          found = true;
+        }
+      if (!found)
+        return grpc::Status(
+            grpc::StatusCode::NOT_FOUND,
+            absl::StrCat("job ", rec->id, " has no result file '", file_name_, "'"));
+    }
+    if (offset_ > size_)
+      return grpc::Status(
+          grpc::StatusCode::OUT_OF_RANGE,
+          absl::StrCat("offset ", offset_, " is past the end (", size_, " bytes)"));
+    resp_.set_total_size(size_);
+    resp_.set_sha256(std::move(sha256));
+    return grpc::Status::OK;
+  }
+
   void Next() {
     if (offset_ >= size_ && sent_any_) return Finish(grpc::Status::OK);
     auto data = file_name_.empty()
                     ? results_->Read(key_, offset_, kFetchChunk)
                     : results_->ReadFile(key_, file_name_, running_, offset_, kFetchChunk);
     if (!data.ok()) return Finish(ToGrpc(data.status()));
+    if (sent_any_) resp_.Clear();  // size and hash ride on the first chunk only
     resp_.set_offset(offset_);
     offset_ += data->size();
     resp_.set_data(std::move(*data));
@@ -208,12 +300,15 @@ class FetchReactor : public grpc::ServerWriteReactor<v1::FetchResultResponse> {
     StartWrite(&resp_);
   }
 
+  JobStore* store_;
   ResultStore* results_;
-  std::string key_;
+  BlockingExecutor* blocking_;
+  std::string job_id_;
   std::string file_name_;
-  bool running_;
+  std::string key_;
+  bool running_ = false;
   uint64_t offset_;
-  uint64_t size_;
+  uint64_t size_ = 0;
   bool sent_any_ = false;
   v1::FetchResultResponse resp_;
 };
@@ -251,16 +346,19 @@ grpc::ServerUnaryReactor* NimbusServiceImpl::SubmitJob(grpc::CallbackServerConte
 grpc::Status NimbusServiceImpl::Admit(const v1::SubmitJobRequest& req,
                                       v1::SubmitJobResponse& resp) {
   // Validation names the offending field; nothing is allocated for grids.
-  auto job = spec::ConvertSpec(req.spec(), limits_, pool_->threads_per_job());
+  auto job = spec::ConvertSpec(req.spec(), limits_);
   if (!job.ok()) return ToGrpc(job.status());
+  // Memory admission: the job's one pilot census, if it needs one.
+  auto memory = AdmitMemory(*job, limits_, pool_->threads_per_job());
+  if (!memory.ok()) return ToGrpc(memory.status());
   NewJob nj;
   nj.id = NewJobId();
   nj.name = job->name;
   req.spec().SerializeToString(&nj.spec);
   nj.request_id = req.request_id();
-  nj.progress_total = job->total_work;
+  nj.progress_total = job->work.total;
   for (const auto& w : job->warnings) nj.warnings += w + "\n";
-  nj.estimated_memory_bytes = job->estimated_memory_bytes;
+  nj.estimated_memory_bytes = memory->estimated_bytes;
   auto rec = store_->Create(nj, NowMs());
   if (!rec.ok()) return ToGrpc(rec.status());
   spdlog::info("job={} event=submitted name={} work={}", rec->id, rec->name, rec->progress_total);
@@ -270,116 +368,147 @@ grpc::Status NimbusServiceImpl::Admit(const v1::SubmitJobRequest& req,
   return grpc::Status::OK;
 }
 
+
+grpc::ServerUnaryReactor* NimbusServiceImpl::OffThread(grpc::CallbackServerContext* ctx,
+                                                       std::function<grpc::Status()> work) {
+  // gRPC keeps the request and response alive until the reactor finishes.
+  grpc::ServerUnaryReactor* reactor = ctx->DefaultReactor();
+  if (!blocking_.Post([reactor, work = std::move(work)] { reactor->Finish(work()); }))
+    reactor->Finish(Busy(blocking_));
+  return reactor;
+}
+
 grpc::ServerUnaryReactor* NimbusServiceImpl::GetJob(grpc::CallbackServerContext* ctx,
                                                     const v1::GetJobRequest* req,
                                                     v1::GetJobResponse* resp) {
-  auto rec = store_->Get(req->job_id());
-  if (!rec.ok()) return Done(ctx, ToGrpc(rec.status()));
-  *resp->mutable_job() = ToProto(*rec, true);
-  // The hub has fresher progress than the store's last heartbeat.
-  if (auto live = hub_->Latest(req->job_id()); live && live->state() == resp->job().state()) {
-    *resp->mutable_job()->mutable_progress() = live->progress();
-    *resp->mutable_job()->mutable_stats() = live->stats();
-  }
-  AddResultFiles(results_, *resp->mutable_job());
-  return Done(ctx, grpc::Status::OK);
+  return OffThread(ctx, [this, req, resp] {
+    auto rec = store_->Get(req->job_id());
+    if (!rec.ok()) return ToGrpc(rec.status());
+    *resp->mutable_job() = ToProto(*rec, true);
+    // The hub has fresher progress than the store's last heartbeat.
+    if (auto live = hub_->Latest(req->job_id()); live && live->state() == resp->job().state()) {
+      *resp->mutable_job()->mutable_progress() = live->progress();
+      *resp->mutable_job()->mutable_stats() = live->stats();
+    }
+    AddResultFiles(results_, *resp->mutable_job());
+    return grpc::Status::OK;
+  });
 }
 
 grpc::ServerUnaryReactor* NimbusServiceImpl::ListJobs(grpc::CallbackServerContext* ctx,
                                                       const v1::ListJobsRequest* req,
                                                       v1::ListJobsResponse* resp) {
-  ListOptions o;
-  o.page_size = req->page_size() <= 0 ? 50 : std::min(req->page_size(), 500);
-  o.page_token = req->page_token();
-  if (req->state() != v1::JOB_STATE_UNSPECIFIED) o.state = FromProto(req->state());
-  auto page = store_->List(o);
-  if (!page.ok()) return Done(ctx, ToGrpc(page.status()));
-  for (const JobRecord& r : page->jobs) *resp->add_jobs() = ToProto(r, false);
-  resp->set_next_page_token(page->next_page_token);
-  return Done(ctx, grpc::Status::OK);
+  return OffThread(ctx, [this, req, resp] {
+    ListOptions o;
+    o.page_size = req->page_size() <= 0 ? 50 : std::min(req->page_size(), 500);
+    o.page_token = req->page_token();
+    if (req->state() != v1::JOB_STATE_UNSPECIFIED) o.state = FromProto(req->state());
+    auto page = store_->List(o);
+    if (!page.ok()) return ToGrpc(page.status());
+    for (const JobRecord& r : page->jobs) *resp->add_jobs() = ToProto(r, false);
+    resp->set_next_page_token(page->next_page_token);
+    return grpc::Status::OK;
+  });
 }
 
 grpc::ServerUnaryReactor* NimbusServiceImpl::CancelJob(grpc::CallbackServerContext* ctx,
                                                        const v1::CancelJobRequest* req,
                                                        v1::CancelJobResponse* resp) {
-  auto rec = store_->RequestCancel(req->job_id(), NowMs());
-  if (!rec.ok()) return Done(ctx, ToGrpc(rec.status()));
-  pool_->Cancel(req->job_id());
+  return OffThread(ctx, [this, req, resp] { return Cancel(req->job_id(), *resp->mutable_job()); });
+}
+
+grpc::Status NimbusServiceImpl::Cancel(const std::string& job_id, v1::Job& out) {
+  auto rec = store_->RequestCancel(job_id, NowMs());
+  if (!rec.ok()) return ToGrpc(rec.status());
+  pool_->Cancel(job_id);
   spdlog::info("job={} event=cancel_requested state={}", rec->id,
                v1::JobState_Name(ToProto(rec->state)));
-  *resp->mutable_job() = ToProto(*rec, false);
-  if (rec->state == JobState::kCancelled) hub_->PublishJob(resp->job());
-  return Done(ctx, grpc::Status::OK);
+  out = ToProto(*rec, false);
+  if (rec->state == JobState::kCancelled) {
+    // Watchers of a queued job learn of its end here; no worker will tell them.
+    hub_->PublishJob(out);
+    hub_->Forget(job_id);
+  }
+  if (rec->state != JobState::kRunning) return grpc::Status::OK;
+  // Only a job this process runs can be awaited: its worker publishes the
+  // end to our hub. One on another replica is answered as it is now.
+  auto live = hub_->Latest(job_id);
+  if (!live || live->state() != v1::JOB_STATE_RUNNING) return grpc::Status::OK;
+  if (auto stopped = AwaitStop(job_id)) out = *stopped;
+  return grpc::Status::OK;
+}
+
+std::shared_ptr<const v1::Job> NimbusServiceImpl::AwaitStop(const std::string& job_id) {
+  if (cancel_wait_ms_ <= 0) return nullptr;
+  // Waiting holds an executor thread; keep one free for everything else.
+  if (cancel_waits_.fetch_add(1) >= blocking_.threads() - 1) {
+    cancel_waits_.fetch_sub(1);
+    return nullptr;
+  }
+  struct Waiter {
+    std::mutex mu;
+    std::condition_variable cv;
+    std::shared_ptr<const v1::Job> stopped;
+  };
+  auto w = std::make_shared<Waiter>();
+  auto stop = [w](std::shared_ptr<const v1::Job> job) {
+    std::lock_guard<std::mutex> lock(w->mu);
+    if (!w->stopped) w->stopped = std::move(job);
+    w->cv.notify_all();
+  };
+  // Any state but RUNNING ends the wait: CANCELLED normally, or whatever the
+  // job reached first (succeeded, failed, or released at shutdown).
+  const uint64_t sub = hub_->Subscribe(job_id, 0, 0, [stop](const JobSnapshot& s) {
+    if (s.job && s.job->state() != v1::JOB_STATE_RUNNING) stop(s.job);
+  });
+  // Its worker writes the store before publishing, so a job that ended
+  // before we subscribed shows here.
+  if (auto rec = store_->Get(job_id); rec.ok() && rec->state != JobState::kRunning)
+    stop(std::make_shared<v1::Job>(ToProto(*rec, false)));
+  std::shared_ptr<const v1::Job> stopped;
+  {
+    std::unique_lock<std::mutex> lock(w->mu);
+    w->cv.wait_for(lock, std::chrono::milliseconds(cancel_wait_ms_),
+                   [&] { return w->stopped != nullptr; });
+    stopped = w->stopped;
+  }
+  hub_->Unsubscribe(job_id, sub);
+  cancel_waits_.fetch_sub(1);
+  return stopped;
 }
 
 grpc::ServerWriteReactor<v1::WatchJobResponse>* NimbusServiceImpl::WatchJob(
     grpc::CallbackServerContext* ctx, const v1::WatchJobRequest* req) {
-  auto rec = store_->Get(req->job_id());
-  if (!rec.ok()) {
-    struct Fail : grpc::ServerWriteReactor<v1::WatchJobResponse> {
-      explicit Fail(const grpc::Status& s) { Finish(s); }
-      void OnDone() override { delete this; }
-    };
-    return new Fail(ToGrpc(rec.status()));
-  }
-  v1::Job initial = ToProto(*rec, false);
-  if (auto live = hub_->Latest(req->job_id()); live && live->state() == initial.state())
-    initial = *live;
-  return new WatchReactor(hub_, store_, results_, *req, initial);
+  return new WatchReactor(hub_, store_, results_, &blocking_, *req);
 }
 
 grpc::ServerWriteReactor<v1::FetchResultResponse>* NimbusServiceImpl::FetchResult(
     grpc::CallbackServerContext* ctx, const v1::FetchResultRequest* req) {
-  struct Fail : grpc::ServerWriteReactor<v1::FetchResultResponse> {
-    explicit Fail(const grpc::Status& s) { Finish(s); }
-    void OnDone() override { delete this; }
-  };
-  auto rec = store_->Get(req->job_id());
-  if (!rec.ok()) return new Fail(ToGrpc(rec.status()));
-  // Further files (book pages) of a running job can be fetched as soon as
-  // they are listed; everything else waits for success.
-  const bool running = rec->state == JobState::kRunning;
-  if (rec->state != JobState::kSucceeded && !(running && !req->file_name().empty()))
-    return new Fail(
-        grpc::Status(grpc::StatusCode::FAILED_PRECONDITION,
-                     absl::StrCat("job ", rec->id, " is ", v1::JobState_Name(ToProto(rec->state)),
-                                  "; results exist only for JOB_STATE_SUCCEEDED")));
-  uint64_t size = rec->result_size;
-  std::string sha256 = rec->result_sha256;
-  if (!req->file_name().empty()) {
-    bool found = false;
-    for (const StoredFile& f : results_->ListFiles(rec->id, running))
-      if (f.name == req->file_name()) {
-        size = f.size;
-        sha256 = f.sha256;
-        found = true;
-      }
-    if (!found)
-      return new Fail(grpc::Status(
-          grpc::StatusCode::NOT_FOUND,
-          absl::StrCat("job ", rec->id, " has no result file '", req->file_name(), "'")));
-  }
-  if (req->offset() > size)
-    return new Fail(grpc::Status(
-        grpc::StatusCode::OUT_OF_RANGE,
-        absl::StrCat("offset ", req->offset(), " is past the end (", size, " bytes)")));
-  // Committed further files live under the job id (the result key).
-  return new FetchReactor(results_, req->file_name().empty() ? rec->result_key : rec->id,
-                          req->file_name(), running, req->offset(), size, sha256);
+  return new FetchReactor(store_, results_, &blocking_, *req);
 }
 
 namespace {
 
 // Receives one asset upload. The first message announces hash, size and
 // name; bytes are hashed while they arrive and the file is stored only when
-// both match at the end of the stream.
+// both match at the end of the stream. Each message is written to disk on
+// the blocking executor; the next read starts from there.
 class UploadReactor : public grpc::ServerReadReactor<v1::UploadAssetRequest> {
  public:
-  UploadReactor(AssetStore* assets, v1::UploadAssetResponse* resp) : assets_(assets), resp_(resp) {
+  UploadReactor(AssetStore* assets, BlockingExecutor* blocking, v1::UploadAssetResponse* resp)
+      : assets_(assets), blocking_(blocking), resp_(resp) {
     StartRead(&req_);
   }
 
   void OnReadDone(bool ok) override {
+    if (!blocking_->Post([this, ok] { Handle(ok); })) Finish(Busy(*blocking_));
+  }
+
+  void OnCancel() override {}
+  void OnDone() override { delete this; }
+
+ private:
+  void Handle(bool ok) {
     if (!ok) {
       // The client closed its side: the upload is complete or truncated.
       if (!upload_)
@@ -413,11 +542,8 @@ class UploadReactor : public grpc::ServerReadReactor<v1::UploadAssetRequest> {
     StartRead(&req_);
   }
 
-  void OnCancel() override {}
-  void OnDone() override { delete this; }
-
- private:
   AssetStore* assets_;
+  BlockingExecutor* blocking_;
   v1::UploadAssetResponse* resp_;
   v1::UploadAssetRequest req_;
   std::string sha256_;
@@ -435,7 +561,7 @@ grpc::ServerReadReactor<v1::UploadAssetRequest>* NimbusServiceImpl::UploadAsset(
     };
     return new Fail();
   }
-  return new UploadReactor(assets_, resp);
+  return new UploadReactor(assets_, &blocking_, resp);
 }
 
 }  // namespace nimbus::server

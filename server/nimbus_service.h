@@ -1,11 +1,18 @@
-// The nimbus.v1.NimbusService implementation on gRPC's callback API. Handlers
-// validate, touch the store and move data; jobs run in the WorkerPool.
+// The nimbus.v1.NimbusService implementation on gRPC's callback API. gRPC's
+// threads only move data: validation runs on the admission thread, store and
+// result-file work on a small blocking executor, jobs in the WorkerPool.
 #pragma once
+
+#include <atomic>
+#include <functional>
+#include <memory>
+#include <string>
 
 #include "nimbus/v1/nimbus_service.grpc.pb.h"
 #include "proto/spec_convert.h"
 #include "server/admission.h"
 #include "server/asset_store.h"
+#include "server/blocking_executor.h"
 #include "server/job_hub.h"
 #include "server/job_store.h"
 #include "server/result_store.h"
@@ -17,6 +24,9 @@ class NimbusServiceImpl final : public v1::NimbusService::CallbackService {
  public:
   NimbusServiceImpl(JobStore* store, ResultStore* results, AssetStore* assets, JobHub* hub,
                     WorkerPool* pool, spec::Limits limits);
+  /// How long CancelJob waits for a job running in this process to stop
+  /// before answering it RUNNING with cancel_requested (default 5 s).
+  void set_cancel_wait_ms(int64_t ms) { cancel_wait_ms_ = ms; }
 
   grpc::ServerUnaryReactor* SubmitJob(grpc::CallbackServerContext* ctx,
                                       const v1::SubmitJobRequest* req,
@@ -39,6 +49,13 @@ class NimbusServiceImpl final : public v1::NimbusService::CallbackService {
  private:
   // Validates and stores one submission (runs on the admission thread).
   grpc::Status Admit(const v1::SubmitJobRequest& req, v1::SubmitJobResponse& resp);
+  // Answers a unary call with `work`'s status, run on the blocking executor.
+  grpc::ServerUnaryReactor* OffThread(grpc::CallbackServerContext* ctx,
+                                      std::function<grpc::Status()> work);
+  // CancelJob's body (runs on the executor).
+  grpc::Status Cancel(const std::string& job_id, v1::Job& out);
+  // Waits up to cancel_wait_ms_ for `job_id` to leave RUNNING; its view then.
+  std::shared_ptr<const v1::Job> AwaitStop(const std::string& job_id);
 
   JobStore* store_;
   ResultStore* results_;
@@ -46,7 +63,13 @@ class NimbusServiceImpl final : public v1::NimbusService::CallbackService {
   JobHub* hub_;
   WorkerPool* pool_;
   spec::Limits limits_;
-  Admission admission_;  // last: drained before the members it uses go
+  int64_t cancel_wait_ms_ = 5000;
+  // Cancels waiting for their job to stop; bounded so they can never hold
+  // every executor thread and starve reads.
+  std::atomic<int> cancel_waits_{0};
+  // Last: drained before the members their tasks use go.
+  BlockingExecutor blocking_{4, 512};
+  Admission admission_;
 };
 
 /// Maps an absl::Status onto a grpc::Status with the same code and message.

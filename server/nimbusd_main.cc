@@ -3,13 +3,29 @@
 #include <spdlog/spdlog.h>
 
 #include <csignal>
-#include <thread>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <pthread.h>
 
 #include "server/server.h"
 
 namespace {
-std::atomic<bool> g_stop{false};
-void OnSignal(int) { g_stop = true; }
+
+// Writes `port` to `path` atomically (a temporary file renamed into place),
+// so a reader never sees a partly written number.
+bool WritePortFile(const std::string& path, int port) {
+  const std::string tmp = path + ".tmp";
+  {
+    std::ofstream out(tmp, std::ios::trunc);
+    out << port << "\n";
+    if (!out.flush()) return false;
+  }
+  std::error_code ec;
+  std::filesystem::rename(tmp, path, ec);
+  return !ec;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -18,7 +34,11 @@ int main(int argc, char** argv) {
   std::string data_dir = o.data_dir.string();
   double max_memory_gib = double(o.limits.max_memory_bytes) / double(1ull << 30);
   std::string log_level = "info";
-  app.add_option("--listen", o.listen, "host:port to serve on")->capture_default_str();
+  std::string port_file;
+  app.add_option("--listen", o.listen, "host:port to serve on (port 0: any free port)")
+      ->capture_default_str();
+  app.add_option("--port-file", port_file,
+                 "write the port actually bound here once serving (useful with port 0)");
   app.add_option("--data-dir", data_dir, "folder for the job database and results")
       ->capture_default_str();
   app.add_option("--workers", o.workers, "jobs run at once")->capture_default_str()->check(
@@ -26,6 +46,17 @@ int main(int argc, char** argv) {
   app.add_option("--threads-per-job", o.threads_per_job,
                  "engine threads per job (0: cores / workers)")
       ->capture_default_str();
+  app.add_option("--lease-ms", o.lease_ms,
+                 "how long a running job's claim lasts without a heartbeat, ms")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  app.add_option("--heartbeat-ms", o.heartbeat_ms, "how often running jobs renew their claim, ms")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  app.add_option("--cancel-wait-ms", o.cancel_wait_ms,
+                 "how long CancelJob waits for a running job to stop, ms")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
   app.add_option("--max-resolution", o.limits.max_resolution, "largest grid axis, voxels")
       ->capture_default_str();
   app.add_option("--max-voxels", o.limits.max_voxels, "largest grid, voxels")->capture_default_str();
@@ -40,14 +71,30 @@ int main(int argc, char** argv) {
   spdlog::set_level(spdlog::level::from_str(log_level));
   spdlog::set_pattern("%Y-%m-%dT%H:%M:%S.%e %^%l%$ nimbusd %v");
 
+  // Block the stop signals before any thread exists, so every thread
+  // inherits the mask and sigwait below is the one place they arrive.
+  sigset_t stop_signals;
+  sigemptyset(&stop_signals);
+  sigaddset(&stop_signals, SIGINT);
+  sigaddset(&stop_signals, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &stop_signals, nullptr);
+
   auto server = nimbus::server::NimbusServer::Start(o);
   if (!server.ok()) {
     spdlog::error("event=start_failed error=\"{}\"", server.status().ToString());
     return 1;
   }
-  std::signal(SIGINT, OnSignal);
-  std::signal(SIGTERM, OnSignal);
-  while (!g_stop) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  if (!(*server)->address().empty()) {
+    spdlog::info("listening on {}", (*server)->address());
+    if (!port_file.empty() && !WritePortFile(port_file, (*server)->port())) {
+      spdlog::error("event=start_failed error=\"cannot write --port-file {}\"", port_file);
+      (*server)->Shutdown();
+      return 1;
+    }
+  }
+  int signal = 0;
+  sigwait(&stop_signals, &signal);
+  spdlog::info("event=stopping signal={}", signal);
   (*server)->Shutdown();
   return 0;
 }

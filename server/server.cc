@@ -25,6 +25,7 @@ struct NimbusServer::Impl {
   std::unique_ptr<NimbusServiceImpl> service;
   std::unique_ptr<grpc::Server> server;
   int port = 0;
+  std::string address;
   std::mutex mu;
   bool shut_down = false;
 };
@@ -72,6 +73,7 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
   impl->service = std::make_unique<NimbusServiceImpl>(
       impl->store.get(), impl->results.get(), impl->assets.get(), &impl->hub, impl->pool.get(),
       limits);
+  impl->service->set_cancel_wait_ms(options.cancel_wait_ms);
 
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
@@ -89,6 +91,11 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
     health->SetServingStatus("nimbus.v1.NimbusService", true);
     health->SetServingStatus(true);
   }
+  if (impl->port > 0) {
+    // "host:0" asks for any free port; report the one we got.
+    const size_t colon = options.listen.rfind(':');
+    impl->address = absl::StrCat(options.listen.substr(0, colon), ":", impl->port);
+  }
   impl->pool->Start();
   spdlog::info("event=started listen={} port={} data_dir={} workers={} threads_per_job={}",
                options.listen, impl->port, options.data_dir.string(), options.workers,
@@ -97,6 +104,8 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
 }
 
 int NimbusServer::port() const { return impl_->port; }
+
+std::string NimbusServer::address() const { return impl_->address; }
 
 std::shared_ptr<grpc::Channel> NimbusServer::InProcessChannel() {
   grpc::ChannelArguments args;

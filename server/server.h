@@ -26,6 +26,9 @@ struct ServerOptions {
   spec::Limits limits;
   int64_t lease_ms = 30'000;
   int64_t heartbeat_ms = 2'000;
+  /// How long CancelJob waits for a running job to stop before answering
+  /// it RUNNING with cancel_requested; 0 answers at once.
+  int64_t cancel_wait_ms = 5'000;
 };
 
 /// @brief A running server. Jobs left RUNNING by a previous process are
@@ -37,6 +40,8 @@ class NimbusServer {
 
   /// The bound port (useful with ":0"); 0 when not listening.
   int port() const;
+  /// host:port as bound, e.g. "127.0.0.1:41234"; empty when not listening.
+  std::string address() const;
   /// A channel to this server that never leaves the process.
   std::shared_ptr<grpc::Channel> InProcessChannel();
   /// Blocks until Shutdown() is called from another thread.

@@ -1,16 +1,15 @@
-// Runs set-IFS jobs (ALGORITHMS.md section 1): builds the condensation sets
-// and maps from the plan, then either the random iteration into one density
-// volume or the book, whose pages are written as a numbered morph sequence
-// next to the main result as soon as each is finished.
+// Runs set-IFS jobs (docs/algorithms.md, condensation sets): builds the
+// condensation sets and maps from the plan (the preparing phase, warm-up
+// included), then either the random iteration into one density volume or
+// the book, whose pages are written as numbered frames next to the main
+// result as soon as each is finished.
 #include <chrono>
-#include <cstdio>
-#include <thread>
+#include <optional>
 
 #include "absl/strings/str_cat.h"
+#include "core/base/status_macros.h"
 #include "core/sets/set_ifs.h"
-#include "proto/convert_set_ifs.h"
-#include "server/job_runner.h"
-#include "server/result_store.h"
+#include "server/job_driver.h"
 
 namespace nimbus::server {
 
@@ -18,71 +17,24 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-// Forwards cancellation to the job and, when the engine's top-level loop
-// polls from the worker thread, publishes progress (at most every 0.2 s).
-// Inner computations poll with their own totals and from TBB threads; they
-// only get the cancellation answer.
-class JobProgress final : public Interrupter {
- public:
-  JobProgress(JobContext& ctx, uint64_t total) : ctx_(ctx), total_(total) {}
-
-  bool WasInterrupted(uint64_t done, uint64_t total) override {
-    if (aborted_.load(std::memory_order_relaxed)) return true;
-    if (ctx_.interrupter()->WasInterrupted(done, total)) return true;
-    if (reporting_total_ != 0 && total == reporting_total_ && std::this_thread::get_id() == owner_)
-      Report(offset_ + done);
-    return false;
-  }
-
-  // Reports `done` of the job's total if 0.2 s have passed (or `force`).
-  void Report(uint64_t done, bool force = false) {
-    if (std::this_thread::get_id() != owner_) return;
-    const auto now = Clock::now();
-    if (!force && now - last_ < std::chrono::milliseconds(200)) return;
-    last_ = now;
-    if (!ctx_.ReportProgress(std::min(done, total_), total_).ok()) aborted_ = true;
-  }
-  // Engine polls whose total is `total` become progress `offset + done`.
-  void Follow(uint64_t total, uint64_t offset) {
-    reporting_total_ = total;
-    offset_ = offset;
-  }
-  bool aborted() const { return aborted_; }
-
- private:
-  JobContext& ctx_;
-  const uint64_t total_;
-  const std::thread::id owner_ = std::this_thread::get_id();
-  uint64_t reporting_total_ = 0;
-  uint64_t offset_ = 0;
-  Clock::time_point last_;
-  std::atomic<bool> aborted_{false};
-};
-
-absl::Status Finish(const absl::Status& s, const JobProgress& progress) {
-  if (progress.aborted()) return absl::AbortedError("lost the job's claim");
-  return s;
-}
-
 void AddSet(const VoxelSet& set, CountGrid& counts) {
   set.ForEach([&](int x, int y, int z) { counts.Add(x, y, z); });
 }
 
-absl::StatusOr<SetMapPtr> BuildMap(const spec::SetMapPlan& m, const GridFrame& frame,
-                                   spec::SetBuildCache& cache, Interrupter* intr) {
+absl::StatusOr<SetMapPtr> BuildMap(const SetMapPlan& m, const GridFrame& frame,
+                                   SetBuildCache& cache, Interrupter* intr) {
   if (m.kind == SetMapKind::kPoint) return MakePointSetMap(frame, *m.point);
-  auto c = spec::BuildSetSource(*m.condensation, frame, &cache, intr);
-  if (!c.ok()) return c.status();
+  NIMBUS_ASSIGN_OR_RETURN(VoxelSet c, BuildSetSource(*m.condensation, frame, &cache, intr));
   absl::StatusOr<SetMapPtr> map;
   switch (m.kind) {
     case SetMapKind::kMedian:
-      map = MakeMedianMap(frame, std::move(*c), m.median, intr);
+      map = MakeMedianMap(frame, std::move(c), m.median, intr);
       break;
     case SetMapKind::kRotatedMedian:
-      map = MakeRotatedMedianMap(frame, std::move(*c), m.rotated, intr);
+      map = MakeRotatedMedianMap(frame, std::move(c), m.rotated, intr);
       break;
     case SetMapKind::kConstant:
-      map = MakeConstantMap(frame, std::move(*c));
+      map = MakeConstantMap(frame, std::move(c));
       break;
     case SetMapKind::kPoint:
       break;
@@ -92,115 +44,123 @@ absl::StatusOr<SetMapPtr> BuildMap(const spec::SetMapPlan& m, const GridFrame& f
   return map;
 }
 
-std::string PageFileName(const std::string& name, uint64_t index) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, ".%04llu.vdb", static_cast<unsigned long long>(index + 1));
-  return name + buf;
-}
-
-}  // namespace
-
-absl::Status RunSetIfsJob(const spec::ConvertedJob& job, JobContext& ctx) {
-  const spec::SetIfsPlan& plan = *job.set_ifs;
-  JobProgress progress(ctx, job.total_work);
-  progress.Report(0, true);
-
-  // Sketches first: voxelising meshes and precomputing closest-point fields
-  // is the slow set-up; a sketch used by several maps is voxelised once.
+// The preparing phase: sketches first (voxelising meshes and precomputing
+// closest-point fields is the slow set-up; a sketch used by several maps is
+// built once), one progress unit per map and one for the start set.
+absl::StatusOr<SetIfs> BuildSetIfs(const SetIfsPlan& plan, JobDriver& d,
+                                   std::optional<VoxelSet>& start) {
+  const GridFrame& frame = d.plan().frame;
+  const uint64_t units = plan.maps.size() + 1 + (plan.book ? 0 : 1);
+  NIMBUS_RETURN_IF_ERROR(d.BeginPhase(JobPhase::kPreparing, units, "steps"));
+  const auto setup_start = Clock::now();
   SetIfs ifs;
-  ifs.frame = job.frame;
+  ifs.frame = frame;
   ifs.probabilities = plan.probabilities;
   ifs.labels = plan.labels;
-  spec::SetBuildCache cache;
-  const auto setup_start = Clock::now();
-  for (const spec::SetMapPlan& m : plan.maps) {
-    auto map = BuildMap(m, job.frame, cache, &progress);
-    if (!map.ok()) return Finish(map.status(), progress);
-    ifs.maps.push_back(std::move(*map));
-    progress.Report(0, true);
+  SetBuildCache cache;
+  for (const SetMapPlan& m : plan.maps) {
+    NIMBUS_ASSIGN_OR_RETURN(SetMapPtr map, BuildMap(m, frame, cache, d.interrupter()));
+    ifs.maps.push_back(std::move(map));
+    NIMBUS_RETURN_IF_ERROR(d.Progress(ifs.maps.size(), true));
   }
-  std::optional<VoxelSet> start;
   if (plan.start) {
-    auto s = spec::BuildSetSource(*plan.start, job.frame, &cache, &progress);
-    if (!s.ok()) return Finish(s.status(), progress);
-    start = std::move(*s);
+    NIMBUS_ASSIGN_OR_RETURN(start, BuildSetSource(*plan.start, frame, &cache, d.interrupter()));
   }
-  cache.sets.clear();
-  ctx.SetStat(
-      "setup_ms",
-      uint64_t(std::chrono::duration<double, std::milli>(Clock::now() - setup_start).count()));
+  NIMBUS_RETURN_IF_ERROR(d.Progress(plan.maps.size() + 1, true));
+  d.ctx().SetStat("setup_ms", uint64_t(std::chrono::duration<double, std::milli>(
+                                           Clock::now() - setup_start)
+                                           .count()));
+  return ifs;
+}
 
-  Metadata meta = ctx.BaseMetadata();
-  meta.emplace_back("nimbus_seed", int64_t(plan.seed));
-  const std::filesystem::path main_path = ctx.ResultScratchPath();
+void ReportRun(const SetIfsPlan& plan, const SetIfsRunStats& stats, JobContext& ctx) {
+  ctx.SetStat("set_iterations", stats.iterations);
+  ctx.SetStat("voxels_counted", stats.voxels_counted);
+  ctx.SetStat("map_ms", uint64_t(stats.map_seconds * 1000));
+  ctx.SetStat("nearest_ms", uint64_t(stats.nearest_seconds * 1000));
+  for (size_t i = 0; i < stats.map_uses.size(); ++i)
+    ctx.SetStat(absl::StrCat("uses_", plan.labels[i]), stats.map_uses[i]);
+}
 
-  if (!plan.book) {
-    SetIfsRunOptions o;
-    o.iterations = plan.iterations;
-    o.warmup = plan.warmup;
-    o.seed = plan.seed;
-    o.start = std::move(start);
-    o.observe_every = 1;
-    o.observer = [&](uint64_t counted, const CountGrid& counts, const VoxelSet&) {
-      ctx.MaybePublishPreview({&counts}, job.frame, job.density, plan.warmup + counted);
-    };
-    CountGrid counts(job.frame.resolution);
-    progress.Follow(plan.warmup + plan.iterations, 0);
-    auto stats = RunSetIfs(ifs, o, counts, &progress);
-    if (!stats.ok()) return Finish(stats.status(), progress);
-    progress.Report(job.total_work, true);
-    ctx.SetStat("set_iterations", stats->iterations);
-    ctx.SetStat("voxels_counted", stats->voxels_counted);
-    ctx.SetStat("map_ms", uint64_t(stats->map_seconds * 1000));
-    ctx.SetStat("nearest_ms", uint64_t(stats->nearest_seconds * 1000));
-    for (size_t i = 0; i < stats->map_uses.size(); ++i)
-      ctx.SetStat(absl::StrCat("uses_", plan.labels[i]), stats->map_uses[i]);
-    meta.emplace_back("nimbus_iterations", int64_t(plan.iterations));
-    meta.emplace_back("nimbus_warmup", int64_t(plan.warmup));
-    return Finish(WriteDensityVdb(main_path, counts, job.frame, job.density, meta), progress);
-  }
+// Random iteration: the warm-up finishes the preparing phase, the counted
+// iterations are the iterating phase.
+absl::Status RunRandom(const SetIfsPlan& plan, const SetIfs& ifs, std::optional<VoxelSet> start,
+                       JobDriver& d) {
+  const JobPlan& job = d.plan();
+  SetIfsRunOptions o;
+  o.iterations = plan.iterations;
+  o.warmup = plan.warmup;
+  o.seed = plan.seed;
+  o.start = std::move(start);
+  o.observe_every = 1;
+  o.observer = [&](uint64_t counted, const CountGrid& counts, const VoxelSet&) {
+    d.Preview({&counts}, counted);
+  };
+  const uint64_t prepared = plan.maps.size() + 1;
+  bool iterating = false;
+  d.FollowPolls([&](uint64_t done, uint64_t total) {
+    if (total != plan.warmup + plan.iterations) return;  // an inner computation's poll
+    if (done < plan.warmup) return void(d.Progress(prepared));
+    if (!iterating) iterating = d.BeginPhase(JobPhase::kIterating, job.work.total, job.work.unit).ok();
+    (void)d.Progress(done - plan.warmup);
+  });
+  CountGrid counts(job.frame.resolution);
+  auto stats = RunSetIfs(ifs, o, counts, d.interrupter());
+  d.FollowPolls(nullptr);
+  NIMBUS_RETURN_IF_ERROR(d.Check(stats.status()));
+  ReportRun(plan, *stats, d.ctx());
+  return d.WriteResult(counts, d.Metadata()
+                                   .Add(meta_key::kSeed, int64_t(plan.seed))
+                                   .Add(meta_key::kIterations, int64_t(plan.iterations))
+                                   .Add(meta_key::kWarmup, int64_t(plan.warmup))
+                                   .Build());
+}
 
-  // The book: page p of N^depth goes to NAME.<p+1>.vdb; the main result is
-  // the sum of all pages (the "X-ray" of the book).
-  const std::filesystem::path pages_dir = ExtraFilesDir(main_path);
-  std::error_code ec;
-  std::filesystem::remove_all(pages_dir, ec);  // a previous attempt's pages
-  std::filesystem::create_directories(pages_dir, ec);
-  if (ec) return absl::InternalError(absl::StrCat("cannot create ", pages_dir.string()));
+// The book: page p of N^depth goes to frame p; the main result is the sum
+// of all pages (the "X-ray" of the book).
+absl::Status RunBookPages(const SetIfsPlan& plan, const SetIfs& ifs, std::optional<VoxelSet> start,
+                          JobDriver& d) {
+  const JobPlan& job = d.plan();
+  NIMBUS_RETURN_IF_ERROR(d.BeginPhase(JobPhase::kIterating, job.work.total, job.work.unit));
   BookOptions o;
   o.depth = plan.depth;
   o.start = std::move(start);
   o.seed = plan.seed;
   o.cache_bytes = plan.book_cache_bytes;
+  const Metadata base = d.Metadata().Add(meta_key::kSeed, int64_t(plan.seed)).Build();
   CountGrid sum(job.frame.resolution);
   auto on_page = [&](uint64_t index, const std::string& address,
                      const VoxelSet& page) -> absl::Status {
     CountGrid counts(job.frame.resolution);
     AddSet(page, counts);
     sum.Merge(counts);
-    Metadata page_meta = meta;
-    page_meta.emplace_back("nimbus_book_address", address);
-    page_meta.emplace_back("nimbus_book_page", int64_t(index + 1));
-    // WriteDensityVdb renames a finished file into place, so a listed page
-    // is always complete and can be fetched while later pages are running.
-    if (auto st = WriteDensityVdb(pages_dir / PageFileName(job.name, index), counts, job.frame,
-                                  job.density, page_meta);
-        !st.ok())
-      return st;
-    progress.Report(index + 1, true);
-    ctx.MaybePublishPreview({&counts}, job.frame, job.density, index + 1);
-    return progress.aborted() ? absl::AbortedError("lost the job's claim") : absl::OkStatus();
+    MetadataBuilder meta(base);
+    meta.Add(meta_key::kBookAddress, address).Add(meta_key::kBookPage, int64_t(index + 1));
+    NIMBUS_RETURN_IF_ERROR(d.WriteFrame(index, counts, meta.Build()));
+    d.Preview({&counts}, index + 1);
+    return d.Progress(index + 1, true);
   };
-  if (auto st = RunBook(ifs, o, on_page, &progress); !st.ok()) {
+  if (absl::Status st = RunBook(ifs, o, on_page, d.interrupter()); !st.ok()) {
     // A failed or cancelled book leaves no pages behind (a restarted one
     // writes them again).
-    std::filesystem::remove_all(pages_dir, ec);
-    return Finish(st, progress);
+    d.DiscardFrames();
+    return d.Check(st);
   }
-  ctx.SetStat("book_pages", plan.pages);
-  meta.emplace_back("nimbus_book_depth", int64_t(plan.depth));
-  meta.emplace_back("nimbus_book_pages", int64_t(plan.pages));
-  return Finish(WriteDensityVdb(main_path, sum, job.frame, job.density, meta), progress);
+  d.ctx().SetStat("book_pages", plan.pages);
+  MetadataBuilder meta(base);
+  meta.Add(meta_key::kBookDepth, int64_t(plan.depth)).Add(meta_key::kBookPages, int64_t(plan.pages));
+  return d.WriteResult(sum, meta.Build());
+}
+
+}  // namespace
+
+absl::Status RunKind(const JobPlan& plan, const SetIfsPlan& kind, JobContext& ctx) {
+  JobDriver d(plan, ctx);
+  std::optional<VoxelSet> start;
+  absl::StatusOr<SetIfs> ifs = BuildSetIfs(kind, d, start);
+  if (!ifs.ok()) return d.Check(ifs.status());
+  return kind.book ? RunBookPages(kind, *ifs, std::move(start), d)
+                   : RunRandom(kind, *ifs, std::move(start), d);
 }
 
 }  // namespace nimbus::server

@@ -1,7 +1,11 @@
-// SQLite implementation of JobStore: one connection per store guarded by a
+// SQLite implementation of JobStore: a writing connection guarded by a
 // mutex, WAL mode, and BEGIN IMMEDIATE around every read-modify-write so that
 // several processes sharing the file (e.g. two replicas on one volume) still
-// see claims as atomic.
+// see claims as atomic. Plain reads (Get, List) use a second, read-only
+// connection with its own mutex: in WAL mode readers never wait for the
+// write lock, so a write stuck behind another process's transaction does
+// not hold up every status query, and each read still sees every commit
+// that finished before it started.
 #include <sqlite3.h>
 
 #include <algorithm>
@@ -25,13 +29,15 @@
 namespace nimbus::server {
 namespace {
 
-constexpr int kSchemaVersion = 1;
+// 1: the first schema. 2: adds jobs.error_code.
+constexpr int kSchemaVersion = 2;
 // Long enough to ride out another process's short write transactions, short
 // enough that a wedged peer surfaces as UNAVAILABLE instead of a hang.
 constexpr int kBusyTimeoutMs = 10000;
 constexpr int kDefaultPageSize = 50;
 constexpr int kMaxPageSize = 500;
 constexpr char kCancelledByRequest[] = "cancelled by request";
+constexpr int kCancelledCode = static_cast<int>(absl::StatusCode::kCancelled);
 
 constexpr char kSchemaSql[] = R"sql(
 CREATE TABLE IF NOT EXISTS jobs (
@@ -54,7 +60,8 @@ CREATE TABLE IF NOT EXISTS jobs (
   result_size INTEGER NOT NULL DEFAULT 0,
   result_sha256 TEXT NOT NULL DEFAULT '',
   warnings TEXT NOT NULL DEFAULT '',
-  estimated_memory_bytes INTEGER NOT NULL DEFAULT 0
+  estimated_memory_bytes INTEGER NOT NULL DEFAULT 0,
+  error_code INTEGER NOT NULL DEFAULT 0
 );
 -- Claiming (oldest QUEUED) and filtered listing both walk this index.
 CREATE INDEX IF NOT EXISTS jobs_state_create ON jobs (state, create_time, id);
@@ -64,11 +71,19 @@ CREATE INDEX IF NOT EXISTS jobs_create ON jobs (create_time, id);
 CREATE UNIQUE INDEX IF NOT EXISTS jobs_request_id ON jobs (request_id) WHERE request_id <> '';
 )sql";
 
+// Version 1 files gain the status code of failed and cancelled jobs. Jobs
+// that ended before codes were kept get CANCELLED (1) or UNKNOWN (2).
+constexpr char kMigrateToV2Sql[] = R"sql(
+ALTER TABLE jobs ADD COLUMN error_code INTEGER NOT NULL DEFAULT 0;
+UPDATE jobs SET error_code = 1 WHERE state = 5;
+UPDATE jobs SET error_code = 2 WHERE state = 4;
+)sql";
+
 // Column order shared by every SELECT that feeds RowToRecord.
 #define NIMBUS_JOB_COLUMNS                                                            \
   "id, name, state, spec, request_id, create_time, start_time, end_time, attempts, "  \
   "cancel_requested, worker_id, lease_expiry, progress_done, progress_total, error, " \
-  "result_key, result_size, result_sha256, warnings, estimated_memory_bytes"
+  "result_key, result_size, result_sha256, warnings, estimated_memory_bytes, error_code"
 
 absl::StatusCode CodeFor(int rc) {
   switch (rc & 0xff) {
@@ -206,6 +221,7 @@ JobRecord RowToRecord(const Statement& s) {
   r.result_sha256 = s.Text(17);
   r.warnings = s.Text(18);
   r.estimated_memory_bytes = s.Uint(19);
+  r.error_code = static_cast<int>(s.Int(20));
   return r;
 }
 
@@ -265,7 +281,7 @@ class SqliteJobStore final : public JobStore {
    public:
     explicit Transaction(SqliteJobStore* store) : store_(store) {}
     ~Transaction() {
-      if (open_) sqlite3_exec(store_->db_, "ROLLBACK", nullptr, nullptr, nullptr);
+      if (open_) sqlite3_exec(store_->w_.db, "ROLLBACK", nullptr, nullptr, nullptr);
     }
     absl::Status Begin() {
       // IMMEDIATE takes the write lock up front: a deferred transaction that
@@ -286,13 +302,28 @@ class SqliteJobStore final : public JobStore {
     bool open_ = false;
   };
 
-  explicit SqliteJobStore(sqlite3* db) : db_(db) {}
+  // One SQLite connection and its prepared statements, keyed by SQL text
+  // (prepared once, reused for the connection's lifetime).
+  struct Connection {
+    sqlite3* db = nullptr;
+    std::unordered_map<std::string, sqlite3_stmt*> stmts;
+    absl::StatusOr<Statement> Prepare(const char* sql);
+    void Close();
+  };
+
+  explicit SqliteJobStore(sqlite3* db) { w_.db = db; }
 
   absl::Status Init();
+  absl::Status Migrate();
+  // Opens the read connection, or shares the writer's for ":memory:".
+  absl::Status OpenReader(const std::string& path);
   absl::Status Exec(const char* sql);
-  absl::StatusOr<Statement> Prepare(const char* sql);
-  absl::StatusOr<std::optional<JobRecord>> LoadLocked(const std::string& id);
-  absl::StatusOr<JobRecord> LoadExistingLocked(const std::string& id);
+  absl::StatusOr<Statement> Prepare(const char* sql) { return w_.Prepare(sql); }
+  absl::StatusOr<std::optional<JobRecord>> LoadLocked(Connection& c, const std::string& id);
+  absl::StatusOr<JobRecord> LoadExistingLocked(Connection& c, const std::string& id);
+  absl::StatusOr<JobRecord> LoadExistingLocked(const std::string& id) {
+    return LoadExistingLocked(w_, id);
+  }
   // OK when `worker_id` holds a live claim on `id`; FAILED_PRECONDITION (or
   // NOT_FOUND) otherwise.
   absl::Status CheckClaimLocked(const std::string& id, const std::string& worker_id);
@@ -300,10 +331,13 @@ class SqliteJobStore final : public JobStore {
   // process restarted) can never be finished by that worker; finish it here.
   absl::Status CancelOrphansLocked(const char* where_clause_sql, TimeMs now);
 
-  std::mutex mu_;
-  sqlite3* const db_;
-  // Keyed by SQL text; prepared once, reused for the connection's lifetime.
-  std::unordered_map<std::string, sqlite3_stmt*> stmts_;
+  std::mutex mu_;  // guards w_
+  Connection w_;
+  // The read connection and its lock; the writer's own when not separate.
+  std::mutex own_read_mu_;
+  Connection own_reader_;
+  std::mutex* read_mu_ = &mu_;
+  Connection* r_ = &w_;
 };
 
 absl::StatusOr<std::unique_ptr<JobStore>> SqliteJobStore::Open(const std::string& path) {
@@ -319,19 +353,51 @@ absl::StatusOr<std::unique_ptr<JobStore>> SqliteJobStore::Open(const std::string
   }
   std::unique_ptr<SqliteJobStore> store(new SqliteJobStore(db));
   if (absl::Status s = store->Init(); !s.ok()) return s;
+  if (absl::Status s = store->OpenReader(path); !s.ok()) return s;
   return std::unique_ptr<JobStore>(std::move(store));
 }
 
+void SqliteJobStore::Connection::Close() {
+  for (auto& [sql, stmt] : stmts) sqlite3_finalize(stmt);
+  stmts.clear();
+  sqlite3_close_v2(db);
+  db = nullptr;
+}
+
 SqliteJobStore::~SqliteJobStore() {
-  for (auto& [sql, stmt] : stmts_) sqlite3_finalize(stmt);
+  if (r_ != &w_) own_reader_.Close();
   // The last connection to close checkpoints the WAL back into the file.
-  sqlite3_close_v2(db_);
+  w_.Close();
+}
+
+absl::Status SqliteJobStore::OpenReader(const std::string& path) {
+  absl::StatusOr<Statement> mode = Prepare("PRAGMA journal_mode");
+  if (!mode.ok()) return mode.status();
+  absl::StatusOr<bool> row = mode->Step();
+  if (!row.ok()) return row.status();
+  // A ":memory:" database exists only in its own connection.
+  if (!*row || mode->Text(0) != "wal") return absl::OkStatus();
+  sqlite3* db = nullptr;
+  const int rc = sqlite3_open_v2(path.c_str(), &db, SQLITE_OPEN_READONLY | SQLITE_OPEN_NOMUTEX,
+                                 nullptr);
+  if (rc != SQLITE_OK) {
+    absl::Status s = SqliteError(db, rc, "open the read connection");
+    sqlite3_close(db);
+    return s;
+  }
+  sqlite3_extended_result_codes(db, 1);
+  // Readers wait only in rare moments (e.g. WAL recovery after a crash).
+  sqlite3_busy_timeout(db, kBusyTimeoutMs);
+  own_reader_.db = db;
+  r_ = &own_reader_;
+  read_mu_ = &own_read_mu_;
+  return absl::OkStatus();
 }
 
 absl::Status SqliteJobStore::Init() {
-  sqlite3_extended_result_codes(db_, 1);
+  sqlite3_extended_result_codes(w_.db, 1);
   // Before anything that may contend with another process opening the file.
-  sqlite3_busy_timeout(db_, kBusyTimeoutMs);
+  sqlite3_busy_timeout(w_.db, kBusyTimeoutMs);
 
   {
     absl::StatusOr<Statement> mode = Prepare("PRAGMA journal_mode=WAL");
@@ -343,7 +409,7 @@ absl::Status SqliteJobStore::Init() {
     // for them since they are not shared or durable anyway.
     if (got != "wal" && got != "memory") {
       return absl::FailedPreconditionError(absl::StrCat(
-          "job store ", DbPath(db_), ": cannot enable WAL journal mode (got \"", got, "\")"));
+          "job store ", DbPath(w_.db), ": cannot enable WAL journal mode (got \"", got, "\")"));
     }
   }
   // Durability: in WAL mode a commit appends to the -wal file with write();
@@ -355,26 +421,35 @@ absl::Status SqliteJobStore::Init() {
   // the failure we actually recover from, lose nothing.
   if (absl::Status s = Exec("PRAGMA synchronous=NORMAL"); !s.ok()) return s;
 
-  int version = 0;
-  {
+  return Migrate();
+}
+
+absl::Status SqliteJobStore::Migrate() {
+  auto read_version = [this]() -> absl::StatusOr<int> {
     absl::StatusOr<Statement> v = Prepare("PRAGMA user_version");
     if (!v.ok()) return v.status();
     absl::StatusOr<bool> row = v->Step();
     if (!row.ok()) return row.status();
-    if (*row) version = static_cast<int>(v->Int(0));
-  }
-  if (version > kSchemaVersion) {
-    return absl::FailedPreconditionError(
-        absl::StrCat("job store ", DbPath(db_), ": schema version ", version,
-                     " is newer than this binary supports (", kSchemaVersion, ")"));
-  }
-  if (version == kSchemaVersion) return absl::OkStatus();
+    const int version = *row ? static_cast<int>(v->Int(0)) : 0;
+    if (version > kSchemaVersion) {
+      return absl::FailedPreconditionError(
+          absl::StrCat("job store ", DbPath(w_.db), ": schema version ", version,
+                       " is newer than this binary supports (", kSchemaVersion, ")"));
+    }
+    return version;
+  };
+  absl::StatusOr<int> version = read_version();
+  if (!version.ok() || *version == kSchemaVersion) return version.status();
 
-  // Create under the write lock so two processes opening a fresh file at
-  // once do not race; IF NOT EXISTS makes the loser's pass a no-op.
+  // Under the write lock so two processes opening the file at once do not
+  // race; the version is read again inside, since the other may have won.
   Transaction txn(this);
   if (absl::Status s = txn.Begin(); !s.ok()) return s;
-  if (absl::Status s = Exec(kSchemaSql); !s.ok()) return s;
+  version = read_version();
+  if (!version.ok() || *version == kSchemaVersion) return version.status();
+  // A fresh file gets the newest schema; older ones step up.
+  const char* sql = *version == 0 ? kSchemaSql : kMigrateToV2Sql;
+  if (absl::Status s = Exec(sql); !s.ok()) return s;
   if (absl::Status s = Exec(absl::StrCat("PRAGMA user_version=", kSchemaVersion).c_str());
       !s.ok()) {
     return s;
@@ -384,29 +459,30 @@ absl::Status SqliteJobStore::Init() {
 
 absl::Status SqliteJobStore::Exec(const char* sql) {
   char* err = nullptr;
-  const int rc = sqlite3_exec(db_, sql, nullptr, nullptr, &err);
+  const int rc = sqlite3_exec(w_.db, sql, nullptr, nullptr, &err);
   sqlite3_free(err);  // sqlite3_errmsg still holds the same text.
-  if (rc != SQLITE_OK) return SqliteError(db_, rc, sql);
+  if (rc != SQLITE_OK) return SqliteError(w_.db, rc, sql);
   return absl::OkStatus();
 }
 
-absl::StatusOr<Statement> SqliteJobStore::Prepare(const char* sql) {
-  auto it = stmts_.find(sql);
-  if (it == stmts_.end()) {
+absl::StatusOr<Statement> SqliteJobStore::Connection::Prepare(const char* sql) {
+  auto it = stmts.find(sql);
+  if (it == stmts.end()) {
     sqlite3_stmt* stmt = nullptr;
-    const int rc = sqlite3_prepare_v3(db_, sql, -1, SQLITE_PREPARE_PERSISTENT, &stmt, nullptr);
+    const int rc = sqlite3_prepare_v3(db, sql, -1, SQLITE_PREPARE_PERSISTENT, &stmt, nullptr);
     if (rc != SQLITE_OK) {
       sqlite3_finalize(stmt);
-      return SqliteError(db_, rc, absl::StrCat("prepare ", sql));
+      return SqliteError(db, rc, absl::StrCat("prepare ", sql));
     }
-    it = stmts_.emplace(sql, stmt).first;
+    it = stmts.emplace(sql, stmt).first;
   }
   // Map nodes are stable, so the key can back the statement's error text.
   return absl::StatusOr<Statement>(absl::in_place, it->second, &it->first);
 }
 
-absl::StatusOr<std::optional<JobRecord>> SqliteJobStore::LoadLocked(const std::string& id) {
-  absl::StatusOr<Statement> s = Prepare("SELECT " NIMBUS_JOB_COLUMNS " FROM jobs WHERE id = ?1");
+absl::StatusOr<std::optional<JobRecord>> SqliteJobStore::LoadLocked(Connection& c,
+                                                                    const std::string& id) {
+  absl::StatusOr<Statement> s = c.Prepare("SELECT " NIMBUS_JOB_COLUMNS " FROM jobs WHERE id = ?1");
   if (!s.ok()) return s.status();
   s->Bind(1, id);
   absl::StatusOr<bool> row = s->Step();
@@ -415,8 +491,9 @@ absl::StatusOr<std::optional<JobRecord>> SqliteJobStore::LoadLocked(const std::s
   return std::optional<JobRecord>(RowToRecord(*s));
 }
 
-absl::StatusOr<JobRecord> SqliteJobStore::LoadExistingLocked(const std::string& id) {
-  absl::StatusOr<std::optional<JobRecord>> r = LoadLocked(id);
+absl::StatusOr<JobRecord> SqliteJobStore::LoadExistingLocked(Connection& c,
+                                                             const std::string& id) {
+  absl::StatusOr<std::optional<JobRecord>> r = LoadLocked(c, id);
   if (!r.ok()) return r.status();
   if (!r->has_value()) return absl::NotFoundError(absl::StrCat("job \"", id, "\" not found"));
   return std::move(**r);
@@ -440,7 +517,7 @@ absl::Status SqliteJobStore::CancelOrphansLocked(const char* sql, TimeMs now) {
   absl::StatusOr<Statement> s = Prepare(sql);
   if (!s.ok()) return s.status();
   s->Bind(1, now).Bind(2, JobState::kCancelled).Bind(3, std::string(kCancelledByRequest));
-  s->Bind(4, JobState::kRunning);
+  s->Bind(4, JobState::kRunning).Bind(5, kCancelledCode);
   return s->Run();
 }
 
@@ -481,8 +558,8 @@ absl::StatusOr<JobRecord> SqliteJobStore::Create(const NewJob& job, TimeMs now) 
 }
 
 absl::StatusOr<JobRecord> SqliteJobStore::Get(const std::string& id) {
-  std::lock_guard<std::mutex> lock(mu_);
-  return LoadExistingLocked(id);
+  std::lock_guard<std::mutex> lock(*read_mu_);
+  return LoadExistingLocked(*r_, id);
 }
 
 absl::StatusOr<ListPage> SqliteJobStore::List(const ListOptions& options) {
@@ -515,8 +592,8 @@ absl::StatusOr<ListPage> SqliteJobStore::List(const ListOptions& options) {
                        " FROM jobs ORDER BY create_time DESC, id DESC LIMIT ?4";
   }
 
-  std::lock_guard<std::mutex> lock(mu_);
-  absl::StatusOr<Statement> s = Prepare(sql);
+  std::lock_guard<std::mutex> lock(*read_mu_);
+  absl::StatusOr<Statement> s = r_->Prepare(sql);
   if (!s.ok()) return s.status();
   if (options.state.has_value()) s->Bind(1, *options.state);
   if (has_cursor) s->Bind(2, cursor_time).Bind(3, cursor_id);
@@ -546,8 +623,9 @@ absl::StatusOr<std::optional<JobRecord>> SqliteJobStore::ClaimNext(const std::st
   if (absl::Status s = txn.Begin(); !s.ok()) return s;
 
   if (absl::Status s = CancelOrphansLocked(
-          "UPDATE jobs SET end_time = ?1, state = ?2, error = ?3, worker_id = '', "
-          "lease_expiry = 0 WHERE state = ?4 AND cancel_requested <> 0 AND lease_expiry < ?1",
+          "UPDATE jobs SET end_time = ?1, state = ?2, error = ?3, error_code = ?5, "
+          "worker_id = '', lease_expiry = 0 "
+          "WHERE state = ?4 AND cancel_requested <> 0 AND lease_expiry < ?1",
           now);
       !s.ok()) {
     return s;
@@ -654,11 +732,12 @@ absl::Status SqliteJobStore::Complete(const std::string& id, const std::string& 
         "UPDATE jobs SET state = ?1, end_time = ?2, error = ?3, result_key = ?4, "
         "result_size = ?5, result_sha256 = ?6, "
         "warnings = CASE WHEN ?7 = '' THEN warnings ELSE ?7 END, "
-        "worker_id = '', lease_expiry = 0 WHERE id = ?8");
+        "worker_id = '', lease_expiry = 0, error_code = ?9 WHERE id = ?8");
     if (!s.ok()) return s.status();
     s->Bind(1, completion.state).Bind(2, now).Bind(3, completion.error);
     s->Bind(4, completion.result_key).Bind(5, completion.result_size);
     s->Bind(6, completion.result_sha256).Bind(7, completion.warnings).Bind(8, id);
+    s->Bind(9, completion.error_code);
     if (absl::Status st = s->Run(); !st.ok()) return st;
   }
   return txn.Commit();
@@ -676,11 +755,12 @@ absl::Status SqliteJobStore::Release(const std::string& id, const std::string& w
     absl::StatusOr<Statement> s = Prepare(
         "UPDATE jobs SET worker_id = '', lease_expiry = 0, "
         "state = CASE WHEN cancel_requested <> 0 THEN ?1 ELSE ?2 END, "
-        "error = CASE WHEN cancel_requested <> 0 THEN ?3 ELSE error END "
+        "error = CASE WHEN cancel_requested <> 0 THEN ?3 ELSE error END, "
+        "error_code = CASE WHEN cancel_requested <> 0 THEN ?5 ELSE error_code END "
         "WHERE id = ?4");
     if (!s.ok()) return s.status();
     s->Bind(1, JobState::kCancelled).Bind(2, JobState::kQueued);
-    s->Bind(3, std::string(kCancelledByRequest)).Bind(4, id);
+    s->Bind(3, std::string(kCancelledByRequest)).Bind(4, id).Bind(5, kCancelledCode);
     if (absl::Status st = s->Run(); !st.ok()) return st;
   }
   return txn.Commit();
@@ -696,14 +776,15 @@ absl::StatusOr<JobRecord> SqliteJobStore::RequestCancel(const std::string& id, T
 
   const char* sql =
       job->state == JobState::kQueued
-          ? "UPDATE jobs SET state = ?1, end_time = ?2, error = ?3, cancel_requested = 1 "
-            "WHERE id = ?4"
+          ? "UPDATE jobs SET state = ?1, end_time = ?2, error = ?3, cancel_requested = 1, "
+            "error_code = ?5 WHERE id = ?4"
           : "UPDATE jobs SET cancel_requested = 1 WHERE id = ?4";
   {
     absl::StatusOr<Statement> s = Prepare(sql);
     if (!s.ok()) return s.status();
     if (job->state == JobState::kQueued) {
       s->Bind(1, JobState::kCancelled).Bind(2, now).Bind(3, std::string(kCancelledByRequest));
+      s->Bind(5, kCancelledCode);
     }
     s->Bind(4, id);
     if (absl::Status st = s->Run(); !st.ok()) return st;
@@ -723,8 +804,8 @@ absl::StatusOr<int> SqliteJobStore::RequeueRunning() {
   // never be claimed, so they would sit in QUEUED forever.
   static_assert(static_cast<int>(JobState::kRunning) == 2);
   if (absl::Status s = CancelOrphansLocked(
-          "UPDATE jobs SET end_time = ?1, state = ?2, error = ?3, worker_id = '', "
-          "lease_expiry = 0 WHERE state = ?4 AND cancel_requested <> 0",
+          "UPDATE jobs SET end_time = ?1, state = ?2, error = ?3, error_code = ?5, "
+          "worker_id = '', lease_expiry = 0 WHERE state = ?4 AND cancel_requested <> 0",
           WallClockMs());
       !s.ok()) {
     return s;
@@ -736,7 +817,7 @@ absl::StatusOr<int> SqliteJobStore::RequeueRunning() {
     if (!s.ok()) return s.status();
     s->Bind(1, JobState::kQueued).Bind(2, JobState::kRunning);
     if (absl::Status st = s->Run(); !st.ok()) return st;
-    requeued = sqlite3_changes(db_);
+    requeued = sqlite3_changes(w_.db);
   }
   if (absl::Status s = txn.Commit(); !s.ok()) return s;
   return requeued;

@@ -2,6 +2,8 @@
 
 #include <spdlog/spdlog.h>
 
+#include <tbb/task_arena.h>
+
 #include <algorithm>
 #include <chrono>
 
@@ -15,6 +17,15 @@ namespace nimbus::server {
 namespace {
 
 using Clock = std::chrono::steady_clock;
+
+v1::ProgressPhase ToProto(JobPhase phase) {
+  switch (phase) {
+    case JobPhase::kPreparing: return v1::PROGRESS_PHASE_PREPARING;
+    case JobPhase::kIterating: return v1::PROGRESS_PHASE_ITERATING;
+    case JobPhase::kWriting: return v1::PROGRESS_PHASE_WRITING;
+  }
+  return v1::PROGRESS_PHASE_UNSPECIFIED;
+}
 
 double Seconds(Clock::duration d) { return std::chrono::duration<double>(d).count(); }
 
@@ -47,17 +58,24 @@ class WorkerPool::Context : public JobContext {
         interrupter_(cancel_.get(), &pool->shutdown_),
         spec_hash_(spec::SpecHash(spec)),
         view_(ToProto(record, false)),
-        start_(Clock::now()),
-        last_heartbeat_(start_) {}
+        phase_start_(Clock::now()),
+        last_heartbeat_(phase_start_) {}
 
   const std::string& job_id() const override { return record_.id; }
   int threads() const override { return pool_->threads_per_job_; }
   Interrupter* interrupter() override { return &interrupter_; }
 
-  absl::Status ReportProgress(uint64_t done, uint64_t total) override {
-    const double elapsed = std::max(1e-6, Seconds(Clock::now() - start_));
-    const double rate = double(done) / elapsed;
+  uint64_t memory_budget() const override { return pool_->options_.limits.max_memory_bytes; }
+
+  absl::Status ReportProgress(const JobProgress& progress) override {
     auto* p = view_.mutable_progress();
+    const v1::ProgressPhase phase = ToProto(progress.phase);
+    if (phase != p->phase()) phase_start_ = Clock::now();  // rates are per phase
+    const double elapsed = std::max(1e-6, Seconds(Clock::now() - phase_start_));
+    const uint64_t done = progress.done, total = progress.total;
+    const double rate = double(done) / elapsed;
+    p->set_phase(phase);
+    p->set_unit(std::string(progress.unit));
     p->set_done(done);
     p->set_total(total);
     p->set_rate(rate);
@@ -126,7 +144,7 @@ class WorkerPool::Context : public JobContext {
   JobInterrupter interrupter_;
   std::string spec_hash_;
   v1::Job view_;
-  Clock::time_point start_;
+  Clock::time_point phase_start_;
   Clock::time_point last_heartbeat_;
   std::map<uint32_t, Clock::time_point> last_preview_;
   uint64_t preview_sequence_ = 0;
@@ -212,14 +230,8 @@ void WorkerPool::RunJob(const JobRecord& record, const std::string& worker_id) {
   Context ctx(this, record, worker_id, cancel, spec);
   hub_->PublishJob(ctx.view());
 
-  absl::Status status;
-  if (!parsed) {
-    status = absl::DataLossError("the stored spec is unreadable");
-  } else if (auto job = spec::ConvertSpec(spec, options_.limits, threads_per_job_); !job.ok()) {
-    status = job.status();
-  } else {
-    status = RunGenerator(*job, ctx);
-  }
+  const absl::Status status = parsed ? ConvertAndRun(spec, ctx)
+                                     : absl::DataLossError("the stored spec is unreadable");
 
   Completion done;
   std::vector<std::string> warnings;
@@ -279,16 +291,21 @@ void WorkerPool::RunJob(const JobRecord& record, const std::string& worker_id) {
   running_.erase(id);
 }
 
-absl::Status WorkerPool::RunGenerator(const spec::ConvertedJob& job, JobContext& ctx) {
-  switch (job.generator) {
-    case spec::Generator::kChaosGame:
-      return RunChaosGameJob(job, ctx);
-    case spec::Generator::kSetIfs:
-      return RunSetIfsJob(job, ctx);
-    case spec::Generator::kIfsMatrix:
-      return RunIfsMatrixJob(job, ctx);
-  }
-  return absl::UnimplementedError("unknown generator");
+absl::Status WorkerPool::ConvertAndRun(const v1::JobSpec& spec, JobContext& ctx) {
+  // The plan is rebuilt from the stored spec on purpose: the spec is the
+  // durable, versioned record; conversion is deterministic and cheap next
+  // to the run (meshes are parsed again, so a restarted job reads the same
+  // files); a stored plan would need a second format holding parsed meshes.
+  // Memory admission (the pilot census) is not repeated: it ran once at
+  // submit, and the run-time budget is the safety net.
+  auto plan = spec::ConvertSpec(spec, options_.limits);
+  if (!plan.ok()) return plan.status();
+  // Every engine thread of this job, TBB loops included, runs in its own
+  // arena sized by --threads-per-job.
+  tbb::task_arena arena(threads_per_job_);
+  absl::Status status;
+  arena.execute([&] { status = RunJobPlan(*plan, ctx); });
+  return status;
 }
 
 }  // namespace nimbus::server

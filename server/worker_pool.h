@@ -49,7 +49,7 @@ class WorkerPool {
   class Context;
   void Loop(int index);
   void RunJob(const JobRecord& job, const std::string& worker_id);
-  absl::Status RunGenerator(const spec::ConvertedJob& job, JobContext& ctx);
+  absl::Status ConvertAndRun(const v1::JobSpec& spec, JobContext& ctx);
 
   JobStore* store_;
   ResultStore* results_;

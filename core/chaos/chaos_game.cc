@@ -1,5 +1,7 @@
 #include "core/chaos/chaos_game.h"
 
+#include <tbb/task_group.h>
+
 #include <algorithm>
 #include <atomic>
 #include <cmath>
@@ -587,10 +589,12 @@ absl::Status ChaosGame::RunUntil(uint64_t iterations, Interrupter* interrupter) 
     if (w.grid->overflowed()) over_budget = stop = true;
   };
   const int n = int(std::min<uint64_t>(threads_, target - next_chunk_));
-  std::vector<std::thread> pool;
-  for (int t = 1; t < n; ++t) pool.emplace_back(body, t);
+  // One task per accumulator, run by the caller's task arena (a job's arena
+  // is sized by --threads-per-job); no threads are created per round.
+  tbb::task_group group;
+  for (int t = 1; t < n; ++t) group.run([&body, t] { body(t); });
   body(0);
-  for (auto& th : pool) th.join();
+  group.wait();
   if (over_budget)
     return absl::ResourceExhaustedError(absl::StrCat(
         "the chaos game's counters outgrew the memory budget of ", params_.memory_budget >> 20,

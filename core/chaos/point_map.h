@@ -63,7 +63,7 @@ class AliasTable {
   std::vector<uint32_t> alias_;
 };
 
-/// @brief The seed's "arcs" final transform (ALGORITHMS.md section 5): a
+/// @brief The reference description's "arcs" final transform (docs/algorithms.md#final-transforms): a
 /// rotation about the z axis by theta = angle_per_unit * x + amplitude *
 /// sin(frequency * n), where x is the point's signed distance from the
 /// x = 0 plane and n the index of the plotted step. The sinusoidal term
@@ -88,7 +88,7 @@ struct Ifs {
   /// One per map, summing to 1.
   std::vector<double> probabilities;
   /// Optional final transform: applied to the plotted point only, outside the
-  /// feedback loop (ALGORITHMS.md section 5).
+  /// feedback loop (docs/algorithms.md#final-transforms).
   std::optional<PointMap> final_map;
   /// Optional arcs rotation, applied to the plotted point after final_map.
   std::optional<ArcsTransform> arcs;

@@ -2,7 +2,7 @@
 // formula and for the conventions used here:
 //  - planar variations use cylindrical coordinates (rho, theta, z) with
 //    rho = sqrt(x^2 + y^2), theta = atan2(y, x); z passes through unchanged
-//    (polar_doubling alone scales z, so that the seed's map contracts in 3D);
+//    (polar_doubling alone scales z, so that its |V| = |p| / sqrt 2 in 3D as well);
 //  - the 3D ones use r = |p|;
 //  - kEps guards the divisions that flam3 guards.
 #include "core/chaos/variations.h"

@@ -38,7 +38,7 @@ enum class VariationKind {
   kBubble,
   kBlur,
   kNoise,
-  kPolarDoubling,  // the seed's (r, theta) -> (r / sqrt 2, 2 theta)
+  kPolarDoubling,  // the reference description's (r, theta) -> (r / sqrt 2, 2 theta)
 };
 
 /// One weighted term of a map's variation sum. `params` carries the few

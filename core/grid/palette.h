@@ -14,7 +14,7 @@ struct PaletteStop {
 };
 
 /// @brief Maps a colour coordinate t in [0, 1] to RGB. The default is the
-/// seed's sine palette (ALGORITHMS.md section 5) with a = 2*pi*t, so the
+/// reference description's sine palette (docs/algorithms.md#the-look-of-the-attractor) with a = 2*pi*t, so the
 /// palette runs through one full period over the coordinate's range:
 ///   r = 0.4 + 0.25 sin(0.5 + a), g = 0.6 + 0.25 sin(0.9 + a),
 ///   b = 0.7 + 0.25 sin(1.3 + a).

@@ -4,6 +4,7 @@
 #include <cassert>
 
 #include "absl/strings/str_cat.h"
+#include "core/base/status_macros.h"
 
 namespace nimbus {
 
@@ -24,7 +25,7 @@ absl::Status ValidateSetResolution(Int3 r) {
 }
 
 absl::Status ValidateSetFrame(const GridFrame& frame) {
-  if (absl::Status s = ValidateSetResolution(frame.resolution); !s.ok()) return s;
+  NIMBUS_RETURN_IF_ERROR(ValidateSetResolution(frame.resolution));
   const Vec3 size = frame.bounds.Size();
   if (!IsFinite(frame.bounds.min) || !IsFinite(frame.bounds.max) || !(size.x > 0) ||
       !(size.y > 0) || !(size.z > 0)) {

@@ -1,5 +1,5 @@
 // Dense binary voxel sets: the state of a set IFS (condensation sets,
-// ALGORITHMS.md section 1). Free of OpenVDB.
+// docs/algorithms.md#maps-that-act-on-sets). Free of OpenVDB.
 #pragma once
 
 #include <bit>

@@ -1,5 +1,6 @@
 // Triangle meshes for sketch voxelisation: OBJ, PLY and STL readers and
-// writers (ALGORITHMS.md section 1, "3D use").
+// writers (docs/condensation.md). One file per format
+// (mesh_obj.cc, mesh_ply.cc, mesh_stl.cc); mesh_io.cc dispatches.
 #pragma once
 
 #include <array>
@@ -27,12 +28,34 @@ struct TriangleMesh {
   double SurfaceArea() const;
 };
 
+/// A format to write (ASCII and binary are separate choices).
 enum class MeshFormat { kObj, kPlyAscii, kPlyBinary, kStlAscii, kStlBinary };
 
+/// A format to read as; ASCII or binary is told by the content.
+enum class MeshFileType { kUnknown, kObj, kPly, kStl };
+
+/// The type a file name or bare format word names, ignoring case:
+/// "cow.obj", "x/Mesh.PLY", ".stl" and "stl" all name one; anything else
+/// is kUnknown.
+MeshFileType MeshFileTypeFromName(std::string_view name);
+
+struct MeshLoadOptions {
+  /// The format, for files whose name does not tell it (content-addressed
+  /// assets have no extension). A PLY header always wins; kUnknown falls
+  /// back to the path's extension, then to recognising STL by content.
+  MeshFileType type = MeshFileType::kUnknown;
+  /// What messages call the file, e.g. "cow.obj (sha256 3fa2c8...)";
+  /// the path when empty.
+  std::string display_name;
+};
+
 /// Reads an OBJ, PLY or STL file. The format comes from the file's content
-/// (PLY header, STL size check) and, for OBJ, from the ".obj" extension.
-/// Errors name the file and the line (text) or byte offset (binary).
-/// The result has passed ValidateMesh.
+/// (PLY header; STL by its "solid ... facet" opening or its binary size),
+/// else from `options.type` or the path's extension. Errors name the file
+/// (`options.display_name` or the path) and the line (text) or byte offset
+/// (binary). The result has passed ValidateMesh.
+absl::StatusOr<TriangleMesh> LoadMesh(const std::filesystem::path& path,
+                                      const MeshLoadOptions& options);
 absl::StatusOr<TriangleMesh> LoadMesh(const std::filesystem::path& path);
 
 /// Parsers over in-memory file contents; `name` is used in error messages.

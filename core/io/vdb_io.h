@@ -29,7 +29,10 @@ enum class DensityMapping {
 enum class RawCounts {
   kNone,
   kFloat,    // FloatGrid "counts" (exact up to 2^24 per voxel)
-  kInteger,  // Int64Grid "counts" (exact uint32 counts)
+  // Int64Grid "counts" (exact uint32 counts). Debian's pyopenvdb wraps only
+  // float, bool and Vec3f grids and then refuses the whole file, so prefer
+  // kFloat where files must open everywhere.
+  kInteger,
 };
 
 struct DensityOptions {

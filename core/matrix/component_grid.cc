@@ -73,10 +73,22 @@ typename GridT::Ptr BuildComponentGrid(const ComponentAccumulator& acc, const Gr
 absl::Status WriteDensityAndComponentVdb(const std::filesystem::path& path,
                                          const ComponentAccumulator& acc, const GridFrame& frame,
                                          const DensityOptions& options, ComponentGridType type,
-                                         const Metadata& metadata) {
+                                         const Metadata& metadata,
+                                         const std::filesystem::path& int32_path) {
   if (type == ComponentGridType::kNone)
     return WriteDensityVdb(path, acc.density(), frame, options, metadata);
   vdb_internal::InitOpenVdb();
+  const bool side_file = type == ComponentGridType::kInt && !int32_path.empty();
+  if (side_file) {
+    // Written first, so the side file exists once the result does.
+    openvdb::GridPtrVec labels;
+    try {
+      labels.push_back(BuildComponentGrid<openvdb::Int32Grid>(acc, frame));
+    } catch (const std::exception& e) {
+      return absl::InternalError(absl::StrCat("writing ", int32_path.string(), ": ", e.what()));
+    }
+    if (auto st = vdb_internal::WriteGridsAtomically(int32_path, labels); !st.ok()) return st;
+  }
   // The density grid comes from vdb_io so both writers agree bit for bit;
   // it is written to a side file, read back and joined with the labels.
   const std::filesystem::path density_tmp = path.string() + ".density.partial";
@@ -86,10 +98,11 @@ absl::Status WriteDensityAndComponentVdb(const std::filesystem::path& path,
   std::error_code ec;
   try {
     grids = vdb_internal::ReadAllGrids(density_tmp);
-    if (type == ComponentGridType::kInt)
-      grids->push_back(BuildComponentGrid<openvdb::Int32Grid>(acc, frame));
-    else
-      grids->push_back(BuildComponentGrid<openvdb::FloatGrid>(acc, frame));
+    auto labels = BuildComponentGrid<openvdb::FloatGrid>(acc, frame);
+    if (side_file)
+      labels->insertMeta("nimbus_component_int32_file",
+                         openvdb::StringMetadata(int32_path.filename().string()));
+    grids->push_back(labels);
   } catch (const std::exception& e) {
     std::filesystem::remove(density_tmp, ec);
     return absl::InternalError(absl::StrCat("writing ", path.string(), ": ", e.what()));

@@ -16,8 +16,8 @@ namespace nimbus {
 
 enum class ComponentGridType {
   kNone,   // density only
-  kInt,    // Int32Grid "component"
-  kFloat,  // FloatGrid "component", same values
+  kInt,    // float "component" in the result, plus an Int32 "component" in a side file
+  kFloat,  // FloatGrid "component"
 };
 
 /// @brief Sums per-component visit counts into one density and keeps, per
@@ -59,16 +59,26 @@ class ComponentAccumulator {
 };
 
 /// @brief Writes the density grid exactly as WriteDensityVdb does, plus a
-/// `component` grid (Int32 or float per `type`, background -1, only
-/// labelled voxels active, same transform and nimbus_* frame metadata), to
-/// one VDB file through a temporary file renamed into place.
+/// float `component` grid (background -1, only labelled voxels active, same
+/// transform and nimbus_* frame metadata), to one VDB file through a
+/// temporary file renamed into place.
+///
+/// The result file never holds an Int32 grid, whatever `type`: Debian's
+/// pyopenvdb (and other builds that wrap only float, bool and Vec3f grids)
+/// refuse a whole file, even its metadata, when one grid has another type.
+/// Labels are small integers, exact as floats. For kInt the labels are also
+/// written as an Int32 `component` grid, alone, to `int32_path` when that
+/// is not empty; the float grid's `nimbus_component_int32_file` metadata
+/// then names that file.
 absl::Status WriteDensityAndComponentVdb(const std::filesystem::path& path,
                                          const ComponentAccumulator& acc, const GridFrame& frame,
                                          const DensityOptions& options, ComponentGridType type,
-                                         const Metadata& metadata);
+                                         const Metadata& metadata,
+                                         const std::filesystem::path& int32_path = {});
 
-/// Reads the `component` grid (either type) of such a file into a dense
-/// array, x slowest, z fastest, -1 where inactive.
+/// Reads the `component` grid (float or Int32) of a result file or of an
+/// Int32 side file into a dense array, x slowest, z fastest, -1 where
+/// inactive.
 absl::StatusOr<std::vector<int32_t>> ReadComponentGrid(const std::filesystem::path& path,
                                                        Int3 resolution);
 

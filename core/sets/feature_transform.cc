@@ -9,6 +9,7 @@
 #include <limits>
 
 #include "absl/strings/str_cat.h"
+#include "core/base/status_macros.h"
 
 namespace nimbus {
 namespace {
@@ -257,7 +258,7 @@ absl::StatusOr<double> DirectedHausdorff(const VoxelSet& a, const VoxelSet& b, V
   opt.box = outside.BoundingBox();
   opt.queries = &outside;
   FeatureField field;
-  if (absl::Status s = ComputeFeatureTransform(b, h, opt, field, interrupter); !s.ok()) return s;
+  NIMBUS_RETURN_IF_ERROR(ComputeFeatureTransform(b, h, opt, field, interrupter));
   double worst = 0;
   outside.ForEach([&](int x, int y, int z) {
     worst = std::max(worst, SquaredDistance({x, y, z}, UnpackVoxel(field.At(x, y, z)), h));
@@ -267,11 +268,9 @@ absl::StatusOr<double> DirectedHausdorff(const VoxelSet& a, const VoxelSet& b, V
 
 absl::StatusOr<double> HausdorffDistance(const VoxelSet& a, const VoxelSet& b, Vec3 h,
                                          Interrupter* interrupter) {
-  absl::StatusOr<double> ab = DirectedHausdorff(a, b, h, interrupter);
-  if (!ab.ok()) return ab.status();
-  absl::StatusOr<double> ba = DirectedHausdorff(b, a, h, interrupter);
-  if (!ba.ok()) return ba.status();
-  return std::max(*ab, *ba);
+  NIMBUS_ASSIGN_OR_RETURN(const double ab, DirectedHausdorff(a, b, h, interrupter));
+  NIMBUS_ASSIGN_OR_RETURN(const double ba, DirectedHausdorff(b, a, h, interrupter));
+  return std::max(ab, ba);
 }
 
 }  // namespace nimbus

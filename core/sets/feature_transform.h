@@ -1,5 +1,5 @@
 // Exact Euclidean feature (closest-point) transform of a voxel set: the
-// nearest-point queries behind the median morph (ALGORITHMS.md section 1).
+// nearest-point queries behind the median morph (docs/algorithms.md#the-median-morph).
 #pragma once
 
 #include <cstdint>

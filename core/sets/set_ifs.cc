@@ -8,8 +8,9 @@
 #include <cmath>
 
 #include "absl/strings/str_cat.h"
-#include "core/chaos/point_map.h"
 #include "core/base/random.h"
+#include "core/base/status_macros.h"
+#include "core/chaos/point_map.h"
 #include "core/sets/shapes.h"
 
 namespace nimbus {
@@ -64,7 +65,7 @@ void AddToCounts(const VoxelSet& set, CountGrid& counts) {
 }  // namespace
 
 absl::Status ValidateSetIfs(const SetIfs& ifs) {
-  if (absl::Status s = ValidateSetFrame(ifs.frame); !s.ok()) return s;
+  NIMBUS_RETURN_IF_ERROR(ValidateSetFrame(ifs.frame));
   if (ifs.maps.empty()) return absl::InvalidArgumentError("set IFS has no maps");
   for (size_t i = 0; i < ifs.maps.size(); ++i) {
     if (!ifs.maps[i])
@@ -108,7 +109,7 @@ VoxelSet DefaultStartSet(const GridFrame& frame, uint64_t seed) {
 
 absl::StatusOr<SetIfsRunStats> RunSetIfs(const SetIfs& ifs, const SetIfsRunOptions& options,
                                          CountGrid& counts, Interrupter* interrupter) {
-  if (absl::Status s = ValidateSetIfs(ifs); !s.ok()) return s;
+  NIMBUS_RETURN_IF_ERROR(ValidateSetIfs(ifs));
   if (!(counts.resolution() == ifs.frame.resolution))
     return absl::InvalidArgumentError("set IFS: count grid resolution differs from the frame");
   if (options.start && !(options.start->resolution() == ifs.frame.resolution))
@@ -170,9 +171,8 @@ absl::StatusOr<uint64_t> BookPageCount(size_t maps, int depth) {
 
 absl::Status RunBook(const SetIfs& ifs, const BookOptions& options, const BookPageCallback& on_page,
                      Interrupter* interrupter) {
-  if (absl::Status s = ValidateSetIfs(ifs); !s.ok()) return s;
-  absl::StatusOr<uint64_t> pages = BookPageCount(ifs.maps.size(), options.depth);
-  if (!pages.ok()) return pages.status();
+  NIMBUS_RETURN_IF_ERROR(ValidateSetIfs(ifs));
+  NIMBUS_ASSIGN_OR_RETURN(const uint64_t pages, BookPageCount(ifs.maps.size(), options.depth));
   if (options.start && !(options.start->resolution() == ifs.frame.resolution))
     return absl::InvalidArgumentError("book: start set resolution differs from the frame");
   const uint64_t n = ifs.maps.size();
@@ -189,7 +189,7 @@ absl::Status RunBook(const SetIfs& ifs, const BookOptions& options, const BookPa
     level_size *= n;
     ++cached;
   }
-  uint64_t total_work = *pages * uint64_t(depth - cached);
+  uint64_t total_work = pages * uint64_t(depth - cached);
   for (uint64_t j = 1, s = n; j <= uint64_t(cached); ++j, s *= n) total_work += s;
   uint64_t done = 0;
 
@@ -225,7 +225,7 @@ absl::Status RunBook(const SetIfs& ifs, const BookOptions& options, const BookPa
 
   VoxelSet a(ifs.frame.resolution), b(ifs.frame.resolution);
   std::vector<uint32_t> digits(static_cast<size_t>(depth));
-  for (uint64_t p = 0; p < *pages && status.ok(); ++p) {
+  for (uint64_t p = 0; p < pages && status.ok(); ++p) {
     // Address digits, outermost (most significant) first.
     uint64_t rest = p;
     for (int d = depth - 1; d >= 0; --d) {

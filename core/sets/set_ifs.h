@@ -1,4 +1,4 @@
-// IFS whose maps act on whole voxel sets (ALGORITHMS.md section 1): the
+// IFS whose maps act on whole voxel sets (docs/algorithms.md#ifs-with-condensation-on-voxel-sets): the
 // random iteration that accumulates the measure attractor into a CountGrid,
 // and the deterministic "book of drawings".
 #pragma once

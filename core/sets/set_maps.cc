@@ -12,6 +12,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "core/base/random.h"
+#include "core/base/status_macros.h"
 
 namespace nimbus {
 namespace {
@@ -104,7 +105,7 @@ void FillTetrahedron(const Int3 p[4], VoxelSet& out) {
 }
 
 absl::Status CheckPair(const VoxelSet& a, const VoxelSet& b, const GridFrame& frame) {
-  if (absl::Status s = ValidateSetFrame(frame); !s.ok()) return s;
+  NIMBUS_RETURN_IF_ERROR(ValidateSetFrame(frame));
   if (!(a.resolution() == frame.resolution) || !(b.resolution() == frame.resolution))
     return absl::InvalidArgumentError("set map: set resolution differs from the grid frame");
   return absl::OkStatus();
@@ -266,8 +267,7 @@ absl::Status NearestFieldFor(const VoxelSet& target, const VoxelSet& moving, Vec
   FeatureTransformOptions fo;
   fo.box = moving.BoundingBox();
   fo.queries = &moving;
-  if (absl::Status s = ComputeFeatureTransform(target, h, fo, ws.field, ws.interrupter); !s.ok())
-    return s;
+  NIMBUS_RETURN_IF_ERROR(ComputeFeatureTransform(target, h, fo, ws.field, ws.interrupter));
   ws.stats.nearest_seconds += SecondsSince(t0);
   return absl::OkStatus();
 }
@@ -289,22 +289,19 @@ absl::Status MedianInto(const VoxelSet& a, const VoxelSet& b, const FeatureField
   if (!ws.moving_a.Empty()) {
     const FeatureField* field = b_field;
     if (!field) {
-      if (absl::Status s = NearestFieldFor(b, ws.moving_a, h, ws); !s.ok()) return s;
+      NIMBUS_RETURN_IF_ERROR(NearestFieldFor(b, ws.moving_a, h, ws));
       field = &ws.field;
     }
-    if (absl::Status s = AddMidpoints(ws.moving_a, a, *field, options, seed, ws.images, out, intr);
-        !s.ok())
-      return s;
+    NIMBUS_RETURN_IF_ERROR(
+        AddMidpoints(ws.moving_a, a, *field, options, seed, ws.images, out, intr));
   }
   if (!both_sides) return absl::OkStatus();
   ws.moving_b = b;
   ws.moving_b -= a;
   if (!ws.moving_b.Empty()) {
-    if (absl::Status s = NearestFieldFor(a, ws.moving_b, h, ws); !s.ok()) return s;
-    if (absl::Status s =
-            AddMidpoints(ws.moving_b, b, ws.field, options, seed, ws.images, out, intr);
-        !s.ok())
-      return s;
+    NIMBUS_RETURN_IF_ERROR(NearestFieldFor(a, ws.moving_b, h, ws));
+    NIMBUS_RETURN_IF_ERROR(
+        AddMidpoints(ws.moving_b, b, ws.field, options, seed, ws.images, out, intr));
   }
   return absl::OkStatus();
 }
@@ -425,12 +422,10 @@ absl::Status RotatedMedianInto(const VoxelSet& a, const VoxelSet& b, const Featu
     shift_b = RoundVec(mid - cb);
     ws.shifted = ShiftSet(a, {ta.x - shift_b.x, ta.y - shift_b.y, ta.z - shift_b.z});
     if (ws.shifted.Empty()) ws.shifted = a;  // shifted off the lattice: fall back
-    if (absl::Status s = MedianInto(ws.shifted, b, b_field, h, options.median, true, ws, ws.staged);
-        !s.ok())
-      return s;
+    NIMBUS_RETURN_IF_ERROR(
+        MedianInto(ws.shifted, b, b_field, h, options.median, true, ws, ws.staged));
   } else {
-    if (absl::Status s = MedianInto(a, b, b_field, h, options.median, true, ws, ws.staged); !s.ok())
-      return s;
+    NIMBUS_RETURN_IF_ERROR(MedianInto(a, b, b_field, h, options.median, true, ws, ws.staged));
   }
   if (std::abs(degrees) < 1e-9) {
     out = shift_b == Int3{0, 0, 0} ? ws.staged : ShiftSet(ws.staged, shift_b);
@@ -607,7 +602,7 @@ class PointSetMap final : public SetMap {
 
 absl::StatusOr<FeatureField> PrepareCondensation(const GridFrame& frame, const VoxelSet& c,
                                                  Interrupter* interrupter) {
-  if (absl::Status s = ValidateSetFrame(frame); !s.ok()) return s;
+  NIMBUS_RETURN_IF_ERROR(ValidateSetFrame(frame));
   if (!(c.resolution() == frame.resolution))
     return absl::InvalidArgumentError("condensation set resolution differs from the grid frame");
   if (c.Empty()) return absl::InvalidArgumentError("condensation set is empty");
@@ -624,23 +619,21 @@ absl::StatusOr<VoxelSet> MedianOnce(const VoxelSet& a, const VoxelSet& b, const 
   SetMapWorkspace ws;
   ws.interrupter = interrupter;
   VoxelSet out;
-  if (absl::Status s = MedianInto(a, b, nullptr, frame.VoxelSize(), options, symmetric, ws, out);
-      !s.ok())
-    return s;
+  NIMBUS_RETURN_IF_ERROR(MedianInto(a, b, nullptr, frame.VoxelSize(), options, symmetric, ws, out));
   return out;
 }
 }  // namespace
 
 absl::StatusOr<VoxelSet> LeftMedian(const VoxelSet& a, const VoxelSet& b, const GridFrame& frame,
                                     const MedianOptions& options, Interrupter* interrupter) {
-  if (absl::Status s = CheckPair(a, b, frame); !s.ok()) return s;
+  NIMBUS_RETURN_IF_ERROR(CheckPair(a, b, frame));
   if (b.Empty()) return absl::InvalidArgumentError("left median: the target set is empty");
   return MedianOnce(a, b, frame, options, false, interrupter);
 }
 
 absl::StatusOr<VoxelSet> Median(const VoxelSet& a, const VoxelSet& b, const GridFrame& frame,
                                 const MedianOptions& options, Interrupter* interrupter) {
-  if (absl::Status s = CheckPair(a, b, frame); !s.ok()) return s;
+  NIMBUS_RETURN_IF_ERROR(CheckPair(a, b, frame));
   if (a.Empty() || b.Empty()) return absl::InvalidArgumentError("median: a set is empty");
   return MedianOnce(a, b, frame, options, true, interrupter);
 }
@@ -648,7 +641,7 @@ absl::StatusOr<VoxelSet> Median(const VoxelSet& a, const VoxelSet& b, const Grid
 absl::StatusOr<VoxelSet> RotatedMedian(const VoxelSet& a, const VoxelSet& b, const GridFrame& frame,
                                        const RotatedMedianOptions& options,
                                        Interrupter* interrupter) {
-  if (absl::Status s = CheckPair(a, b, frame); !s.ok()) return s;
+  NIMBUS_RETURN_IF_ERROR(CheckPair(a, b, frame));
   if (a.Empty() || b.Empty()) return absl::InvalidArgumentError("rotated median: a set is empty");
   if (!IsFinite(options.axis) || !(Length(options.axis) > 0) ||
       !std::isfinite(options.degrees_per_unit))
@@ -656,7 +649,7 @@ absl::StatusOr<VoxelSet> RotatedMedian(const VoxelSet& a, const VoxelSet& b, con
   SetMapWorkspace ws;
   ws.interrupter = interrupter;
   VoxelSet out;
-  if (absl::Status s = RotatedMedianInto(a, b, nullptr, frame, options, ws, out); !s.ok()) return s;
+  NIMBUS_RETURN_IF_ERROR(RotatedMedianInto(a, b, nullptr, frame, options, ws, out));
   return out;
 }
 
@@ -668,9 +661,9 @@ VoxelSet TransformSet(const VoxelSet& set, const GridFrame& frame, const Affine3
 
 absl::StatusOr<SetMapPtr> MakeMedianMap(const GridFrame& frame, VoxelSet condensation,
                                         const MedianOptions& options, Interrupter* interrupter) {
-  absl::StatusOr<FeatureField> field = PrepareCondensation(frame, condensation, interrupter);
-  if (!field.ok()) return field.status();
-  return std::make_shared<MedianMap>(frame, std::move(condensation), *std::move(field), options);
+  NIMBUS_ASSIGN_OR_RETURN(FeatureField field,
+                          PrepareCondensation(frame, condensation, interrupter));
+  return std::make_shared<MedianMap>(frame, std::move(condensation), std::move(field), options);
 }
 
 absl::StatusOr<SetMapPtr> MakeRotatedMedianMap(const GridFrame& frame, VoxelSet condensation,
@@ -679,14 +672,14 @@ absl::StatusOr<SetMapPtr> MakeRotatedMedianMap(const GridFrame& frame, VoxelSet 
   if (!IsFinite(options.axis) || !(Length(options.axis) > 0) ||
       !std::isfinite(options.degrees_per_unit))
     return absl::InvalidArgumentError("rotated median: axis must be non-zero, angle finite");
-  absl::StatusOr<FeatureField> field = PrepareCondensation(frame, condensation, interrupter);
-  if (!field.ok()) return field.status();
-  return std::make_shared<RotatedMedianMap>(frame, std::move(condensation), *std::move(field),
+  NIMBUS_ASSIGN_OR_RETURN(FeatureField field,
+                          PrepareCondensation(frame, condensation, interrupter));
+  return std::make_shared<RotatedMedianMap>(frame, std::move(condensation), std::move(field),
                                             options);
 }
 
 absl::StatusOr<SetMapPtr> MakeConstantMap(const GridFrame& frame, VoxelSet condensation) {
-  if (absl::Status s = ValidateSetFrame(frame); !s.ok()) return s;
+  NIMBUS_RETURN_IF_ERROR(ValidateSetFrame(frame));
   if (!(condensation.resolution() == frame.resolution))
     return absl::InvalidArgumentError("condensation set resolution differs from the grid frame");
   if (condensation.Empty()) return absl::InvalidArgumentError("condensation set is empty");
@@ -695,7 +688,7 @@ absl::StatusOr<SetMapPtr> MakeConstantMap(const GridFrame& frame, VoxelSet conde
 
 absl::StatusOr<SetMapPtr> MakePointSetMap(const GridFrame& frame, PointMap map,
                                           const PointSetMapOptions& options) {
-  if (absl::Status s = ValidateSetFrame(frame); !s.ok()) return s;
+  NIMBUS_RETURN_IF_ERROR(ValidateSetFrame(frame));
   if (options.max_subdivision < 1 || options.max_subdivision > 16)
     return absl::InvalidArgumentError("point set map: max_subdivision must be in 1..16");
   return std::make_shared<PointSetMap>(frame, std::move(map), options);

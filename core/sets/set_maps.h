@@ -1,4 +1,4 @@
-// Maps on voxel sets for IFS with condensation (ALGORITHMS.md section 1):
+// Maps on voxel sets for IFS with condensation (docs/algorithms.md#ifs-with-condensation-on-voxel-sets):
 // the median morph toward a condensation set, its rotated variant,
 // Barnsley's constant condensation and point maps lifted to sets. They
 // share one interface so a set IFS can mix them freely.
@@ -59,7 +59,7 @@ struct RotatedMedianOptions {
   /// Rotation axis (world space, need not be unit length).
   Vec3 axis{0, 0, 1};
   /// Superpose the sets' bounding boxes midway before taking the median
-  /// (the seed's construction). When false the plain median is rotated.
+  /// (the reference description's construction; docs/algorithms.md#the-rotated-median). When false the plain median is rotated.
   bool superpose = true;
 };
 

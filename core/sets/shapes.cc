@@ -6,6 +6,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "core/base/random.h"
+#include "core/base/status_macros.h"
 
 namespace nimbus {
 namespace {
@@ -49,8 +50,8 @@ void AddBall(const GridFrame& f, Vec3 c, double r, VoxelSet& set) {
 }  // namespace
 
 absl::StatusOr<VoxelSet> SphereSet(const GridFrame& frame, Vec3 centre, double radius) {
-  if (absl::Status s = ValidateSetFrame(frame); !s.ok()) return s;
-  if (absl::Status s = CheckRadius(radius, "sphere radius"); !s.ok()) return s;
+  NIMBUS_RETURN_IF_ERROR(ValidateSetFrame(frame));
+  NIMBUS_RETURN_IF_ERROR(CheckRadius(radius, "sphere radius"));
   if (!IsFinite(centre)) return absl::InvalidArgumentError("sphere centre must be finite");
   VoxelSet set(frame.resolution);
   AddBall(frame, centre, radius, set);
@@ -58,7 +59,7 @@ absl::StatusOr<VoxelSet> SphereSet(const GridFrame& frame, Vec3 centre, double r
 }
 
 absl::StatusOr<VoxelSet> BoxSet(const GridFrame& frame, const Bounds& box) {
-  if (absl::Status s = ValidateSetFrame(frame); !s.ok()) return s;
+  NIMBUS_RETURN_IF_ERROR(ValidateSetFrame(frame));
   if (!IsFinite(box.min) || !IsFinite(box.max))
     return absl::InvalidArgumentError("box corners must be finite");
   VoxelSet set(frame.resolution);
@@ -73,9 +74,9 @@ absl::StatusOr<VoxelSet> BoxSet(const GridFrame& frame, const Bounds& box) {
 
 absl::StatusOr<VoxelSet> TorusSet(const GridFrame& frame, Vec3 centre, Vec3 axis,
                                   double major_radius, double minor_radius) {
-  if (absl::Status s = ValidateSetFrame(frame); !s.ok()) return s;
-  if (absl::Status s = CheckRadius(major_radius, "torus major radius"); !s.ok()) return s;
-  if (absl::Status s = CheckRadius(minor_radius, "torus minor radius"); !s.ok()) return s;
+  NIMBUS_RETURN_IF_ERROR(ValidateSetFrame(frame));
+  NIMBUS_RETURN_IF_ERROR(CheckRadius(major_radius, "torus major radius"));
+  NIMBUS_RETURN_IF_ERROR(CheckRadius(minor_radius, "torus minor radius"));
   const double len = Length(axis);
   if (!IsFinite(centre) || !IsFinite(axis) || !(len > 0))
     return absl::InvalidArgumentError("torus centre and axis must be finite, axis non-zero");
@@ -99,14 +100,12 @@ absl::StatusOr<VoxelSet> TorusSet(const GridFrame& frame, Vec3 centre, Vec3 axis
 
 absl::StatusOr<VoxelSet> RandomBallsInside(const VoxelSet& region, const GridFrame& frame,
                                            const RandomBallsOptions& options) {
-  if (absl::Status s = ValidateSetFrame(frame); !s.ok()) return s;
+  NIMBUS_RETURN_IF_ERROR(ValidateSetFrame(frame));
   if (!(region.resolution() == frame.resolution))
     return absl::InvalidArgumentError("random balls: region resolution differs from the frame");
   if (options.count < 0) return absl::InvalidArgumentError("random balls: count must be >= 0");
-  if (absl::Status s = CheckRadius(options.min_radius, "random balls min_radius"); !s.ok())
-    return s;
-  if (absl::Status s = CheckRadius(options.max_radius, "random balls max_radius"); !s.ok())
-    return s;
+  NIMBUS_RETURN_IF_ERROR(CheckRadius(options.min_radius, "random balls min_radius"));
+  NIMBUS_RETURN_IF_ERROR(CheckRadius(options.max_radius, "random balls max_radius"));
   if (options.max_radius < options.min_radius)
     return absl::InvalidArgumentError("random balls: max_radius < min_radius");
   // Members per row, accumulated, to pick the k-th member by binary search.

@@ -1,6 +1,6 @@
 // Built-in condensation sets: analytic solids and "random balls inside a
-// shape", the second sketch of the seed's cloud bull (ALGORITHMS.md
-// section 1, "3D use").
+// shape", the second sketch of the reference description's cloud bull
+// (docs/algorithms.md#random-iteration-on-sets).
 #pragma once
 
 #include <cstdint>

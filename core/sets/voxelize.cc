@@ -12,6 +12,7 @@
 #include <unordered_map>
 
 #include "absl/strings/str_cat.h"
+#include "core/base/status_macros.h"
 #include "core/io/vdb_internal.h"
 
 namespace nimbus {
@@ -107,9 +108,9 @@ void FillBox(const openvdb::CoordBBox& bb, VoxelSet& set) {
 // inactive interior tiles that meshToVolume's sign flood fill produced.
 absl::Status LevelSetInterior(const TriangleMesh& mesh, const std::vector<Vec3>& pts,
                               const GridFrame& frame, Interrupter& intr, VoxelSet& out) {
-  absl::StatusOr<openvdb::FloatGrid::Ptr> grid = MeshToVdb(mesh, pts, frame, 2.0f, 0, intr);
-  if (!grid.ok()) return grid.status();
-  for (auto it = (*grid)->cbeginValueAll(); it; ++it) {
+  NIMBUS_ASSIGN_OR_RETURN(const openvdb::FloatGrid::Ptr grid,
+                          MeshToVdb(mesh, pts, frame, 2.0f, 0, intr));
+  for (auto it = grid->cbeginValueAll(); it; ++it) {
     if (!(*it < 0)) continue;
     openvdb::CoordBBox bb;
     it.getBoundingBox(bb);
@@ -245,12 +246,12 @@ absl::Status RayVoteInterior(const TriangleMesh& mesh, const std::vector<Vec3>& 
   // An open sheet (no volume to vote on) still leaves its surface voxels.
   if (out.Empty()) shell = std::max(shell, 0.5);
   if (shell > 0) {
-    absl::StatusOr<openvdb::FloatGrid::Ptr> grid = MeshToVdb(
-        mesh, pts, frame, float(shell + 1.0), openvdb::tools::UNSIGNED_DISTANCE_FIELD, intr);
-    if (!grid.ok()) return grid.status();
+    NIMBUS_ASSIGN_OR_RETURN(const openvdb::FloatGrid::Ptr grid,
+                            MeshToVdb(mesh, pts, frame, float(shell + 1.0),
+                                      openvdb::tools::UNSIGNED_DISTANCE_FIELD, intr));
     // meshToVolume scales index-space distances by the first voxel size.
     const double limit = shell * frame.VoxelSize().x;
-    for (auto it = (*grid)->cbeginValueOn(); it; ++it) {
+    for (auto it = grid->cbeginValueOn(); it; ++it) {
       if (*it > limit) continue;
       const openvdb::Coord c = it.getCoord();
       if (out.InBounds(c.x(), c.y(), c.z())) out.Set(c.x(), c.y(), c.z());
@@ -325,8 +326,8 @@ Affine3 FitPlacement(const Bounds& mesh, const GridFrame& frame, double margin_v
 absl::StatusOr<VoxelizeResult> VoxelizeMesh(const TriangleMesh& mesh, const GridFrame& frame,
                                             const VoxelizeOptions& options,
                                             Interrupter* interrupter) {
-  if (absl::Status s = ValidateSetFrame(frame); !s.ok()) return s;
-  if (absl::Status s = ValidateMesh(mesh, "mesh"); !s.ok()) return s;
+  NIMBUS_RETURN_IF_ERROR(ValidateSetFrame(frame));
+  NIMBUS_RETURN_IF_ERROR(ValidateMesh(mesh, "mesh"));
   Interrupter& intr = OrNull(interrupter);
   intr.Start("voxelise mesh");
   VoxelizeResult result;
@@ -357,9 +358,8 @@ absl::StatusOr<VoxelizeResult> LoadAndVoxelize(const std::filesystem::path& path
                                                const GridFrame& frame,
                                                const VoxelizeOptions& options,
                                                Interrupter* interrupter) {
-  absl::StatusOr<TriangleMesh> mesh = LoadMesh(path);
-  if (!mesh.ok()) return mesh.status();
-  absl::StatusOr<VoxelizeResult> r = VoxelizeMesh(*mesh, frame, options, interrupter);
+  NIMBUS_ASSIGN_OR_RETURN(const TriangleMesh mesh, LoadMesh(path));
+  absl::StatusOr<VoxelizeResult> r = VoxelizeMesh(mesh, frame, options, interrupter);
   if (!r.ok()) {
     return absl::Status(r.status().code(), absl::StrCat(path.string(), ": ", r.status().message()));
   }
@@ -368,18 +368,17 @@ absl::StatusOr<VoxelizeResult> LoadAndVoxelize(const std::filesystem::path& path
 
 absl::Status SaveMeshLevelSet(const TriangleMesh& mesh, const GridFrame& frame,
                               const std::filesystem::path& path, const std::string& grid_name) {
-  if (absl::Status s = ValidateSetFrame(frame); !s.ok()) return s;
-  if (absl::Status s = ValidateMesh(mesh, "mesh"); !s.ok()) return s;
+  NIMBUS_RETURN_IF_ERROR(ValidateSetFrame(frame));
+  NIMBUS_RETURN_IF_ERROR(ValidateMesh(mesh, "mesh"));
   const std::vector<Vec3> pts = IndexSpacePoints(mesh, Affine3::Identity(), frame);
-  absl::StatusOr<openvdb::FloatGrid::Ptr> grid =
-      MeshToVdb(mesh, pts, frame, 3.0f, 0, OrNull(nullptr));
-  if (!grid.ok()) return grid.status();
+  NIMBUS_ASSIGN_OR_RETURN(const openvdb::FloatGrid::Ptr grid,
+                          MeshToVdb(mesh, pts, frame, 3.0f, 0, OrNull(nullptr)));
   try {
     // meshToVolume already scales distances to world units.
-    (*grid)->setGridClass(openvdb::GRID_LEVEL_SET);
-    (*grid)->setName(grid_name);
+    grid->setGridClass(openvdb::GRID_LEVEL_SET);
+    grid->setName(grid_name);
     openvdb::io::File file(path.string());
-    file.write({*grid});
+    file.write({grid});
     file.close();
   } catch (const std::exception& e) {
     return absl::InternalError(absl::StrCat(path.string(), ": cannot write: ", e.what()));
@@ -389,7 +388,7 @@ absl::Status SaveMeshLevelSet(const TriangleMesh& mesh, const GridFrame& frame,
 
 absl::StatusOr<VoxelSet> LoadGridSet(const std::filesystem::path& path, const GridFrame& frame,
                                      const GridSetOptions& options, Interrupter* interrupter) {
-  if (absl::Status s = ValidateSetFrame(frame); !s.ok()) return s;
+  NIMBUS_RETURN_IF_ERROR(ValidateSetFrame(frame));
   Interrupter& intr = OrNull(interrupter);
   const std::string name = path.string();
   std::error_code ec;

@@ -1,6 +1,6 @@
 // Mesh voxelisation into interior VoxelSets on a job's GridFrame: the step
-// that turns an artist's sketch mesh into a condensation set (ALGORITHMS.md
-// section 1, "3D use"). OpenVDB stays inside voxelize.cc.
+// that turns an artist's sketch mesh into a condensation set
+// (docs/algorithms.md#maps-that-act-on-sets). OpenVDB stays inside voxelize.cc.
 #pragma once
 
 #include <cstdint>

@@ -7,7 +7,7 @@
 namespace nimbus {
 namespace {
 
-// The four maps z/2 + {0, 1/2, i/2, (1+i)/2} of ALGORITHMS.md section 1, in
+// The four maps z/2 + {0, 1/2, i/2, (1+i)/2} of docs/algorithms.md#probabilities-and-the-measure-attractor, in
 // the z = 0 plane, with p = (0.30, 0.20, 0.25, 0.25).
 ChaosGameParams SquareMeasure(uint64_t iterations, uint64_t seed) {
   ChaosGameParams p;

@@ -10,10 +10,16 @@
 #include <vector>
 
 #include "absl/strings/str_cat.h"
+#include "tests/support/matrix_oracles.h"
 
 namespace nimbus {
 namespace {
 
+using ::nimbus::testing::DeterministicRenderOptions;
+using ::nimbus::testing::IfsMatrixExample;
+using ::nimbus::testing::RenderComponentDeterministic;
+using ::nimbus::testing::RunChainReference;
+using ::nimbus::testing::TreeMatrixExample;
 using ::testing::HasSubstr;
 using Entry = IfsMatrix::Entry;
 using Voxel = std::array<int, 3>;

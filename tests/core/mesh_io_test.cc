@@ -191,6 +191,55 @@ TEST(MeshIo, ErrorsNameTheFileAndPlace) {
   EXPECT_EQ(LoadMesh(dir / "missing.obj").status().code(), absl::StatusCode::kNotFound);
 }
 
+TEST(MeshIo, FileTypeFromNamesAndWords) {
+  EXPECT_EQ(MeshFileTypeFromName("cow.obj"), MeshFileType::kObj);
+  EXPECT_EQ(MeshFileTypeFromName("x/y/Mesh.PLY"), MeshFileType::kPly);
+  EXPECT_EQ(MeshFileTypeFromName(".stl"), MeshFileType::kStl);
+  EXPECT_EQ(MeshFileTypeFromName("STL"), MeshFileType::kStl);
+  EXPECT_EQ(MeshFileTypeFromName("smoke.vdb"), MeshFileType::kUnknown);
+  EXPECT_EQ(MeshFileTypeFromName("a.obj/blob"), MeshFileType::kUnknown);
+  EXPECT_EQ(MeshFileTypeFromName(""), MeshFileType::kUnknown);
+}
+
+// Content-addressed assets have no extension: the caller says the format,
+// PLY and STL are also recognised by content, and messages use the name the
+// caller gives instead of the path.
+TEST(MeshIo, LoadsExtensionlessFilesByHintOrContent) {
+  testing::TempDir dir;
+  const TriangleMesh mesh = SmallMesh();
+  const std::pair<MeshFormat, std::string> cases[] = {{MeshFormat::kPlyAscii, "ply_a"},
+                                                      {MeshFormat::kPlyBinary, "ply_b"},
+                                                      {MeshFormat::kStlAscii, "stl_a"},
+                                                      {MeshFormat::kStlBinary, "stl_b"},
+                                                      {MeshFormat::kObj, "obj"}};
+  for (const auto& [format, name] : cases) {
+    ASSERT_TRUE(SaveMesh(mesh, dir / name, format).ok());
+    const absl::StatusOr<TriangleMesh> sniffed = LoadMesh(dir / name);
+    if (format == MeshFormat::kObj) {
+      // OBJ has no signature: without a hint it stays unknown.
+      EXPECT_THAT(Message(sniffed.status()), HasSubstr("unknown mesh format")) << name;
+    } else {
+      ASSERT_TRUE(sniffed.ok()) << name << ": " << sniffed.status();
+      EXPECT_EQ(Corners(*sniffed), Corners(mesh)) << name;
+    }
+  }
+  const absl::StatusOr<TriangleMesh> obj =
+      LoadMesh(dir / "obj", {MeshFileTypeFromName("cow.obj"), "cow.obj"});
+  ASSERT_TRUE(obj.ok()) << obj.status();
+  EXPECT_EQ(obj->vertices, mesh.vertices);
+  // The hint outranks the path's extension; a PLY header outranks both.
+  ASSERT_TRUE(SaveMesh(mesh, dir / "really_obj.stl", MeshFormat::kObj).ok());
+  EXPECT_TRUE(LoadMesh(dir / "really_obj.stl", {MeshFileType::kObj, ""}).ok());
+  EXPECT_TRUE(LoadMesh(dir / "ply_b", {MeshFileType::kObj, "x.obj"}).ok());
+  // Messages name the display name, not the path.
+  WriteFile(dir / "blob", "v 0 0 0\nv 1 0 0\nf 1 2 3\n");
+  const absl::Status s = LoadMesh(dir / "blob", {MeshFileType::kObj, "cow.obj (sha256 3fa2)"}).status();
+  EXPECT_THAT(Message(s), HasSubstr("cow.obj (sha256 3fa2):3: face index 3 out of range"));
+  EXPECT_EQ(Message(s).find(dir.path().string()), std::string::npos) << Message(s);
+  EXPECT_EQ(Message(LoadMesh(dir / "gone", {MeshFileType::kObj, "gone.obj"}).status()),
+            "gone.obj: cannot open mesh file");
+}
+
 TEST(MeshIo, ValidateMeshRejectsBadIndicesAndNonFinite) {
   TriangleMesh m = SmallMesh();
   EXPECT_TRUE(ValidateMesh(m, "m").ok());

@@ -51,7 +51,7 @@ TEST(SetIfs, RandomIterationIsDeterministicAndCountsEverySet) {
 }
 
 TEST(SetIfs, CloudIsDensestInsideEverySketch) {
-  // The seed's bull, with the cow: sketch A is the cow, sketch B random
+  // The reference description's bull, with the cow: sketch A is the cow, sketch B random
   // balls inside it; p = 2/3 and 1/3.
   const GridFrame f = Cube(64);
   VoxelizeOptions vo;

@@ -10,6 +10,7 @@
 #include "core/sets/shapes.h"
 #include "core/grid/voxel_set.h"
 #include "core/sets/voxelize.h"
+#include "tests/support/median_reference.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus {
@@ -185,6 +186,17 @@ TEST(FeatureTransform, HausdorffDistance) {
 
 // ---------------------------------------------------------------- median
 
+// Voxel sets given by hand, and the oracle's verdict on an engine answer.
+using testing::AdmittingRoundings;
+using testing::VoxelSetOf;
+
+// Sparse random sets on a frame with unequal voxel sizes, so nearest points
+// depend on the world metric, not on index distances.
+const GridFrame& Skewed() {
+  static const GridFrame f{{20, 18, 16}, {{0, 0, 0}, {2.0, 2.34, 2.72}}};  // h = .1, .13, .17
+  return f;
+}
+
 TEST(Median, FixesItsCondensationSet) {
   const GridFrame f = Cube(48);
   const VoxelSet& cow = CowAt48();
@@ -195,6 +207,88 @@ TEST(Median, FixesItsCondensationSet) {
   RotatedMedianOptions ro;
   ro.degrees_per_unit = 60;
   EXPECT_EQ(*RotatedMedian(cow, cow, f, ro), cow);
+
+  // A set other than C moves, by exact midpoints, and the iteration of
+  // f_C reaches C itself and stays there. C is two voxels, I one voxel
+  // nearer to C's second voxel (squared distances 68 and 100); every
+  // coordinate sum is even, so no rounding is involved:
+  //   D_I(C) = {mid((10,12,4), (12,4,4))} = {(11,8,4)}
+  //   D_C(I) = {mid((4,4,4), (10,12,4)), mid((12,4,4), (10,12,4))} = {(7,8,4), (11,8,4)}
+  const GridFrame small = Cube(16);
+  const Int3 r = small.resolution;
+  const VoxelSet c = VoxelSetOf(r, {{4, 4, 4}, {12, 4, 4}});
+  VoxelSet set = VoxelSetOf(r, {{10, 12, 4}});
+  EXPECT_EQ(*Median(set, c, small), VoxelSetOf(r, {{7, 8, 4}, {11, 8, 4}}));
+  MedianOptions no_fill;
+  no_fill.bridge_max_jump = 0;
+  const SetMapPtr map = *MakeMedianMap(small, c, no_fill);
+  SetMapWorkspace ws;
+  VoxelSet next;
+  int steps = 0;
+  for (; steps < 40 && !(set == c); ++steps) {
+    ws.seed = uint64_t(steps);
+    ASSERT_TRUE(map->Apply(set, next, ws).ok());
+    // Each step is one of the brute-force medians (the seed picks the rounding).
+    ASSERT_FALSE(AdmittingRoundings(set, c, small.VoxelSize(), true, next).empty())
+        << "step " << steps;
+    std::swap(set, next);
+  }
+  EXPECT_EQ(set, c) << "not condensed after " << steps << " steps";
+  EXPECT_GE(steps, 3);  // the distance 8 at least halves per step
+  for (uint64_t seed : {0, 1, 2}) {
+    ws.seed = seed;
+    ASSERT_TRUE(map->Apply(c, next, ws).ok());
+    EXPECT_EQ(next, c);
+  }
+}
+
+TEST(Median, MatchesBruteForceMidpointsOfNearestVoxels) {
+  // Distinct random sets with voxels in common; every voxel of A \ B goes
+  // halfway to its nearest voxel of B and back. One rounding for all.
+  Rng rng(31, 0);
+  const GridFrame& f = Skewed();
+  const Vec3 h = f.VoxelSize();
+  MedianOptions o;
+  o.bridge_max_jump = 0;
+  for (int trial = 0; trial < 12; ++trial) {
+    const VoxelSet a = RandomSet(f.resolution, 0.01, rng);
+    VoxelSet b = RandomSet(f.resolution, 0.004, rng) | (a & RandomSet(f.resolution, 0.3, rng));
+    if (a.Empty() || b.Empty()) continue;
+    o.seed = uint64_t(trial);
+    const VoxelSet left = *LeftMedian(a, b, f, o);
+    const VoxelSet both = *Median(a, b, f, o);
+    EXPECT_FALSE(AdmittingRoundings(a, b, h, false, left).empty()) << "trial " << trial;
+    EXPECT_FALSE(AdmittingRoundings(a, b, h, true, both).empty()) << "trial " << trial;
+    EXPECT_FALSE(left == both) << "trial " << trial;
+  }
+}
+
+TEST(Median, RoundsFaceMidpointsBySeedAlongEachAxis) {
+  // (1,1,1) and (4,6,8): every coordinate sum is odd, so the median is the
+  // single voxel (2|3, 3|4, 4|5) -- the same from both sides -- and each
+  // axis goes up for some seeds and down for others.
+  const GridFrame f = Cube(16);
+  const VoxelSet a = VoxelSetOf(f.resolution, {{1, 1, 1}});
+  const VoxelSet b = VoxelSetOf(f.resolution, {{4, 6, 8}});
+  int ups[3] = {0, 0, 0};
+  const int seeds = 64;
+  for (int seed = 0; seed < seeds; ++seed) {
+    MedianOptions o;
+    o.seed = uint64_t(seed);
+    const VoxelSet m = *Median(a, b, f, o);
+    ASSERT_EQ(m.Count(), 1) << "seed " << seed;
+    const Int3 v = m.BoundingBox()->min;
+    ASSERT_TRUE(v.x == 2 || v.x == 3) << v.x;
+    ASSERT_TRUE(v.y == 3 || v.y == 4) << v.y;
+    ASSERT_TRUE(v.z == 4 || v.z == 5) << v.z;
+    ups[0] += v.x == 3, ups[1] += v.y == 4, ups[2] += v.z == 5;
+    EXPECT_EQ(*LeftMedian(a, b, f, o), m);
+    EXPECT_EQ(*LeftMedian(b, a, f, o), m);
+  }
+  for (int axis = 0; axis < 3; ++axis) {
+    EXPECT_GT(ups[axis], seeds / 5) << "axis " << axis;
+    EXPECT_LT(ups[axis], seeds - seeds / 5) << "axis " << axis;
+  }
 }
 
 TEST(Median, IsSymmetric) {
@@ -208,6 +302,27 @@ TEST(Median, IsSymmetric) {
     EXPECT_EQ(*Median(ball, cow, f, o), *Median(cow, ball, f, o));
     EXPECT_EQ(*Median(torus, ball, f, o), *Median(ball, torus, f, o));
   }
+}
+
+TEST(Median, AddsTheOtherSetMovedTowardTheFirst) {
+  // One voxel A against three voxels B (no two touching, so no gap
+  // filling): D_A(B) moves A halfway to B's nearest voxel (10,2,2), and
+  // the symmetric half D_B(A) moves each voxel of B halfway to A.
+  const GridFrame f = Cube(16);
+  const Int3 r = f.resolution;
+  const VoxelSet a = VoxelSetOf(r, {{2, 2, 2}});
+  const VoxelSet b = VoxelSetOf(r, {{10, 2, 2}, {10, 4, 2}, {12, 6, 2}});
+  const VoxelSet d_ab = VoxelSetOf(r, {{6, 2, 2}});
+  const VoxelSet d_ba = VoxelSetOf(r, {{6, 2, 2}, {6, 3, 2}, {7, 4, 2}});
+  EXPECT_EQ(*LeftMedian(a, b, f), d_ab);
+  EXPECT_EQ(*LeftMedian(b, a, f), d_ba);
+  EXPECT_EQ(*Median(a, b, f), d_ab | d_ba);
+  EXPECT_EQ(*Median(b, a, f), d_ab | d_ba);
+  // The same through the map f_B(A) = M(A, B).
+  SetMapWorkspace ws;
+  VoxelSet out;
+  ASSERT_TRUE((*MakeMedianMap(f, b))->Apply(a, out, ws).ok());
+  EXPECT_EQ(out, d_ab | d_ba);
 }
 
 TEST(Median, LeftMedianOfBoxesIsTheHalfwayBox) {
@@ -224,22 +339,30 @@ TEST(Median, LeftMedianOfBoxesIsTheHalfwayBox) {
   EXPECT_EQ(d.Count(), box.Volume());  // solid
 }
 
-TEST(Median, MapAgreesWithTheFreeFunction) {
-  const GridFrame f = Cube(48);
-  const VoxelSet& cow = CowAt48();
-  const SetMapPtr map = *MakeMedianMap(f, cow);
-  const VoxelSet start = *SphereSet(f, {0.5, -0.4, 0.3}, 0.35);
-  for (uint64_t seed : {0, 7}) {
+TEST(Median, MapAgreesWithBruteForce) {
+  // f_C(I) reads C's precomputed transform and computes I's over a
+  // restricted box; the brute-force median knows nothing of either.
+  Rng rng(32, 0);
+  const GridFrame& f = Skewed();
+  const Vec3 h = f.VoxelSize();
+  MedianOptions o;
+  o.bridge_max_jump = 0;
+  const VoxelSet c = RandomSet(f.resolution, 0.006, rng);
+  ASSERT_FALSE(c.Empty());
+  const SetMapPtr map = *MakeMedianMap(f, c, o);
+  for (uint64_t seed : {0, 7, 8}) {
+    // A cluster in one corner, so C \ I needs only part of I's transform.
+    VoxelSet start = *BoxSet(f, {{0.2, 0.26, 0.34}, {0.9, 1.1, 1.2}}) &
+                     RandomSet(f.resolution, 0.2, rng);
+    start |= c & RandomSet(f.resolution, 0.3, rng);
     SetMapWorkspace ws;
     ws.seed = seed;
     VoxelSet out;
     ASSERT_TRUE(map->Apply(start, out, ws).ok());
-    MedianOptions o;
-    o.seed = seed;
-    // The map reads C's precomputed transform; the function computes both
-    // transforms over restricted boxes. Same answer.
-    EXPECT_EQ(out, *Median(start, cow, f, o));
+    EXPECT_FALSE(AdmittingRoundings(start, c, h, true, out).empty()) << "seed " << seed;
     EXPECT_EQ(ws.stats.applications, 1u);
+    o.seed = seed;
+    EXPECT_EQ(out, *Median(start, c, f, o));
   }
 }
 
@@ -360,7 +483,7 @@ TEST(SetMaps, AffinePointMapsKeepSolidsSolid) {
 }
 
 TEST(SetMaps, NonlinearPointMapIsSeededAndSubdividesStretches) {
-  // The seed's polar doubling: angles double, radii shrink by sqrt 2.
+  // The reference description's polar doubling: angles double, radii shrink by sqrt 2.
   const GridFrame f = Cube(48);
   PointMap polar;
   polar.variations.push_back({VariationKind::kPolarDoubling, 1.0, {}});

@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include "core/chaos/chaos_game.h"
+
 #include <algorithm>
 #include <cmath>
 #include <complex>
@@ -327,15 +329,226 @@ TEST(Variations, DegenerateInputsStayFinite) {
   }
 }
 
-TEST(Variations, HugeAndNonFiniteInputsDoNotCrash) {
-  const double inf = std::numeric_limits<double>::infinity();
-  const double nan = std::numeric_limits<double>::quiet_NaN();
-  const std::vector<Vec3> points = {{1e300, -1e300, 1e300}, {inf, 0, 0}, {nan, 1, 2}};
-  for (VariationKind kind : AllVariations()) {
-    Rng rng(1, 1);
-    for (Vec3 p : points) (void)EvaluateVariation(Term(kind), p, TestPre(), rng);
+constexpr double kInf = std::numeric_limits<double>::infinity();
+constexpr double kNan = std::numeric_limits<double>::quiet_NaN();
+
+// Finite but far out: squares of the first three overflow, so formulas
+// that form rho^2 or r^2 see infinity part-way.
+const std::vector<Vec3>& HugePoints() {
+  static const std::vector<Vec3> points = {
+      {1e300, -1e300, 1e300}, {1e200, 3e200, -2e200}, {-1e160, 2e155, 7e170}, {1e20, -3e19, 5e18}};
+  return points;
+}
+// Next to the origin and the z axis: squares underflow, some to zero.
+const std::vector<Vec3>& TinyPoints() {
+  static const std::vector<Vec3> points = {{1e-300, -2e-300, 5e-301}, {5e-324, -5e-324, 0},
+                                           {0, -1e-320, 0.5},          {-1e-160, 1e-170, -1e-200},
+                                           {0, 0, 1e-310},             {-1e-30, 2e-40, 3e-20}};
+  return points;
+}
+const std::vector<Vec3>& InfinitePoints() {
+  static const std::vector<Vec3> points = {{kInf, 0, 0},   {0, -kInf, 1},      {kInf, kInf, kInf},
+                                           {-kInf, 0.5, 0.2}, {0.3, -0.7, kInf}, {0.3, -kInf, -kInf}};
+  return points;
+}
+// NaN in the plane, with a finite z.
+const std::vector<Vec3>& NanPoints() {
+  static const std::vector<Vec3> points = {{kNan, 1, 2}, {0.3, kNan, 2}, {kNan, kNan, -0.5}};
+  return points;
+}
+
+// Draws per call, as docs/variations.md fixes them.
+int DocumentedDraws(VariationKind kind) {
+  if (kind == VariationKind::kJulia) return 1;
+  if (kind == VariationKind::kBlur || kind == VariationKind::kNoise) return 3;
+  return 0;
+}
+
+Vec3 Eval(VariationKind kind, Vec3 p, uint64_t stream = 0) {
+  Rng rng(13, stream);
+  return EvaluateVariation(Term(kind), p, TestPre(), rng);
+}
+
+std::string At(VariationKind kind, Vec3 p) {
+  return std::string(VariationName(kind)) + " at (" + std::to_string(p.x) + ", " +
+         std::to_string(p.y) + ", " + std::to_string(p.z) + ")";
+}
+
+TEST(Variations, BoundedOnesStayInTheirBoundsForHugeInputs) {
+  // docs/variations.md: sinusoidal folds space into [-1, 1]^3, cylinder
+  // wraps x onto [-1, 1], bubble and blur land in the unit ball, fisheye in
+  // the disc of radius 2, spherical inverts (|p| > 1 goes inside), noise
+  // shrinks each coordinate, polar's x is the angle over pi. This holds
+  // however far out the input is, even where squares overflow.
+  using K = VariationKind;
+  for (Vec3 p : HugePoints()) {
+    const Vec3 sinus = Eval(K::kSinusoidal, p);
+    for (int i = 0; i < 3; ++i) EXPECT_LE(std::abs(sinus[i]), 1.0) << At(K::kSinusoidal, p);
+    const Vec3 cyl = Eval(K::kCylinder, p);
+    EXPECT_LE(std::abs(cyl.x), 1.0) << At(K::kCylinder, p);
+    EXPECT_EQ(cyl.y, p.y);
+    EXPECT_EQ(cyl.z, p.z);
+    for (K kind : {K::kBubble, K::kBlur, K::kSpherical}) {
+      const Vec3 q = Eval(kind, p);
+      EXPECT_TRUE(IsFinite(q)) << At(kind, p);
+      EXPECT_LE(Length(q), 1.0) << At(kind, p);
+    }
+    const Vec3 fish = Eval(K::kFisheye, p);
+    EXPECT_TRUE(IsFinite(fish)) << At(K::kFisheye, p);
+    EXPECT_LE(std::hypot(fish.x, fish.y), 2.0) << At(K::kFisheye, p);
+    EXPECT_EQ(fish.z, p.z);
+    const Vec3 noise = Eval(K::kNoise, p);
+    for (int i = 0; i < 3; ++i) EXPECT_LE(std::abs(noise[i]), std::abs(p[i])) << At(K::kNoise, p);
+    const Vec3 polar = Eval(K::kPolar, p);
+    EXPECT_GE(polar.x, -1.0) << At(K::kPolar, p);
+    EXPECT_LE(polar.x, 1.0) << At(K::kPolar, p);
+    EXPECT_EQ(Eval(K::kLinear, p), p);
   }
-  SUCCEED();
+}
+
+TEST(Variations, TinyInputsGiveFiniteResults) {
+  // The eps guards keep every variation finite next to the origin and the
+  // axis, where squares underflow (power's rho^(sin theta) stays below
+  // 1 / rho, and rho is either 0 -- the axis, giving 1 -- or above 1e-154).
+  for (VariationKind kind : AllVariations())
+    for (Vec3 p : TinyPoints()) EXPECT_TRUE(IsFinite(Eval(kind, p))) << At(kind, p);
+  for (Vec3 p : TinyPoints()) {
+    if (std::max({std::abs(p.x), std::abs(p.y), std::abs(p.z)}) > 1e-10) continue;
+    // Where the formulas are the identity to first order, exactly so.
+    EXPECT_EQ(Eval(VariationKind::kLinear, p), p);
+    EXPECT_EQ(Eval(VariationKind::kSinusoidal, p), p);
+    EXPECT_EQ(Eval(VariationKind::kBubble, p), p);  // 4 / (r^2 + 4) = 1
+    EXPECT_EQ(Eval(VariationKind::kPolar, p).y, -1.0);  // rho - 1
+  }
+  // On the axis proper the documented angle 0 applies: power gives 0^0 = 1.
+  EXPECT_EQ(Eval(VariationKind::kPower, {0, 0, 1e-310}), (Vec3{1, 0, 1e-310}));
+}
+
+TEST(Variations, InfiniteInputsGiveNonFiniteResults) {
+  // An infinite point must not come back finite, or the engine would keep
+  // walking from a meaningless point instead of re-seeding. Exceptions:
+  // blur ignores its input, and exponential at x = -inf returns its limit
+  // e^-inf (cos, sin) = (0, 0).
+  for (VariationKind kind : AllVariations()) {
+    if (kind == VariationKind::kBlur) continue;
+    for (Vec3 p : InfinitePoints()) {
+      const Vec3 q = Eval(kind, p);
+      if (kind == VariationKind::kExponential && p.x == -kInf)
+        EXPECT_EQ(q, (Vec3{0, 0, p.z})) << At(kind, p);
+      else
+        EXPECT_FALSE(IsFinite(q)) << At(kind, p) << " gave (" << q.x << ", " << q.y << ", "
+                                  << q.z << ")";
+    }
+  }
+}
+
+// Fails today: Planar() in core/chaos/variations.cc tests `rho > 0`, which
+// is false for NaN, so a NaN point is treated as lying on the z axis
+// (angle 0) and spiral, hyperbolic (NaN y), diamond, power and
+// polar_doubling return finite points -- e.g. diamond gives (0, 0, z).
+// A pre-affine that overflows to inf - inf = NaN then escapes the engine's
+// re-seeding. Enable once Planar() lets NaN through (test `rho == 0`).
+TEST(Variations, DISABLED_NanInputsGiveNonFiniteResults) {
+  for (VariationKind kind : AllVariations()) {
+    if (kind == VariationKind::kBlur) continue;
+    for (Vec3 p : NanPoints()) EXPECT_FALSE(IsFinite(Eval(kind, p))) << At(kind, p);
+  }
+}
+
+TEST(Variations, DrawCountsDoNotDependOnTheInput) {
+  // The number of draws per call is fixed, so a stream stays reproducible
+  // even when a walker hits a degenerate point.
+  std::vector<Vec3> points = HugePoints();
+  for (const auto* set : {&TinyPoints(), &InfinitePoints(), &NanPoints()})
+    points.insert(points.end(), set->begin(), set->end());
+  for (VariationKind kind : AllVariations()) {
+    for (Vec3 p : points) {
+      Rng rng(21, 4), twin(21, 4);
+      (void)EvaluateVariation(Term(kind), p, TestPre(), rng);
+      for (int i = 0; i < DocumentedDraws(kind); ++i) (void)twin.Next();
+      EXPECT_EQ(rng.Next(), twin.Next()) << At(kind, p);
+    }
+  }
+}
+
+TEST(Variations, BlurIgnoresItsInputWhateverItIs) {
+  const Vec3 ordinary = Eval(VariationKind::kBlur, {0.3, -0.2, 0.1}, 9);
+  for (const auto* set : {&HugePoints(), &TinyPoints(), &InfinitePoints(), &NanPoints()})
+    for (Vec3 p : *set) EXPECT_EQ(Eval(VariationKind::kBlur, p, 9), ordinary) << At(VariationKind::kBlur, p);
+  EXPECT_LE(Length(ordinary), 1.0);
+}
+
+TEST(Variations, PlanarOnesPassZThroughWhateverXAndYAre) {
+  // z' = z (polar_doubling: z / sqrt 2) bit for bit, and the planar part
+  // ignores z even when z is infinite or NaN.
+  std::vector<Vec3> points = HugePoints();
+  for (const auto* set : {&TinyPoints(), &InfinitePoints(), &NanPoints()})
+    points.insert(points.end(), set->begin(), set->end());
+  for (VariationKind kind : AllVariations()) {
+    if (!GetVariationInfo(kind).planar) continue;
+    for (Vec3 p : points) {
+      if (!std::isfinite(p.z)) continue;
+      const double want = kind == VariationKind::kPolarDoubling ? p.z / std::sqrt(2.0) : p.z;
+      EXPECT_DOUBLE_EQ(Eval(kind, p).z, want) << At(kind, p);
+      if (kind != VariationKind::kPolarDoubling) {
+        EXPECT_EQ(Eval(kind, p).z, p.z) << At(kind, p);
+      }
+    }
+    for (Vec3 p : SamplePoints()) {
+      for (double z : {kInf, -kInf, kNan}) {
+        const Vec3 a = Eval(kind, p), b = Eval(kind, {p.x, p.y, z});
+        EXPECT_EQ(a.x, b.x) << At(kind, p) << " with z = " << z;
+        EXPECT_EQ(a.y, b.y) << At(kind, p) << " with z = " << z;
+      }
+    }
+  }
+}
+
+// A one-map chaos game on [-1, 1]^3 whose only map sends every point to
+// infinity: exponential of x + 800 overflows for any x > -89.
+ChaosGameParams AlwaysOverflows(uint64_t iterations, uint32_t warmup) {
+  ChaosGameParams p;
+  PointMap m;
+  m.pre = Affine3::Translate({800, 0, 0});
+  m.variations = {Term(VariationKind::kExponential)};
+  p.ifs.maps = {m};
+  p.ifs.probabilities = {1};
+  p.frame = {{8, 8, 8}, {{-1, -1, -1}, {1, 1, 1}}};
+  p.iterations = iterations;
+  p.warmup = warmup;
+  return p;
+}
+
+TEST(Variations, EngineReseedsWalkersAVariationSendsToInfinity) {
+  // Every step fails: each of the 16 walkers re-seeds once per warm-up
+  // step, and each plotted step re-seeds and warms up again instead of
+  // plotting. 16 x 3 + 100 x (1 + 3) = 448.
+  auto game = ChaosGame::Create(AlwaysOverflows(100, 3), 2);
+  ASSERT_TRUE(game.ok()) << game.status();
+  ASSERT_TRUE((*game)->Run(nullptr).ok());
+  const ChaosGameStats s = (*game)->stats();
+  EXPECT_EQ(s.reseeded, 448u);
+  EXPECT_EQ(s.iterations_done, 100u);
+  EXPECT_EQ(s.outside, 0u);
+  EXPECT_EQ(s.final_nonfinite, 0u);
+  EXPECT_EQ((*game)->TakeCounts().Total(), 0u);
+}
+
+TEST(Variations, EngineDropsPointsAFinalVariationSendsToInfinity) {
+  // The same overflow in the final transform only: walkers never re-seed,
+  // every plotted point is counted as non-finite and outside.
+  ChaosGameParams p = AlwaysOverflows(100, 3);
+  p.ifs.final_map = p.ifs.maps[0];
+  p.ifs.maps[0].pre = Affine3::Scale({0.5, 0.5, 0.5});
+  p.ifs.maps[0].variations = {Term(VariationKind::kSinusoidal)};
+  auto game = ChaosGame::Create(p, 1);
+  ASSERT_TRUE(game.ok()) << game.status();
+  ASSERT_TRUE((*game)->Run(nullptr).ok());
+  const ChaosGameStats s = (*game)->stats();
+  EXPECT_EQ(s.reseeded, 0u);
+  EXPECT_EQ(s.final_nonfinite, 100u);
+  EXPECT_EQ(s.outside, 100u);
+  EXPECT_EQ((*game)->TakeCounts().Total(), 0u);
 }
 
 TEST(Variations, PlanarOnesPassZThrough) {

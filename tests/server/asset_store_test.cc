@@ -4,11 +4,22 @@
 
 #include <gtest/gtest.h>
 
+#include <gmock/gmock.h>
+
+#include <fstream>
+
 #include "core/base/sha256.h"
+#include "core/io/mesh_io.h"
+#include "proto/asset_paths.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus::server {
 namespace {
+
+std::string ReadFile(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
 
 size_t FilesIn(const std::filesystem::path& dir) {
   size_t n = 0;
@@ -28,25 +39,112 @@ class AssetStoreTest : public ::testing::Test {
   const std::string data_ = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
 };
 
-TEST_F(AssetStoreTest, StoresByHashKeepingTheExtension) {
+TEST_F(AssetStoreTest, StoresByContentAndRemembersTheName) {
   const std::string sha = Sha256Hex(data_);
-  auto u = store_->Begin(sha, data_.size(), "Sketch.OBJ");
+  auto u = store_->Begin(sha, data_.size(), "sketches/Sketch.OBJ");
   ASSERT_TRUE(u.ok()) << u.status();
   ASSERT_TRUE((*u)->Append(data_.substr(0, 10)).ok());
   ASSERT_TRUE((*u)->Append(data_.substr(10)).ok());
   auto info = (*u)->Finish();
   ASSERT_TRUE(info.ok()) << info.status();
   EXPECT_FALSE(info->already_present);
-  EXPECT_EQ(info->path, dir_.path() / (sha + ".obj"));
+  // No format in the stored file's name; the upload's name sits beside it.
+  EXPECT_EQ(info->path, dir_.path() / sha);
+  EXPECT_EQ(ReadFile(dir_.path() / sha), data_);
+  EXPECT_EQ(ReadFile(dir_.path() / (sha + ".names")), "Sketch.OBJ\n");
+  EXPECT_EQ(info->names, std::vector<std::string>{"Sketch.OBJ"});
+  EXPECT_EQ(info->format, ".obj");
   auto found = store_->Find(sha);
   ASSERT_TRUE(found.ok());
   EXPECT_EQ(found->size, data_.size());
-  // A second upload of the same bytes finds the first.
-  auto again = store_->Begin(sha, data_.size(), "other.obj");
-  ASSERT_TRUE((*again)->Append(data_).ok());
-  auto info2 = (*again)->Finish();
-  ASSERT_TRUE(info2.ok());
-  EXPECT_TRUE(info2->already_present);
+  // A second upload of the same bytes finds the first and adds its name once.
+  for (int i = 0; i < 2; ++i) {
+    auto again = store_->Begin(sha, data_.size(), "other.obj");
+    ASSERT_TRUE((*again)->Append(data_).ok());
+    auto info2 = (*again)->Finish();
+    ASSERT_TRUE(info2.ok());
+    EXPECT_TRUE(info2->already_present);
+    EXPECT_EQ(info2->names, (std::vector<std::string>{"Sketch.OBJ", "other.obj"}));
+  }
+  EXPECT_EQ(FilesIn(dir_.path()), 2u);  // the bytes and the names
+  EXPECT_EQ(FilesIn(dir_.path() / "incoming"), 0u);
+}
+
+// The reported bug: bytes first uploaded under a name without a known
+// extension were stored as <sha>.bin for good, and a later "cow.obj" upload
+// answered already_present while the asset stayed unreadable.
+TEST_F(AssetStoreTest, ABlobUploadedAgainAsObjBecomesAReadableMesh) {
+  const std::string sha = Sha256Hex(data_);
+  for (const char* name : {"upload.tmp", "cow.obj"}) {
+    auto u = store_->Begin(sha, data_.size(), name);
+    ASSERT_TRUE((*u)->Append(data_).ok());
+    ASSERT_TRUE((*u)->Finish().ok());
+  }
+  auto stored = spec::FindStoredAssetInfo(dir_.path(), sha);
+  ASSERT_TRUE(stored.ok()) << stored.status();
+  EXPECT_EQ(stored->path, dir_.path() / sha);
+  EXPECT_EQ(stored->names, (std::vector<std::string>{"upload.tmp", "cow.obj"}));
+  EXPECT_EQ(stored->format, ".obj");
+  EXPECT_EQ(*spec::FindStoredAsset(dir_.path(), sha), dir_.path() / sha);
+  // What the converter does: format from the label, else from the uploads;
+  // messages name the label and the hash, never the server's path.
+  const std::string label = spec::AssetDisplayName("cow.obj", sha);
+  EXPECT_EQ(label, "cow.obj (sha256 " + sha.substr(0, 12) + "...)");
+  auto mesh = LoadMesh(stored->path, {MeshFileTypeFromName(spec::AssetFormat("", *stored)), label});
+  ASSERT_TRUE(mesh.ok()) << mesh.status();
+  EXPECT_EQ(mesh->triangles.size(), 1u);
+  // A label with a known extension wins over the upload names.
+  EXPECT_EQ(spec::AssetFormat("cow.stl", *stored), ".stl");
+  EXPECT_EQ(spec::AssetFormat("my cow", *stored), ".obj");
+}
+
+TEST_F(AssetStoreTest, MeshErrorsNameTheLabelNotTheServerPath) {
+  const std::string flat = "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n";  // zero area
+  const std::string sha = Sha256Hex(flat);
+  auto u = store_->Begin(sha, flat.size(), "flat.obj");
+  ASSERT_TRUE((*u)->Append(flat).ok());
+  auto info = (*u)->Finish();
+  ASSERT_TRUE(info.ok());
+  const std::string label = spec::AssetDisplayName("flat.obj", sha);
+  const absl::Status s =
+      LoadMesh(info->path, {MeshFileTypeFromName(info->format), label}).status();
+  const std::string message(s.message());
+  EXPECT_THAT(message, ::testing::StartsWith("flat.obj (sha256 " + sha.substr(0, 12) + "...): "));
+  EXPECT_THAT(message, ::testing::HasSubstr("degenerate"));
+  EXPECT_EQ(message.find(dir_.path().string()), std::string::npos) << message;
+  // Without any name the format is unknown, said without a path either.
+  const absl::Status unknown = LoadMesh(info->path, {{}, spec::AssetDisplayName("", sha)}).status();
+  EXPECT_EQ(std::string(unknown.message()),
+            "sha256 " + sha + ": unknown mesh format (expected .obj, .ply or .stl)");
+  // A missing hash is named by the hash alone.
+  const absl::Status missing = spec::FindStoredAsset(dir_.path(), std::string(64, 'a')).status();
+  EXPECT_EQ(missing.code(), absl::StatusCode::kNotFound);
+  EXPECT_EQ(std::string(missing.message()), "no stored asset " + std::string(64, 'a'));
+}
+
+TEST_F(AssetStoreTest, OldLayoutWithTheExtensionInTheNameIsStillFound) {
+  const std::string sha = Sha256Hex(data_);
+  std::ofstream(dir_.path() / (sha + ".obj"), std::ios::binary) << data_;
+  auto found = store_->Find(sha);
+  ASSERT_TRUE(found.ok()) << found.status();
+  EXPECT_EQ(found->path, dir_.path() / (sha + ".obj"));
+  EXPECT_EQ(found->format, ".obj");
+  // An old ".bin" asset takes its format from a later upload's name, and
+  // that upload stores nothing new.
+  const std::string bin_data = data_ + "# second\n";
+  const std::string bin_sha = Sha256Hex(bin_data);
+  std::ofstream(dir_.path() / (bin_sha + ".bin"), std::ios::binary) << bin_data;
+  EXPECT_EQ(store_->Find(bin_sha)->format, "");
+  auto u = store_->Begin(bin_sha, bin_data.size(), "cow.obj");
+  ASSERT_TRUE((*u)->Append(bin_data).ok());
+  auto info = (*u)->Finish();
+  ASSERT_TRUE(info.ok()) << info.status();
+  EXPECT_TRUE(info->already_present);
+  EXPECT_EQ(info->path, dir_.path() / (bin_sha + ".bin"));
+  EXPECT_EQ(info->format, ".obj");
+  EXPECT_FALSE(std::filesystem::exists(dir_.path() / bin_sha));
+  auto mesh = LoadMesh(info->path, {MeshFileTypeFromName(info->format), "cow.obj"});
+  ASSERT_TRUE(mesh.ok()) << mesh.status();
 }
 
 TEST_F(AssetStoreTest, HashMismatchIsDataLossAndStoresNothing) {
@@ -86,13 +184,18 @@ TEST_F(AssetStoreTest, RejectsMalformedRequests) {
       absl::StatusCode::kResourceExhausted);
 }
 
-TEST(AssetExtension, KnownFormatsOnly) {
-  EXPECT_EQ(AssetExtension("cow.obj"), ".obj");
-  EXPECT_EQ(AssetExtension("x/y/Mesh.PLY"), ".ply");
-  EXPECT_EQ(AssetExtension("bunny.stl"), ".stl");
-  EXPECT_EQ(AssetExtension("smoke.vdb"), ".vdb");
-  EXPECT_EQ(AssetExtension("notes.txt"), ".bin");
-  EXPECT_EQ(AssetExtension("noext"), ".bin");
+TEST(AssetNames, KnownFormatsAndCleanNames) {
+  EXPECT_EQ(spec::KnownAssetFormat("cow.obj"), ".obj");
+  EXPECT_EQ(spec::KnownAssetFormat("x/y/Mesh.PLY"), ".ply");
+  EXPECT_EQ(spec::KnownAssetFormat("bunny.stl"), ".stl");
+  EXPECT_EQ(spec::KnownAssetFormat("smoke.vdb"), ".vdb");
+  EXPECT_EQ(spec::KnownAssetFormat("notes.txt"), "");
+  EXPECT_EQ(spec::KnownAssetFormat("noext"), "");
+  EXPECT_EQ(CleanAssetName("/home/ann/cow.obj"), "cow.obj");
+  EXPECT_EQ(CleanAssetName("C:\\models\\cow.obj"), "cow.obj");
+  EXPECT_EQ(CleanAssetName("a\nb.obj"), "ab.obj");
+  EXPECT_EQ(CleanAssetName(".."), "");
+  EXPECT_EQ(CleanAssetName(std::string(300, 'x')).size(), 255u);
 }
 
 }  // namespace

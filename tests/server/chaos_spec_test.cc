@@ -7,8 +7,10 @@
 #include "tests/support/attractors.h"
 #include "core/chaos/variations.h"
 #include "proto/spec_convert.h"
+#include "server/memory_admission.h"
 #include "proto/spec_io.h"
 #include "server/job_runner.h"
+#include "tests/support/fake_job_context.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus {
@@ -36,36 +38,17 @@ std::string SpecWith(const std::string& map_json, const std::string& extra_ifs =
                       extra_cg, "}}");
 }
 
-absl::StatusOr<spec::ConvertedJob> Convert(const std::string& json, spec::Limits limits = {}) {
-  return spec::ConvertSpec(Parse(json), limits, 2);
+absl::StatusOr<JobPlan> Convert(const std::string& json, spec::Limits limits = {}) {
+  return spec::ConvertSpec(Parse(json), limits);
 }
 
-// A JobContext that records what a runner reports.
-class FakeContext : public server::JobContext {
- public:
-  const std::string& job_id() const override { return id_; }
-  int threads() const override { return 2; }
-  Interrupter* interrupter() override { return nullptr; }
-  absl::Status ReportProgress(uint64_t done, uint64_t total) override {
-    progress_.push_back(done);
-    return absl::OkStatus();
-  }
-  void MaybePublishPreview(const std::vector<const CountGrid*>&, const GridFrame&,
-                           const DensityOptions&, uint64_t) override {}
-  void SetStat(const std::string& key, uint64_t value) override { stats[key] = value; }
-  void AddWarning(const std::string& w) override { warnings.push_back(w); }
-  std::filesystem::path ResultScratchPath() override { return dir_ / "result.vdb"; }
-  Metadata BaseMetadata() const override { return {}; }
+// Conversion, then the server's memory admission on 2 threads.
+absl::StatusOr<server::MemoryAdmission> Admit(const std::string& json, spec::Limits limits = {}) {
+  auto plan = Convert(json, limits);
+  if (!plan.ok()) return plan.status();
+  return server::AdmitMemory(*plan, limits, 2);
+}
 
-  std::map<std::string, uint64_t> stats;
-  std::vector<std::string> warnings;
-  std::vector<uint64_t> progress_;
-  std::filesystem::path result() { return dir_ / "result.vdb"; }
-
- private:
-  std::string id_ = "job";
-  testing::TempDir dir_;
-};
 
 TEST(ChaosSpec, EveryVariationIsWiredThroughTheSpec) {
   for (VariationKind kind : AllVariations()) {
@@ -76,7 +59,7 @@ TEST(ChaosSpec, EveryVariationIsWiredThroughTheSpec) {
         name, R"(", "weight": 0.7, "params": [0.5, 1.5, 0.25, 2]}]})");
     auto job = Convert(SpecWith(map));
     ASSERT_TRUE(job.ok()) << name << ": " << job.status();
-    const PointMap& m = job->chaos_game.ifs.maps[1];
+    const PointMap& m = job->point_run()->ifs.maps[1];
     ASSERT_EQ(m.variations.size(), 1u) << name;
     EXPECT_EQ(m.variations[0].kind, kind) << name;
     EXPECT_EQ(m.variations[0].weight, 0.7) << name;
@@ -88,8 +71,8 @@ TEST(ChaosSpec, EveryVariationIsWiredThroughTheSpec) {
     const Vec3 want = 0.7 * EvaluateVariation(m.variations[0], m.pre.Apply(p), m.pre, r2);
     EXPECT_EQ(got, want) << name;
     // And the job runs end to end without crashing.
-    FakeContext ctx;
-    ASSERT_TRUE(server::RunChaosGameJob(*job, ctx).ok()) << name;
+    testing::FakeJobContext ctx;
+    ASSERT_TRUE(server::RunJobPlan(*job, ctx).ok()) << name;
     EXPECT_TRUE(ctx.stats.count("reseeded")) << name;
   }
 }
@@ -109,7 +92,7 @@ TEST(ChaosSpec, FinalAndArcsConvert) {
                                  "arcs": {"angle_per_unit": 0.5, "amplitude": 0.1,
                                           "frequency": 2})"));
   ASSERT_TRUE(job.ok()) << job.status();
-  const Ifs& ifs = job->chaos_game.ifs;
+  const Ifs& ifs = job->point_run()->ifs;
   ASSERT_TRUE(ifs.final_map.has_value());
   EXPECT_EQ(ifs.final_map->variations[0].kind, VariationKind::kSpherical);
   ASSERT_TRUE(ifs.arcs.has_value());
@@ -124,13 +107,13 @@ TEST(ChaosSpec, ColourOptionsConvertWithDefaults) {
   const std::string map = R"({"steps": [{"scale": {"uniform": 0.4}}], "color": 0.8})";
   auto plain = Convert(SpecWith(map));
   ASSERT_TRUE(plain.ok());
-  EXPECT_EQ(plain->chaos_game.color.mode, ColorMode::kNone);
+  EXPECT_EQ(plain->point_run()->color.mode, ColorMode::kNone);
   EXPECT_FALSE(plain->density.color);
 
   auto addr = Convert(SpecWith(map, "", R"(, "color": {})"));
   ASSERT_TRUE(addr.ok()) << addr.status();
-  EXPECT_EQ(addr->chaos_game.color.mode, ColorMode::kAddress);
-  EXPECT_EQ(addr->chaos_game.color.blend, 0.05);
+  EXPECT_EQ(addr->point_run()->color.mode, ColorMode::kAddress);
+  EXPECT_EQ(addr->point_run()->color.blend, 0.05);
   EXPECT_TRUE(addr->density.color);
   EXPECT_TRUE(addr->density.palette.is_sine());
 
@@ -139,8 +122,8 @@ TEST(ChaosSpec, ColourOptionsConvertWithDefaults) {
         {"position": 0, "rgb": {"x": 1}}, {"position": 1, "rgb": {"z": 1}}]}},
       "raw_counts": "RAW_COUNTS_UINT32")"));
   ASSERT_TRUE(stops.ok()) << stops.status();
-  EXPECT_EQ(stops->chaos_game.color.mode, ColorMode::kMap);
-  EXPECT_EQ(stops->chaos_game.color.blend, 0.5);
+  EXPECT_EQ(stops->point_run()->color.mode, ColorMode::kMap);
+  EXPECT_EQ(stops->point_run()->color.blend, 0.5);
   EXPECT_FALSE(stops->density.palette.is_sine());
   EXPECT_TRUE(stops->density.address_grid);
   EXPECT_EQ(stops->density.raw_counts, RawCounts::kInteger);
@@ -167,20 +150,21 @@ TEST(ChaosSpec, MemoryLimitRefusesTheJobBeforeItAllocates) {
                             i & 1 ? 1 : -1, R"(, "y": )", i & 2 ? 1 : -1, R"(, "z": )",
                             i & 4 ? 1 : -1, R"(}}, {"scale": {"uniform": 0.5}}]})");
   octants += "]}}}";
-  auto big = Convert(octants, limits);
+  ASSERT_TRUE(Convert(octants, limits).ok()) << "ConvertSpec prices no memory";
+  auto big = Admit(octants, limits);
   EXPECT_EQ(big.status().code(), absl::StatusCode::kResourceExhausted) << big.status();
   EXPECT_THAT(std::string(big.status().message()), HasSubstr("the chaos game needs up to"));
   EXPECT_THAT(std::string(big.status().message()), HasSubstr("measured by a pilot run"));
   // Few steps touch few tiles: the same grid fits.
-  auto few = Convert(SpecWith(map, "", "", 1024, 20'000), limits);
+  auto few = Admit(SpecWith(map, "", "", 1024, 20'000), limits);
   ASSERT_TRUE(few.ok()) << few.status();
-  EXPECT_GT(few->estimated_memory_bytes, 0u);
+  EXPECT_GT(few->estimated_bytes, 0u);
   // A small attractor reaches few tiles however long it runs: these maps
   // keep every point in a ball of radius ~0.5 inside the [-2, 2]^3 grid.
   // (The converter adds its own worst case for the output grid, 4 GiB.)
-  auto small = Convert(SpecWith(map, "", "", 1024, uint64_t{1} << 33), limits);
+  auto small = Admit(SpecWith(map, "", "", 1024, uint64_t{1} << 33), limits);
   ASSERT_TRUE(small.ok()) << small.status();
-  EXPECT_LT(small->estimated_memory_bytes, uint64_t{5} << 30);
+  EXPECT_LT(small->estimated_bytes, uint64_t{5} << 30);
 }
 
 TEST(ChaosSpec, ThinAttractorAt2048FitsTheDefaultLimit) {
@@ -191,10 +175,12 @@ TEST(ChaosSpec, ThinAttractorAt2048FitsTheDefaultLimit) {
   spec->mutable_grid()->set_resolution(0, 2048);
   spec->mutable_chaos_game()->set_iterations(100'000'000);
   const spec::Limits limits;  // 16 GiB
-  auto job = spec::ConvertSpec(*spec, limits, 2);
+  auto job = spec::ConvertSpec(*spec, limits);
   ASSERT_TRUE(job.ok()) << job.status();
-  EXPECT_LT(job->estimated_memory_bytes, uint64_t{8} << 30);
-  EXPECT_EQ(job->chaos_game.memory_budget, limits.max_memory_bytes);
+  auto memory = server::AdmitMemory(*job, limits, 2);
+  ASSERT_TRUE(memory.ok()) << memory.status();
+  EXPECT_LT(memory->estimated_bytes, uint64_t{8} << 30);
+  EXPECT_GT(memory->pilot_samples, 0u) << "the geometric bound alone is above the limit";
 }
 
 TEST(ChaosSpec, NonFiniteMapsAreReportedNotFatal) {
@@ -205,10 +191,10 @@ TEST(ChaosSpec, NonFiniteMapsAreReportedNotFatal) {
   v1::JobSpec spec = Parse(json);
   spec.mutable_chaos_game()->mutable_ifs()->mutable_maps(0)->set_probability(0.8);
   spec.mutable_chaos_game()->mutable_ifs()->set_allow_expanding(true);
-  auto job = spec::ConvertSpec(spec, {}, 2);
+  auto job = spec::ConvertSpec(spec, {});
   ASSERT_TRUE(job.ok()) << job.status();
-  FakeContext ctx;
-  ASSERT_TRUE(server::RunChaosGameJob(*job, ctx).ok());
+  testing::FakeJobContext ctx;
+  ASSERT_TRUE(server::RunJobPlan(*job, ctx).ok());
   EXPECT_GT(ctx.stats["reseeded"], 1000u);
   bool warned = false;
   for (const auto& w : ctx.warnings) warned |= w.find("bad-point rate") != std::string::npos;
@@ -223,8 +209,8 @@ TEST(ChaosSpec, ConvergenceStopsEarlyAndSaysWhy) {
   auto job = Convert(SpecWith(map, "", R"(, "convergence": {"tolerance": 0.01,
       "check_every": "2097152"})", 128, uint64_t{1} << 32));
   ASSERT_TRUE(job.ok()) << job.status();
-  FakeContext ctx;
-  ASSERT_TRUE(server::RunChaosGameJob(*job, ctx).ok());
+  testing::FakeJobContext ctx;
+  ASSERT_TRUE(server::RunJobPlan(*job, ctx).ok());
   auto vol = ReadVdbFile(ctx.result());
   ASSERT_TRUE(vol.ok());
   EXPECT_EQ(std::get<std::string>(*vol->Find("nimbus_stop_reason")), "converged");
@@ -235,8 +221,8 @@ TEST(ChaosSpec, ConvergenceStopsEarlyAndSaysWhy) {
   // Without convergence the job runs its budget.
   auto full = Convert(SpecWith(map, "", "", 32, 3'000'000));
   ASSERT_TRUE(full.ok());
-  FakeContext ctx2;
-  ASSERT_TRUE(server::RunChaosGameJob(*full, ctx2).ok());
+  testing::FakeJobContext ctx2;
+  ASSERT_TRUE(server::RunJobPlan(*full, ctx2).ok());
   auto vol2 = ReadVdbFile(ctx2.result());
   ASSERT_TRUE(vol2.ok());
   EXPECT_EQ(std::get<std::string>(*vol2->Find("nimbus_stop_reason")), "iterations");
@@ -247,8 +233,8 @@ TEST(ChaosSpec, ColourJobWritesCdAddressAndCounts) {
   auto job = Convert(SpecWith(map, R"(, "arcs": {"angle_per_unit": 0.4, "amplitude": 0.05,
       "frequency": 0.3})", R"(, "color": {"address_grid": true}, "raw_counts": "RAW_COUNTS_FLOAT")"));
   ASSERT_TRUE(job.ok()) << job.status();
-  FakeContext ctx;
-  ASSERT_TRUE(server::RunChaosGameJob(*job, ctx).ok());
+  testing::FakeJobContext ctx;
+  ASSERT_TRUE(server::RunJobPlan(*job, ctx).ok());
   auto cd = ReadVec3VdbFile(ctx.result());
   ASSERT_TRUE(cd.ok()) << cd.status();
   auto address = ReadVdbFile(ctx.result(), "address");
@@ -270,9 +256,9 @@ TEST(ChaosSpec, SplatIsRecordedAndScalesCounts) {
   const std::string map = R"({"steps": [{"translate": {"y": 0.5}}, {"scale": {"uniform": 0.5}}]})";
   auto job = Convert(SpecWith(map, "", R"(, "splat": true, "raw_counts": "RAW_COUNTS_UINT32")"));
   ASSERT_TRUE(job.ok()) << job.status();
-  EXPECT_TRUE(job->chaos_game.splat);
-  FakeContext ctx;
-  ASSERT_TRUE(server::RunChaosGameJob(*job, ctx).ok());
+  EXPECT_TRUE(job->point_run()->splat);
+  testing::FakeJobContext ctx;
+  ASSERT_TRUE(server::RunJobPlan(*job, ctx).ok());
   auto density = ReadVdbFile(ctx.result());
   ASSERT_TRUE(density.ok());
   EXPECT_EQ(std::get<int64_t>(*density->Find("nimbus_count_scale")), 64);
@@ -290,10 +276,10 @@ TEST(ChaosSpec, ColourExamplesRunCleanly) {
     spec->mutable_chaos_game()->set_iterations(3'000'000);
     auto& res = *spec->mutable_grid()->mutable_resolution();
     for (int i = 0; i < res.size(); ++i) res[i] = std::max(8, res[i] / 8);
-    auto job = spec::ConvertSpec(*spec, {}, 2);
+    auto job = spec::ConvertSpec(*spec, {});
     ASSERT_TRUE(job.ok()) << name << ": " << job.status();
-    FakeContext ctx;
-    ASSERT_TRUE(server::RunChaosGameJob(*job, ctx).ok()) << name;
+    testing::FakeJobContext ctx;
+    ASSERT_TRUE(server::RunJobPlan(*job, ctx).ok()) << name;
     EXPECT_TRUE(ctx.warnings.empty()) << name << ": " << ctx.warnings.front();
     EXPECT_LT(ctx.stats["outside"], 3'000'000u / 10) << name;
     auto cd = ReadVec3VdbFile(ctx.result());
@@ -304,18 +290,18 @@ TEST(ChaosSpec, ColourExamplesRunCleanly) {
 TEST(ChaosSpec, FernVolumeExampleIsTheBenchmarkedAttractor) {
   auto spec = spec::LoadSpecFile(testing::SourcePath("examples/fern_volume.json"));
   ASSERT_TRUE(spec.ok()) << spec.status();
-  auto job = spec::ConvertSpec(*spec, {}, 2);
+  auto job = spec::ConvertSpec(*spec, {});
   ASSERT_TRUE(job.ok()) << job.status();
   const ChaosGameParams ref = FernVolumeParams(1024, 1);
   EXPECT_EQ(job->frame.resolution.x, 1024);
   EXPECT_EQ(job->frame.bounds.min, ref.frame.bounds.min);
   EXPECT_EQ(job->frame.bounds.max, ref.frame.bounds.max);
-  ASSERT_EQ(job->chaos_game.ifs.maps.size(), ref.ifs.maps.size());
+  ASSERT_EQ(job->point_run()->ifs.maps.size(), ref.ifs.maps.size());
   for (size_t i = 0; i < ref.ifs.maps.size(); ++i) {
     for (int r = 0; r < 3; ++r)
       for (int c = 0; c < 4; ++c)
-        EXPECT_NEAR(job->chaos_game.ifs.maps[i].pre.m[r][c], ref.ifs.maps[i].pre.m[r][c], 1e-12);
-    EXPECT_NEAR(job->chaos_game.ifs.probabilities[i], ref.ifs.probabilities[i], 1e-12);
+        EXPECT_NEAR(job->point_run()->ifs.maps[i].pre.m[r][c], ref.ifs.maps[i].pre.m[r][c], 1e-12);
+    EXPECT_NEAR(job->point_run()->ifs.probabilities[i], ref.ifs.probabilities[i], 1e-12);
   }
   // Volume-filling: the maps' volume factors sum above 1.
   double volume = 0;

@@ -1,5 +1,5 @@
 // chaos_game.matrices through the spec layer (ConvertSpec) and the runner
-// (RunIfsMatrixJob): conversion, checks with field paths, the 1x1 = plain
+// (RunJobPlan): conversion, checks with field paths, the 1x1 = plain
 // IFS identity, and the component grid.
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
@@ -11,10 +11,12 @@
 #include "core/chaos/chaos_game.h"
 #include "core/matrix/component_grid.h"
 #include "core/io/vdb_io.h"
-#include "proto/convert_matrix.h"
+#include "core/matrix/ifs_matrix_plan.h"
+#include "server/memory_admission.h"
 #include "proto/spec_convert.h"
 #include "proto/spec_io.h"
 #include "server/job_runner.h"
+#include "tests/support/fake_job_context.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus::spec {
@@ -66,38 +68,37 @@ constexpr char kTree[] = R"({
   }
 })";
 
-absl::StatusOr<ConvertedJob> Convert(const v1::JobSpec& spec) { return ConvertSpec(spec, {}, 2); }
+absl::StatusOr<JobPlan> Convert(const v1::JobSpec& spec) { return ConvertSpec(spec, {}); }
 
-std::string Message(const absl::StatusOr<ConvertedJob>& job) {
+std::string Message(const absl::StatusOr<JobPlan>& job) {
   return std::string(job.status().message());
 }
 
 TEST(MatrixSpec, TreeExampleConverts) {
   auto job = Convert(Load("tree_matrix.json"));
   ASSERT_TRUE(job.ok()) << job.status();
-  EXPECT_EQ(job->generator, Generator::kIfsMatrix);
-  ASSERT_NE(job->ifs_matrix, nullptr);
-  EXPECT_EQ(job->ifs_matrix->matrix.size(), 2u);
-  EXPECT_EQ(job->ifs_matrix->selection, (std::vector<Component>{{0, 0}, {0, 1}, {1, 1}}));
-  EXPECT_EQ(job->ifs_matrix->component_grid, ComponentGridType::kInt);
-  EXPECT_EQ(job->ifs_matrix->component_runs.size(), 3u);
-  ASSERT_TRUE(job->chaos_game.chain.has_value());
-  EXPECT_EQ(job->chaos_game.ifs.maps.size(), 4u);
-  EXPECT_EQ(job->chaos_game.ifs.probabilities.size(), 4u);
+  ASSERT_NE(job->ifs_matrix(), nullptr);
+  EXPECT_EQ(job->ifs_matrix()->matrix.size(), 2u);
+  EXPECT_EQ(job->ifs_matrix()->selection, (std::vector<Component>{{0, 0}, {0, 1}, {1, 1}}));
+  EXPECT_EQ(job->ifs_matrix()->component_grid, ComponentGridType::kInt);
+  EXPECT_EQ(job->ifs_matrix()->component_runs.size(), 3u);
+  ASSERT_TRUE(job->point_run()->chain.has_value());
+  EXPECT_EQ(job->point_run()->ifs.maps.size(), 4u);
+  EXPECT_EQ(job->point_run()->ifs.probabilities.size(), 4u);
   // The iterations are split over the component runs without loss.
   uint64_t total = 0;
-  for (const auto& run : job->ifs_matrix->component_runs) total += run.iterations;
-  EXPECT_EQ(total, job->chaos_game.iterations);
+  for (const auto& run : job->ifs_matrix()->component_runs) total += run.iterations;
+  EXPECT_EQ(total, job->point_run()->iterations);
   // The engine accepts the whole-object run and every component run.
-  EXPECT_TRUE(ChaosGame::Create(job->chaos_game, 1).ok());
-  for (const auto& run : job->ifs_matrix->component_runs)
+  EXPECT_TRUE(ChaosGame::Create(*job->point_run(), 1).ok());
+  for (const auto& run : job->ifs_matrix()->component_runs)
     EXPECT_TRUE(ChaosGame::Create(run, 1).ok());
 }
 
 TEST(MatrixSpec, ConstructiveExampleReportsEverySize) {
   auto job = Convert(Load("constructive.json"));
   ASSERT_TRUE(job.ok()) << job.status();
-  const IfsMatrixPlan& plan = *job->ifs_matrix;
+  const IfsMatrixPlan& plan = *job->ifs_matrix();
   // Named steps and then the render expression, at depth 0 each.
   ASSERT_EQ(plan.expansion.size(), 4u);
   EXPECT_EQ(plan.expansion[0].expression, "tet_then_dual");
@@ -123,11 +124,13 @@ TEST(MatrixSpec, ConstructiveExampleReportsEverySize) {
 TEST(MatrixSpec, MutableTreeConverts) {
   auto job = Convert(Parse(kTree));
   ASSERT_TRUE(job.ok()) << job.status();
-  EXPECT_EQ(job->ifs_matrix->component_grid, ComponentGridType::kNone);
-  EXPECT_TRUE(job->ifs_matrix->component_runs.empty());
-  EXPECT_GT(job->ifs_matrix->chain_states, 2u);
-  EXPECT_GT(job->estimated_memory_bytes, 0u);
-  EXPECT_EQ(job->total_work, 200000u);
+  EXPECT_EQ(job->ifs_matrix()->component_grid, ComponentGridType::kNone);
+  EXPECT_TRUE(job->ifs_matrix()->component_runs.empty());
+  EXPECT_GT(job->ifs_matrix()->chain_states, 2u);
+  EXPECT_EQ(job->work.total, 200000u);
+  auto memory = server::AdmitMemory(*job, {}, 2);
+  ASSERT_TRUE(memory.ok()) << memory.status();
+  EXPECT_GT(memory->estimated_bytes, 0u);
 }
 
 TEST(MatrixSpec, UnknownMapIsNamedWithItsPath) {
@@ -211,7 +214,7 @@ TEST(MatrixSpec, StateSelectionPicksNonEmptyComponents) {
   ms->add_final_states(1);
   auto job = Convert(spec);
   ASSERT_TRUE(job.ok()) << job.status();
-  EXPECT_EQ(job->ifs_matrix->selection, (std::vector<Component>{{0, 0}, {0, 1}, {1, 1}}));
+  EXPECT_EQ(job->ifs_matrix()->selection, (std::vector<Component>{{0, 0}, {0, 1}, {1, 1}}));
 }
 
 TEST(MatrixSpec, MalformedMatricesAreRefused) {
@@ -263,10 +266,10 @@ TEST(MatrixSpec, ExpansionBeyondTheLimitIsResourceExhausted) {
 TEST(MatrixSpec, ExpansionSizesAreReported) {
   auto job = Convert(Parse(kTree));
   ASSERT_TRUE(job.ok()) << job.status();
-  ASSERT_EQ(job->ifs_matrix->expansion.size(), 2u);
+  ASSERT_EQ(job->ifs_matrix()->expansion.size(), 2u);
   // H o H: (0,0) = {T3,T4}^2 (4), (0,1) = 4 + 4, (1,1) = 4.
-  EXPECT_EQ(job->ifs_matrix->expansion[0].expression, "H2");
-  EXPECT_EQ(job->ifs_matrix->expansion[0].map_references, 16u);
+  EXPECT_EQ(job->ifs_matrix()->expansion[0].expression, "H2");
+  EXPECT_EQ(job->ifs_matrix()->expansion[0].map_references, 16u);
   bool reported = false;
   for (const auto& w : job->warnings)
     reported |= w.find("H2: 2x2, 16 map references") != std::string::npos;
@@ -308,9 +311,9 @@ v1::JobSpec AsMatrix(const std::string& render_json, const std::string& matrices
 }
 
 CountGrid Render(const v1::JobSpec& spec, int threads) {
-  auto job = ConvertSpec(spec, {}, threads);
+  auto job = ConvertSpec(spec, {});
   EXPECT_TRUE(job.ok()) << job.status();
-  auto game = ChaosGame::Create(job->chaos_game, threads);
+  auto game = ChaosGame::Create(*job->point_run(), threads);
   EXPECT_TRUE(game.ok()) << game.status();
   EXPECT_TRUE((*game)->Run(nullptr).ok());
   return (*game)->TakeCounts();
@@ -338,11 +341,11 @@ TEST(MatrixSpec, OneByOneMatrixIsBitwiseThePlainIfs) {
     ExpectSameCounts(Render(matrix, threads), expected);
   }
   // The converted jobs agree field by field where the engine looks.
-  auto pj = ConvertSpec(plain, {}, 2), mj = ConvertSpec(matrix, {}, 2);
+  auto pj = ConvertSpec(plain, {}), mj = ConvertSpec(matrix, {});
   ASSERT_TRUE(pj.ok() && mj.ok());
-  EXPECT_FALSE(mj->chaos_game.chain.has_value());
-  EXPECT_EQ(mj->chaos_game.ifs.probabilities, pj->chaos_game.ifs.probabilities);
-  EXPECT_EQ(mj->chaos_game.warmup, pj->chaos_game.warmup);
+  EXPECT_FALSE(mj->point_run()->chain.has_value());
+  EXPECT_EQ(mj->point_run()->ifs.probabilities, pj->point_run()->ifs.probabilities);
+  EXPECT_EQ(mj->point_run()->warmup, pj->point_run()->warmup);
 }
 
 TEST(MatrixSpec, OneByOneUnionIsBitwiseThePlainIfs) {
@@ -356,33 +359,6 @@ TEST(MatrixSpec, OneByOneUnionIsBitwiseThePlainIfs) {
 
 // --- The runner and the component grid --------------------------------------
 
-class FakeContext : public server::JobContext {
- public:
-  explicit FakeContext(std::filesystem::path out) : out_(std::move(out)) {}
-  const std::string& job_id() const override { return id_; }
-  int threads() const override { return 2; }
-  Interrupter* interrupter() override { return nullptr; }
-  absl::Status ReportProgress(uint64_t done, uint64_t total) override {
-    EXPECT_LE(done, total);
-    EXPECT_GE(done, last_done_);
-    last_done_ = done;
-    return absl::OkStatus();
-  }
-  void MaybePublishPreview(const std::vector<const CountGrid*>&, const GridFrame&,
-                           const DensityOptions&, uint64_t) override {}
-  void SetStat(const std::string& key, uint64_t value) override { stats[key] = value; }
-  void AddWarning(const std::string& w) override { warnings.push_back(w); }
-  std::filesystem::path ResultScratchPath() override { return out_; }
-  Metadata BaseMetadata() const override { return {}; }
-
-  std::map<std::string, uint64_t> stats;
-  std::vector<std::string> warnings;
-  uint64_t last_done_ = 0;
-
- private:
-  std::string id_ = "test";
-  std::filesystem::path out_;
-};
 
 TEST(MatrixRunner, TreeComponentGridLabelsTheComponents) {
   testing::TempDir dir;
@@ -391,13 +367,19 @@ TEST(MatrixRunner, TreeComponentGridLabelsTheComponents) {
   spec.mutable_grid()->set_resolution(1, 128);
   spec.mutable_grid()->set_resolution(2, 120);
   spec.mutable_chaos_game()->set_iterations(3000000);
-  auto job = ConvertSpec(spec, {}, 2);
+  auto job = ConvertSpec(spec, {});
   ASSERT_TRUE(job.ok()) << job.status();
-  FakeContext ctx(dir / "tree.vdb");
-  ASSERT_TRUE(server::RunIfsMatrixJob(*job, ctx).ok());
+  testing::FakeJobContext ctx(dir / "tree.vdb");
+  ASSERT_TRUE(server::RunJobPlan(*job, ctx).ok());
   EXPECT_EQ(ctx.stats["matrix_size"], 2u);
   EXPECT_EQ(ctx.stats["matrix_components"], 3u);
-  EXPECT_EQ(ctx.last_done_, 3000000u);
+  // Every component's points, counted once, in one iterating phase.
+  EXPECT_TRUE(ctx.progress_ordered);
+  const auto iterating = ctx.Last(server::JobPhase::kIterating);
+  EXPECT_EQ(iterating.done, 3000000u);
+  EXPECT_EQ(iterating.total, 3000000u);
+  EXPECT_EQ(iterating.unit, "points");
+  EXPECT_EQ(ctx.Last(server::JobPhase::kWriting).done, 1u);
 
   auto density = ReadVdbFile(dir / "tree.vdb", "density");
   ASSERT_TRUE(density.ok()) << density.status();
@@ -435,10 +417,10 @@ TEST(MatrixRunner, ConstructiveFloatComponentGrid) {
   spec.mutable_grid()->set_resolution(0, 32);
   spec.mutable_chaos_game()->set_iterations(400000);
   spec.mutable_chaos_game()->mutable_matrices()->set_component_grid(v1::COMPONENT_GRID_FLOAT);
-  auto job = ConvertSpec(spec, {}, 2);
+  auto job = ConvertSpec(spec, {});
   ASSERT_TRUE(job.ok()) << job.status();
-  FakeContext ctx(dir / "c.vdb");
-  ASSERT_TRUE(server::RunIfsMatrixJob(*job, ctx).ok());
+  testing::FakeJobContext ctx(dir / "c.vdb");
+  ASSERT_TRUE(server::RunJobPlan(*job, ctx).ok());
   // A float grid, so the generic float reader sees it too.
   auto as_float = ReadVdbFile(dir / "c.vdb", "component");
   ASSERT_TRUE(as_float.ok()) << as_float.status();
@@ -460,10 +442,10 @@ TEST(MatrixRunner, ConstructiveFloatComponentGrid) {
 TEST(MatrixRunner, WithoutComponentGridRunsAsOneChaosGame) {
   testing::TempDir dir;
   v1::JobSpec spec = Parse(kTree);
-  auto job = ConvertSpec(spec, {}, 2);
+  auto job = ConvertSpec(spec, {});
   ASSERT_TRUE(job.ok()) << job.status();
-  FakeContext ctx(dir / "t.vdb");
-  ASSERT_TRUE(server::RunIfsMatrixJob(*job, ctx).ok());
+  testing::FakeJobContext ctx(dir / "t.vdb");
+  ASSERT_TRUE(server::RunJobPlan(*job, ctx).ok());
   auto density = ReadVdbFile(dir / "t.vdb", "density");
   ASSERT_TRUE(density.ok()) << density.status();
   EXPECT_FALSE(ReadComponentGrid(dir / "t.vdb", density->frame.resolution).ok());
@@ -477,12 +459,12 @@ TEST(MatrixRunner, EngineOptionsApplyToMatrixJobs) {
   v1::JobSpec spec = Parse(kTree);
   spec.mutable_chaos_game()->mutable_color()->set_mode(v1::COLOR_MODE_ADDRESS);
   spec.mutable_chaos_game()->set_raw_counts(v1::RAW_COUNTS_FLOAT);
-  auto job = ConvertSpec(spec, {}, 2);
+  auto job = ConvertSpec(spec, {});
   ASSERT_TRUE(job.ok()) << job.status();
-  EXPECT_EQ(job->chaos_game.color.mode, ColorMode::kAddress);
+  EXPECT_EQ(job->point_run()->color.mode, ColorMode::kAddress);
   EXPECT_EQ(job->density.raw_counts, RawCounts::kFloat);
-  FakeContext ctx(dir / "t.vdb");
-  ASSERT_TRUE(server::RunIfsMatrixJob(*job, ctx).ok());
+  testing::FakeJobContext ctx(dir / "t.vdb");
+  ASSERT_TRUE(server::RunJobPlan(*job, ctx).ok());
   auto cd = ReadVec3VdbFile(dir / "t.vdb");
   ASSERT_TRUE(cd.ok()) << cd.status();
   EXPECT_TRUE(std::any_of(cd->active.begin(), cd->active.end(), [](auto a) { return a != 0; }));

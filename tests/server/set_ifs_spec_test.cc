@@ -5,12 +5,18 @@
 #include <cmath>
 #include <fstream>
 
+#include "absl/strings/str_format.h"
 #include "core/grid/count_grid.h"
 #include "core/base/sha256.h"
 #include "core/io/vdb_io.h"
-#include "proto/convert_set_ifs.h"
+#include "core/sets/set_ifs_plan.h"
+#include "proto/asset_paths.h"
+#include "server/memory_admission.h"
 #include "proto/spec_convert.h"
 #include "proto/spec_io.h"
+#include "server/job_runner.h"
+#include "server/result_store.h"
+#include "tests/support/fake_job_context.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus::spec {
@@ -45,16 +51,15 @@ v1::JobSpec TwoSpheres() {
 }
 
 std::string Error(const v1::JobSpec& spec, const Limits& limits = {}) {
-  auto job = ConvertSpec(spec, limits, 2);
+  auto job = ConvertSpec(spec, limits);
   return job.ok() ? "ok" : std::string(job.status().message());
 }
 
 TEST(SetIfsSpec, ConvertsMapsProbabilitiesAndBudget) {
-  auto job = ConvertSpec(TwoSpheres(), {}, 2);
+  auto job = ConvertSpec(TwoSpheres(), {});
   ASSERT_TRUE(job.ok()) << job.status();
-  EXPECT_EQ(job->generator, Generator::kSetIfs);
-  ASSERT_NE(job->set_ifs, nullptr);
-  const SetIfsPlan& p = *job->set_ifs;
+  ASSERT_NE(job->set_ifs(), nullptr);
+  const SetIfsPlan& p = *job->set_ifs();
   ASSERT_EQ(p.maps.size(), 2u);
   EXPECT_NEAR(p.probabilities[0], 2.0 / 3, 1e-12);
   EXPECT_NEAR(p.probabilities[1], 1.0 / 3, 1e-12);
@@ -62,8 +67,12 @@ TEST(SetIfsSpec, ConvertsMapsProbabilitiesAndBudget) {
   EXPECT_EQ(p.maps[0].kind, SetMapKind::kMedian);
   EXPECT_FALSE(p.book);
   EXPECT_EQ(p.warmup, 16u);
-  EXPECT_EQ(job->total_work, 116u);
-  EXPECT_GT(job->estimated_memory_bytes, 0u);
+  // Warm-up is preparation; progress counts the 100 counted iterations.
+  EXPECT_EQ(job->work.total, 100u);
+  EXPECT_EQ(job->work.unit, "set iterations");
+  auto memory = server::AdmitMemory(*job, {}, 2);
+  ASSERT_TRUE(memory.ok()) << memory.status();
+  EXPECT_GT(memory->estimated_bytes, CountGrid::MaxMemoryBytes(job->frame.resolution));
 }
 
 TEST(SetIfsSpec, MixesEveryKindOfMap) {
@@ -75,9 +84,9 @@ TEST(SetIfsSpec, MixesEveryKindOfMap) {
   s->mutable_maps(1)->set_kind(v1::SET_MAP_KIND_CONSTANT);
   auto* point = s->add_maps();
   point->mutable_point()->add_steps()->mutable_scale()->set_uniform(0.5);
-  auto job = ConvertSpec(spec, {}, 2);
+  auto job = ConvertSpec(spec, {});
   ASSERT_TRUE(job.ok()) << job.status();
-  const SetIfsPlan& p = *job->set_ifs;
+  const SetIfsPlan& p = *job->set_ifs();
   EXPECT_EQ(p.maps[0].kind, SetMapKind::kRotatedMedian);
   EXPECT_DOUBLE_EQ(p.maps[0].rotated.degrees_per_unit, 45);
   EXPECT_EQ(p.maps[1].kind, SetMapKind::kConstant);
@@ -85,9 +94,9 @@ TEST(SetIfsSpec, MixesEveryKindOfMap) {
   ASSERT_TRUE(p.maps[2].point.has_value());
   // No probabilities at all: equal.
   for (auto& m : *s->mutable_maps()) m.set_probability(0);
-  job = ConvertSpec(spec, {}, 2);
+  job = ConvertSpec(spec, {});
   ASSERT_TRUE(job.ok());
-  EXPECT_NEAR(job->set_ifs->probabilities[2], 1.0 / 3, 1e-12);
+  EXPECT_NEAR(job->set_ifs()->probabilities[2], 1.0 / 3, 1e-12);
 }
 
 TEST(SetIfsSpec, ErrorsNameTheField) {
@@ -172,7 +181,7 @@ TEST(SetIfsSpec, BadMeshesAreClearErrorsNamingFieldAndFile) {
 TEST(SetIfsSpec, NonWatertightMeshWarns) {
   v1::JobSpec spec = TwoSpheres();
   MeshAsset(spec, 0)->set_path(Mesh("teapot.obj"));
-  auto job = ConvertSpec(spec, {}, 2);
+  auto job = ConvertSpec(spec, {});
   ASSERT_TRUE(job.ok()) << job.status();
   ASSERT_EQ(job->warnings.size(), 1u);
   EXPECT_NE(job->warnings[0].find("not watertight"), std::string::npos);
@@ -192,15 +201,15 @@ TEST(SetIfsSpec, BuildsSourcesOnTheGrid) {
   u->mutable_parts(0)->mutable_box()->mutable_max()->set_z(0.5);
   u->add_parts()->mutable_torus()->set_major_radius(0.5);
   u->mutable_parts(1)->mutable_torus()->set_minor_radius(0.1);
-  auto job = ConvertSpec(spec, {}, 2);
+  auto job = ConvertSpec(spec, {});
   ASSERT_TRUE(job.ok()) << job.status();
   SetBuildCache cache;
-  auto region = BuildSetSource(job->set_ifs->maps[0].condensation->parts[0], job->frame, &cache);
-  auto set = BuildSetSource(*job->set_ifs->maps[0].condensation, job->frame, &cache);
+  auto region = BuildSetSource(job->set_ifs()->maps[0].condensation->parts[0], job->frame, &cache);
+  auto set = BuildSetSource(*job->set_ifs()->maps[0].condensation, job->frame, &cache);
   ASSERT_TRUE(region.ok() && set.ok());
   EXPECT_GT(set->Count(), 0);
   EXPECT_TRUE((*set - *region).Empty());  // clipped to the region
-  auto uni = BuildSetSource(*job->set_ifs->maps[1].condensation, job->frame, &cache);
+  auto uni = BuildSetSource(*job->set_ifs()->maps[1].condensation, job->frame, &cache);
   ASSERT_TRUE(uni.ok()) << uni.status();
   EXPECT_GT(uni->Count(), 0);
   EXPECT_EQ(cache.sets.size(), 5u);  // region, balls, box, torus, union
@@ -214,9 +223,9 @@ TEST(SetIfsSpec, BuildsSourcesOnTheGrid) {
       ->mutable_center()
       ->set_x(5);
   far.mutable_set_ifs()->mutable_maps(1)->mutable_condensation()->mutable_sphere()->set_radius(0.1);
-  auto job2 = ConvertSpec(far, {}, 2);
+  auto job2 = ConvertSpec(far, {});
   ASSERT_TRUE(job2.ok());
-  auto none = BuildSetSource(*job2->set_ifs->maps[1].condensation, job2->frame, nullptr);
+  auto none = BuildSetSource(*job2->set_ifs()->maps[1].condensation, job2->frame, nullptr);
   EXPECT_NE(none.status().message().find("set_ifs.maps[1].condensation"), std::string::npos)
       << none.status();
 }
@@ -224,9 +233,9 @@ TEST(SetIfsSpec, BuildsSourcesOnTheGrid) {
 TEST(SetIfsSpec, MeshesAreFittedIntoTheGrid) {
   v1::JobSpec spec = TwoSpheres();
   MeshAsset(spec, 0)->set_path(Mesh("suzanne.obj"));
-  auto job = ConvertSpec(spec, {}, 2);
+  auto job = ConvertSpec(spec, {});
   ASSERT_TRUE(job.ok()) << job.status();
-  auto set = BuildSetSource(*job->set_ifs->maps[0].condensation, job->frame, nullptr);
+  auto set = BuildSetSource(*job->set_ifs()->maps[0].condensation, job->frame, nullptr);
   ASSERT_TRUE(set.ok()) << set.status();
   auto box = set->BoundingBox();
   ASSERT_TRUE(box.has_value());
@@ -252,25 +261,25 @@ TEST(SetIfsSpec, ResolveAssetPathsIsRelativeToTheSpecFolder) {
 TEST(SetIfsSpec, GridSourcesReadVdbFiles) {
   nimbus::testing::TempDir dir;
   v1::JobSpec spec = TwoSpheres();
-  auto job = ConvertSpec(spec, {}, 2);
+  auto job = ConvertSpec(spec, {});
   ASSERT_TRUE(job.ok());
   // A fog volume of the first sphere, read back as the second map's set.
-  auto ball = BuildSetSource(*job->set_ifs->maps[0].condensation, job->frame, nullptr);
+  auto ball = BuildSetSource(*job->set_ifs()->maps[0].condensation, job->frame, nullptr);
   ASSERT_TRUE(ball.ok());
   CountGrid counts(job->frame.resolution);
   ball->ForEach([&](int x, int y, int z) { counts.Add(x, y, z); });
   ASSERT_TRUE(WriteDensityVdb(dir / "ball.vdb", counts, job->frame, {}, {}).ok());
   auto* grid = spec.mutable_set_ifs()->mutable_maps(1)->mutable_condensation()->mutable_grid();
   grid->mutable_asset()->set_path((dir / "ball.vdb").string());
-  job = ConvertSpec(spec, {}, 2);
+  job = ConvertSpec(spec, {});
   ASSERT_TRUE(job.ok()) << job.status();
-  auto read = BuildSetSource(*job->set_ifs->maps[1].condensation, job->frame, nullptr);
+  auto read = BuildSetSource(*job->set_ifs()->maps[1].condensation, job->frame, nullptr);
   ASSERT_TRUE(read.ok()) << read.status();
   EXPECT_EQ(*read, *ball);
   grid->set_grid_name("nope");
-  job = ConvertSpec(spec, {}, 2);
+  job = ConvertSpec(spec, {});
   ASSERT_TRUE(job.ok());
-  read = BuildSetSource(*job->set_ifs->maps[1].condensation, job->frame, nullptr);
+  read = BuildSetSource(*job->set_ifs()->maps[1].condensation, job->frame, nullptr);
   EXPECT_NE(read.status().message().find("set_ifs.maps[1].condensation"), std::string::npos);
   EXPECT_NE(read.status().message().find("nope"), std::string::npos) << read.status();
 }
@@ -278,11 +287,57 @@ TEST(SetIfsSpec, GridSourcesReadVdbFiles) {
 TEST(SetIfsSpec, BookBudget) {
   v1::JobSpec spec = TwoSpheres();
   spec.mutable_set_ifs()->mutable_book()->set_depth(5);
-  auto job = ConvertSpec(spec, {}, 2);
+  auto job = ConvertSpec(spec, {});
   ASSERT_TRUE(job.ok()) << job.status();
-  EXPECT_TRUE(job->set_ifs->book);
-  EXPECT_EQ(job->set_ifs->pages, 32u);
-  EXPECT_EQ(job->total_work, 32u);
+  EXPECT_TRUE(job->set_ifs()->book);
+  EXPECT_EQ(job->set_ifs()->pages, 32u);
+  EXPECT_EQ(job->work.total, 32u);
+}
+
+// The runner reports phases in order: preparing (one unit per map, the
+// start set, then the warm-up), iterating over the counted iterations only,
+// then writing; the density it writes sums every counted set.
+TEST(SetIfsRunner, ReportsPhasesWithoutWarmupInTheTotal) {
+  v1::JobSpec spec = TwoSpheres();
+  spec.mutable_set_ifs()->mutable_random()->set_iterations(40);
+  spec.mutable_set_ifs()->mutable_random()->set_warmup(12);
+  auto job = ConvertSpec(spec, {});
+  ASSERT_TRUE(job.ok()) << job.status();
+  nimbus::testing::FakeJobContext ctx;
+  ASSERT_TRUE(server::RunJobPlan(*job, ctx).ok());
+  EXPECT_TRUE(ctx.progress_ordered);
+  ASSERT_FALSE(ctx.progress.empty());
+  EXPECT_EQ(ctx.progress.front().phase, server::JobPhase::kPreparing);
+  const auto prep = ctx.Last(server::JobPhase::kPreparing);
+  EXPECT_EQ(prep.total, 4u);  // 2 maps, the start set, the warm-up
+  EXPECT_GE(prep.done, 3u);   // both maps and the start set were reported built
+  const auto iter = ctx.Last(server::JobPhase::kIterating);
+  EXPECT_EQ(iter.total, 40u);
+  EXPECT_EQ(iter.unit, "set iterations");
+  EXPECT_EQ(ctx.Last(server::JobPhase::kWriting).done, 1u);
+  EXPECT_EQ(ctx.stats["set_iterations"], 52u);  // warm-up included in the engine's count
+  auto density = ReadVdbFile(ctx.result());
+  ASSERT_TRUE(density.ok()) << density.status();
+}
+
+// A book writes its pages as numbered frames beside the result.
+TEST(SetIfsRunner, BookPagesAreNumberedFrames) {
+  v1::JobSpec spec = TwoSpheres();
+  spec.set_name("twospheres");
+  spec.mutable_set_ifs()->mutable_book()->set_depth(2);
+  auto job = ConvertSpec(spec, {});
+  ASSERT_TRUE(job.ok()) << job.status();
+  nimbus::testing::FakeJobContext ctx;
+  ASSERT_TRUE(server::RunJobPlan(*job, ctx).ok());
+  const std::filesystem::path frames = server::ExtraFilesDir(ctx.result());
+  for (int page = 1; page <= 4; ++page) {
+    auto file = frames / absl::StrFormat("twospheres.%04d.vdb", page);
+    auto grid = ReadVdbFile(file);
+    EXPECT_TRUE(grid.ok()) << file << ": " << grid.status();
+  }
+  EXPECT_FALSE(std::filesystem::exists(frames / "twospheres.0005.vdb"));
+  EXPECT_EQ(ctx.Last(server::JobPhase::kIterating).done, 4u);
+  EXPECT_EQ(ctx.Last(server::JobPhase::kIterating).unit, "pages");
 }
 
 }  // namespace

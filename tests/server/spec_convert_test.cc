@@ -1,9 +1,10 @@
 #include "proto/spec_convert.h"
+#include "server/memory_admission.h"
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
-#include "proto/convert_set_ifs.h"
+#include "proto/asset_paths.h"
 #include "proto/spec_io.h"
 #include "tests/support/test_util.h"
 
@@ -32,20 +33,27 @@ v1::JobSpec Valid() {
 }
 
 absl::Status Check(const v1::JobSpec& spec, Limits limits = {}) {
-  return ConvertSpec(spec, limits, 2).status();
+  return ConvertSpec(spec, limits).status();
+}
+
+// Conversion, then the server's memory admission, as SubmitJob does.
+absl::Status CheckAndAdmit(const v1::JobSpec& spec, Limits limits = {}) {
+  auto plan = ConvertSpec(spec, limits);
+  if (!plan.ok()) return plan.status();
+  return server::AdmitMemory(*plan, limits, 2).status();
 }
 
 TEST(SpecConvert, ValidSpecConverts) {
-  auto job = ConvertSpec(Valid(), {}, 2);
+  auto job = ConvertSpec(Valid(), {});
   ASSERT_TRUE(job.ok()) << job.status();
   EXPECT_EQ(job->frame.resolution, (Int3{32, 32, 32}));
-  ASSERT_EQ(job->chaos_game.ifs.maps.size(), 2u);
+  ASSERT_EQ(job->point_run()->ifs.maps.size(), 2u);
   // Determinant mode (no probabilities given): 0.125 vs 0.06.
-  EXPECT_NEAR(job->chaos_game.ifs.probabilities[0], 0.125 / 0.185, 1e-12);
-  EXPECT_EQ(job->chaos_game.warmup, 100u);
+  EXPECT_NEAR(job->point_run()->ifs.probabilities[0], 0.125 / 0.185, 1e-12);
+  EXPECT_EQ(job->point_run()->warmup, 100u);
   EXPECT_NEAR(job->contraction_factors[0], 0.5, 1e-12);
   // Steps compose right to left: scale first, then translate.
-  const Vec3 p = job->chaos_game.ifs.maps[0].pre.Apply({1, 0, 0});
+  const Vec3 p = job->point_run()->ifs.maps[0].pre.Apply({1, 0, 0});
   EXPECT_NEAR(p.x, 1.0, 1e-12);
 }
 
@@ -79,7 +87,7 @@ TEST(SpecConvert, ExpandingIfsIsRejectedWithItsFactors) {
   EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument);
   EXPECT_THAT(std::string(s.message()), HasSubstr("chaos_game.ifs.maps[0] (factor 1.5)"));
   spec.mutable_chaos_game()->mutable_ifs()->set_allow_expanding(true);
-  auto job = ConvertSpec(spec, {}, 2);
+  auto job = ConvertSpec(spec, {});
   ASSERT_TRUE(job.ok());
   ASSERT_EQ(job->warnings.size(), 1u);
   EXPECT_THAT(job->warnings[0], HasSubstr("factor 1.5"));
@@ -110,7 +118,8 @@ TEST(SpecConvert, LimitsGiveResourceExhausted) {
   // the tile tables of 2048^3 grids alone take more than 4 MiB.
   Limits tight;
   tight.max_memory_bytes = uint64_t{4} << 20;
-  s = Check(spec, tight);
+  EXPECT_TRUE(Check(spec, tight).ok()) << "ConvertSpec prices no memory";
+  s = CheckAndAdmit(spec, tight);
   EXPECT_EQ(s.code(), absl::StatusCode::kResourceExhausted);
   EXPECT_THAT(std::string(s.message()), HasSubstr("memory"));
 
@@ -153,9 +162,9 @@ TEST(SpecConvert, ExplicitProbabilitiesAreNormalised) {
   v1::JobSpec spec = Valid();
   spec.mutable_chaos_game()->mutable_ifs()->mutable_maps(0)->set_probability(3);
   spec.mutable_chaos_game()->mutable_ifs()->mutable_maps(1)->set_probability(1);
-  auto job = ConvertSpec(spec, {}, 2);
+  auto job = ConvertSpec(spec, {});
   ASSERT_TRUE(job.ok());
-  EXPECT_DOUBLE_EQ(job->chaos_game.ifs.probabilities[0], 0.75);
+  EXPECT_DOUBLE_EQ(job->point_run()->ifs.probabilities[0], 0.75);
   spec.mutable_chaos_game()->mutable_ifs()->mutable_maps(1)->set_probability(-1);
   EXPECT_THAT(std::string(Check(spec).message()), HasSubstr("maps[1].probability"));
 }
@@ -165,10 +174,10 @@ TEST(SpecConvert, TextFormatAndJsonAgree) {
   ASSERT_TRUE(text.ok()) << text.status();
   auto json = LoadSpecFile(testing::SourcePath("examples/sierpinski_tetrahedron.json"));
   ASSERT_TRUE(json.ok()) << json.status();
-  auto a = ConvertSpec(*text, {}, 2), b = ConvertSpec(*json, {}, 2);
+  auto a = ConvertSpec(*text, {}), b = ConvertSpec(*json, {});
   ASSERT_TRUE(a.ok() && b.ok());
   for (int i = 0; i < 4; ++i)
-    EXPECT_EQ(a->chaos_game.ifs.maps[i].pre, b->chaos_game.ifs.maps[i].pre);
+    EXPECT_EQ(a->point_run()->ifs.maps[i].pre, b->point_run()->ifs.maps[i].pre);
   auto bad = ParseSpec("grid { resolution: [1, }", SpecFormat::kText, "x.txtpb");
   ASSERT_FALSE(bad.ok());
   EXPECT_THAT(std::string(bad.status().message()), HasSubstr("x.txtpb:1:"));
@@ -182,8 +191,7 @@ TEST(SpecConvert, EveryExampleValidates) {
     ASSERT_TRUE(spec.ok()) << entry.path() << ": " << spec.status();
     // Asset paths are relative to the spec file, as the CLI reads them.
     ResolveAssetPaths(*spec, entry.path().parent_path());
-    auto job = ConvertSpec(*spec, {}, 2);
-    EXPECT_TRUE(job.ok()) << entry.path() << ": " << job.status();
+    EXPECT_TRUE(CheckAndAdmit(*spec).ok()) << entry.path() << ": " << CheckAndAdmit(*spec);
   }
 }
 

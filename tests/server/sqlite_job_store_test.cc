@@ -5,8 +5,10 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cstdint>
 #include <filesystem>
+#include <future>
 #include <memory>
 #include <mutex>
 #include <set>
@@ -72,6 +74,7 @@ void ExpectSameRecord(const JobRecord& a, const JobRecord& b) {
   EXPECT_EQ(a.result_sha256, b.result_sha256);
   EXPECT_EQ(a.warnings, b.warnings);
   EXPECT_EQ(a.estimated_memory_bytes, b.estimated_memory_bytes);
+  EXPECT_EQ(a.error_code, b.error_code);
 }
 
 class SqliteJobStoreTest : public ::testing::Test {
@@ -429,6 +432,7 @@ TEST_F(SqliteJobStoreTest, CancelQueuedJobFinishesItAtOnce) {
   EXPECT_EQ(r->state, JobState::kCancelled);
   EXPECT_EQ(r->end_time, kT0 + 5);
   EXPECT_EQ(r->error, "cancelled by request");
+  EXPECT_EQ(r->error_code, static_cast<int>(absl::StatusCode::kCancelled));
   absl::StatusOr<std::optional<JobRecord>> c = store_->ClaimNext("w", kT0 + 6, 100);
   ASSERT_TRUE(c.ok());
   EXPECT_FALSE(c->has_value());
@@ -468,6 +472,7 @@ TEST_F(SqliteJobStoreTest, CancelRequestedJobWithLapsedLeaseIsNeverReclaimed) {
   ASSERT_TRUE(j.ok());
   EXPECT_EQ(j->state, JobState::kCancelled);
   EXPECT_EQ(j->end_time, kT0 + 1000);
+  EXPECT_EQ(j->error_code, static_cast<int>(absl::StatusCode::kCancelled));
 }
 
 TEST_F(SqliteJobStoreTest, CancelFinishedJobLeavesItUnchanged) {
@@ -484,6 +489,23 @@ TEST_F(SqliteJobStoreTest, CancelFinishedJobLeavesItUnchanged) {
   ExpectSameRecord(*after, *before);
   EXPECT_EQ(after->state, JobState::kFailed);
   EXPECT_FALSE(after->cancel_requested);
+}
+
+TEST_F(SqliteJobStoreTest, FailedJobKeepsItsStatusCodeAcrossReopen) {
+  CreateOrDie(*store_, "j", kT0);
+  ASSERT_TRUE(store_->ClaimNext("w", kT0 + 1, 100).ok());
+  Completion failed;
+  failed.state = JobState::kFailed;
+  failed.error = "grid.resolution[0]: must be positive, got 0";
+  failed.error_code = static_cast<int>(absl::StatusCode::kInvalidArgument);
+  ASSERT_TRUE(store_->Complete("j", "w", failed, kT0 + 2).ok());
+  store_.reset();
+  store_ = OpenOrDie(db_path());
+  absl::StatusOr<JobRecord> j = store_->Get("j");
+  ASSERT_TRUE(j.ok()) << j.status();
+  EXPECT_EQ(j->state, JobState::kFailed);
+  EXPECT_EQ(j->error, failed.error);
+  EXPECT_EQ(j->error_code, 3);
 }
 
 TEST_F(SqliteJobStoreTest, CancelUnknownJobIsNotFound) {
@@ -632,6 +654,7 @@ TEST_F(SqliteJobStoreTest, CancelRequestedJobsAreCancelledNotRequeued) {
     ASSERT_TRUE(r.ok());
     EXPECT_EQ(r->state, JobState::kCancelled) << id;
     EXPECT_EQ(r->error, "cancelled by request") << id;
+    EXPECT_EQ(r->error_code, static_cast<int>(absl::StatusCode::kCancelled)) << id;
     EXPECT_EQ(r->worker_id, "") << id;
   }
   absl::StatusOr<JobRecord> crashed = store_->Get("crashed");
@@ -709,7 +732,7 @@ int64_t QueryInt(const std::string& path, const char* sql) {
 
 TEST_F(SqliteJobStoreTest, SchemaIsVersionedWalAndIndexed) {
   const std::string path = db_path().string();
-  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 1);
+  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 2);
   // WAL is persistent in the file header, so a fresh connection reports it.
   EXPECT_EQ(QueryInt(path, "SELECT journal_mode = 'wal' FROM pragma_journal_mode"), 1);
   EXPECT_EQ(QueryInt(path,
@@ -736,6 +759,113 @@ TEST(SqliteJobStoreOpenTest, RefusesNewerSchema) {
   absl::StatusOr<std::unique_ptr<JobStore>> store = OpenSqliteJobStore(path);
   EXPECT_EQ(store.status().code(), absl::StatusCode::kFailedPrecondition) << store.status();
   EXPECT_NE(store.status().message().find("99"), std::string::npos);
+}
+
+// The schema written by version 1 of this store, before error_code.
+constexpr char kVersionOneSchema[] = R"sql(
+CREATE TABLE jobs (
+  id TEXT PRIMARY KEY NOT NULL,
+  name TEXT NOT NULL DEFAULT '',
+  state INTEGER NOT NULL,
+  spec BLOB NOT NULL,
+  request_id TEXT NOT NULL DEFAULT '',
+  create_time INTEGER NOT NULL,
+  start_time INTEGER NOT NULL DEFAULT 0,
+  end_time INTEGER NOT NULL DEFAULT 0,
+  attempts INTEGER NOT NULL DEFAULT 0,
+  cancel_requested INTEGER NOT NULL DEFAULT 0,
+  worker_id TEXT NOT NULL DEFAULT '',
+  lease_expiry INTEGER NOT NULL DEFAULT 0,
+  progress_done INTEGER NOT NULL DEFAULT 0,
+  progress_total INTEGER NOT NULL DEFAULT 0,
+  error TEXT NOT NULL DEFAULT '',
+  result_key TEXT NOT NULL DEFAULT '',
+  result_size INTEGER NOT NULL DEFAULT 0,
+  result_sha256 TEXT NOT NULL DEFAULT '',
+  warnings TEXT NOT NULL DEFAULT '',
+  estimated_memory_bytes INTEGER NOT NULL DEFAULT 0
+);
+CREATE INDEX jobs_state_create ON jobs (state, create_time, id);
+CREATE INDEX jobs_create ON jobs (create_time, id);
+CREATE UNIQUE INDEX jobs_request_id ON jobs (request_id) WHERE request_id <> '';
+INSERT INTO jobs (id, name, state, spec, create_time) VALUES ('queued', 'q', 1, x'00', 1);
+INSERT INTO jobs (id, name, state, spec, create_time, error)
+  VALUES ('failed', 'f', 4, x'00', 2, 'diverged');
+INSERT INTO jobs (id, name, state, spec, create_time, error)
+  VALUES ('cancelled', 'c', 5, x'00', 3, 'cancelled by request');
+PRAGMA journal_mode=WAL;
+PRAGMA user_version=1;
+)sql";
+
+TEST(SqliteJobStoreOpenTest, UpgradesAVersionOneFile) {
+  TempDir dir;
+  const std::string path = (dir / "jobs.db").string();
+  {
+    sqlite3* db = nullptr;
+    ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
+    char* err = nullptr;
+    ASSERT_EQ(sqlite3_exec(db, kVersionOneSchema, nullptr, nullptr, &err), SQLITE_OK) << err;
+    sqlite3_close(db);
+  }
+  std::unique_ptr<JobStore> store = OpenOrDie(path);
+  ASSERT_NE(store, nullptr);
+  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 2);
+  // Old jobs keep everything and gain the code their end implies.
+  const std::pair<const char*, int> expected[] = {{"queued", 0}, {"failed", 2}, {"cancelled", 1}};
+  for (const auto& [id, code] : expected) {
+    absl::StatusOr<JobRecord> r = store->Get(id);
+    ASSERT_TRUE(r.ok()) << r.status();
+    EXPECT_EQ(r->error_code, code) << id;
+  }
+  EXPECT_EQ(store->Get("failed")->error, "diverged");
+  // The upgraded file takes new codes and opens again without a migration.
+  ASSERT_TRUE(store->ClaimNext("w", kT0, 100).ok());
+  Completion c;
+  c.state = JobState::kFailed;
+  c.error = "out of memory";
+  c.error_code = static_cast<int>(absl::StatusCode::kResourceExhausted);
+  ASSERT_TRUE(store->Complete("queued", "w", c, kT0 + 1).ok());
+  store.reset();
+  store = OpenOrDie(path);
+  ASSERT_NE(store, nullptr);
+  EXPECT_EQ(store->Get("queued")->error_code, 8);
+  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 2);
+}
+
+// Another connection holds the write lock, as a slow writer in another
+// process would: writes wait for it, reads do not, and a read after the
+// write went through sees it.
+TEST_F(SqliteJobStoreTest, ReadsDoNotWaitForABlockedWrite) {
+  CreateOrDie(*store_, "a", kT0);
+  CreateOrDie(*store_, "b", kT0 + 1);
+  sqlite3* db = nullptr;
+  ASSERT_EQ(sqlite3_open(db_path().c_str(), &db), SQLITE_OK);
+  ASSERT_EQ(sqlite3_exec(db, "BEGIN IMMEDIATE", nullptr, nullptr, nullptr), SQLITE_OK);
+  std::future<absl::StatusOr<JobRecord>> cancel = std::async(
+      std::launch::async, [&] { return store_->RequestCancel("a", kT0 + 2); });
+  // The write cannot finish while the lock is held; this also lets it reach
+  // SQLite and wait there, holding the store's write mutex.
+  EXPECT_EQ(cancel.wait_for(std::chrono::milliseconds(300)), std::future_status::timeout);
+  for (int i = 0; i < 10; ++i) {
+    const auto start = std::chrono::steady_clock::now();
+    absl::StatusOr<JobRecord> b = store_->Get("b");
+    absl::StatusOr<ListPage> page = store_->List({});
+    const auto took = std::chrono::steady_clock::now() - start;
+    ASSERT_TRUE(b.ok()) << b.status();
+    ASSERT_TRUE(page.ok()) << page.status();
+    EXPECT_EQ(page->jobs.size(), 2u);
+    EXPECT_LT(took, std::chrono::milliseconds(100)) << "a read waited for the blocked write";
+  }
+  EXPECT_EQ(cancel.wait_for(std::chrono::seconds(0)), std::future_status::timeout);
+  ASSERT_EQ(sqlite3_exec(db, "ROLLBACK", nullptr, nullptr, nullptr), SQLITE_OK);
+  sqlite3_close(db);
+  absl::StatusOr<JobRecord> cancelled = cancel.get();
+  ASSERT_TRUE(cancelled.ok()) << cancelled.status();
+  EXPECT_EQ(cancelled->state, JobState::kCancelled);
+  absl::StatusOr<JobRecord> a = store_->Get("a");
+  ASSERT_TRUE(a.ok());
+  EXPECT_EQ(a->state, JobState::kCancelled);
+  EXPECT_EQ(a->error_code, 1);
 }
 
 }  // namespace

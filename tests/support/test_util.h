@@ -1,4 +1,5 @@
 // Helpers shared by the tests: scratch folders and paths into the source tree.
+// Test servers bind port 0 and report the port they got (nimbusd_process.h).
 #pragma once
 
 #include <filesystem>
@@ -19,9 +20,6 @@ class TempDir {
  private:
   std::filesystem::path path_;
 };
-
-/// A loopback TCP port that was free a moment ago, for test servers.
-int FreePort();
 
 /// Absolute path of a file in the source tree, e.g. SourcePath("examples/tree.json").
 std::filesystem::path SourcePath(const std::string& relative);

@@ -1,33 +1,30 @@
-// The validated form of a set_ifs spec (ALGORITHMS.md section 1) and the
-// step that turns its set sources into voxel sets. ConvertSpec fills a
-// SetIfsPlan; the set-IFS runner builds the sets and maps from it.
+// @brief Set sources: the voxel sets a set IFS starts from or condenses
+// onto (sketch meshes, VDB grids, shapes), checked once and built on a grid
+// when a job runs (docs/condensation.md).
+//
+//   SetBuildCache cache;
+//   NIMBUS_ASSIGN_OR_RETURN(VoxelSet set, BuildSetSource(plan, frame, &cache, intr));
 #pragma once
 
-#include <cstdint>
 #include <filesystem>
-#include <functional>
 #include <map>
 #include <memory>
-#include <optional>
 #include <string>
 #include <vector>
 
 #include "absl/status/statusor.h"
 #include "core/base/geometry.h"
 #include "core/base/interrupter.h"
-#include "core/io/mesh_io.h"
-#include "core/chaos/point_map.h"
-#include "core/sets/set_maps.h"
-#include "core/sets/shapes.h"
 #include "core/grid/voxel_set.h"
-#include "nimbus/v1/spec.pb.h"
-#include "proto/asset_paths.h"
-#include "proto/spec_convert.h"
+#include "core/io/mesh_io.h"
+#include "core/sets/shapes.h"
 
-namespace nimbus::spec {
+namespace nimbus {
 
-/// @brief A checked SetSource. Files are resolved and meshes already parsed,
-/// so a bad mesh is refused at submit time, not halfway through a job.
+/// @brief A checked set source: a mesh or grid file, a shape, or a union
+/// of sources. Files are resolved and meshes already parsed by the spec
+/// converter, so a bad mesh is refused at submit time, not halfway through a
+/// job.
 struct SetSourcePlan {
   enum class Kind { kMesh, kGrid, kSphere, kBox, kTorus, kRandomBalls, kUnion };
   Kind kind = Kind::kSphere;
@@ -40,6 +37,7 @@ struct SetSourcePlan {
   // kMesh and kGrid.
   std::filesystem::path file;  // resolved local file
   std::string file_label;      // how the spec named it (path or sha256)
+  std::string file_format;     // ".obj", ".ply", ... when known; else from the name
   std::shared_ptr<const TriangleMesh> mesh;
   bool fit = true;
   double fit_margin_voxels = 2.0;
@@ -60,37 +58,6 @@ struct SetSourcePlan {
   std::vector<SetSourcePlan> parts;
 };
 
-/// @brief A checked SetMap.
-struct SetMapPlan {
-  SetMapKind kind = SetMapKind::kMedian;
-  std::string field;
-  /// Condensation set of median, rotated-median and constant maps.
-  std::optional<SetSourcePlan> condensation;
-  MedianOptions median;
-  RotatedMedianOptions rotated;
-  std::optional<PointMap> point;
-};
-
-/// @brief What a set-IFS job runs.
-struct SetIfsPlan {
-  std::vector<SetMapPlan> maps;
-  /// Normalised, one per map.
-  std::vector<double> probabilities;
-  /// Book address letters, one per map.
-  std::vector<std::string> labels;
-  bool book = false;
-  // Random iteration.
-  uint64_t iterations = 0;
-  uint64_t warmup = 16;
-  // Book.
-  int depth = 0;
-  uint64_t pages = 0;
-  uint64_t seed = 0;
-  std::optional<SetSourcePlan> start;
-  /// Memory the book may use for shared intermediate pages.
-  uint64_t book_cache_bytes = uint64_t{256} << 20;
-};
-
 /// @brief Memoises built sets by SetSourcePlan::cache_key.
 struct SetBuildCache {
   std::map<std::string, VoxelSet> sets;
@@ -101,4 +68,4 @@ struct SetBuildCache {
 absl::StatusOr<VoxelSet> BuildSetSource(const SetSourcePlan& source, const GridFrame& frame,
                                         SetBuildCache* cache, Interrupter* interrupter = nullptr);
 
-}  // namespace nimbus::spec
+}  // namespace nimbus

@@ -1,5 +1,6 @@
-// The IFS-matrix plan: what proto/convert_matrix.cc makes of
-// chaos_game.matrices and server/matrix_runner.cc runs.
+// @brief The plan of an IFS-matrix job (chaos_game.matrices): the run of
+// the whole selected object, plus what the component grid and the reports
+// need. Protobuf-free; made by the spec converter, run by the matrix runner.
 #pragma once
 
 #include <cstdint>
@@ -10,13 +11,14 @@
 #include "core/matrix/component_grid.h"
 #include "core/matrix/ifs_matrix.h"
 
-namespace nimbus::spec {
+namespace nimbus {
 
-/// @brief A validated IFS-matrix job. ConvertedJob::chaos_game already holds
-/// the whole object's run (maps, chain, frame, budget), so a runner that
-/// ignores the plan still renders the right density; the plan adds what the
-/// component grid and the reports need.
+/// @brief A validated IFS-matrix job.
 struct IfsMatrixPlan {
+  /// The whole selection as one chaos game (a chain over the expanded map
+  /// table, or a plain IFS for a 1x1 matrix). Without a component grid the
+  /// job is exactly this run.
+  ChaosGameParams run;
   /// Every map of the expanded expression (base maps, then composed ones).
   std::vector<PointMap> maps;
   /// The rendered (expanded) matrix, indexing `maps`.
@@ -36,4 +38,4 @@ struct IfsMatrixPlan {
   std::vector<ChaosGameParams> component_runs;
 };
 
-}  // namespace nimbus::spec
+}  // namespace nimbus

@@ -1,0 +1,29 @@
+// @brief The names of the metadata Nimbus writes into its VDB files, in one
+// place, so writers, readers and tests agree (README, "What the .vdb
+// contains").
+#pragma once
+
+namespace nimbus::meta_key {
+
+// Every result.
+inline constexpr char kSpecHash[] = "nimbus_spec_hash";
+inline constexpr char kVersion[] = "nimbus_version";
+inline constexpr char kSeed[] = "nimbus_seed";
+inline constexpr char kIterations[] = "nimbus_iterations";
+// Chaos games.
+inline constexpr char kOutside[] = "nimbus_outside";
+inline constexpr char kReseeded[] = "nimbus_reseeded";
+inline constexpr char kFinalNonfinite[] = "nimbus_final_nonfinite";
+inline constexpr char kStopReason[] = "nimbus_stop_reason";
+inline constexpr char kCountScale[] = "nimbus_count_scale";
+inline constexpr char kConvergenceChange[] = "nimbus_convergence_change";
+// IFS matrices.
+inline constexpr char kComponents[] = "nimbus_components";
+// Set IFS.
+inline constexpr char kWarmup[] = "nimbus_warmup";
+inline constexpr char kBookAddress[] = "nimbus_book_address";
+inline constexpr char kBookPage[] = "nimbus_book_page";
+inline constexpr char kBookDepth[] = "nimbus_book_depth";
+inline constexpr char kBookPages[] = "nimbus_book_pages";
+
+}  // namespace nimbus::meta_key

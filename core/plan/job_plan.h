@@ -1,0 +1,67 @@
+// @brief A validated job, ready for its engine: the part every job kind
+// shares (name, grid, density output, warnings, the work it will report)
+// and the kind's own plan. Protobuf-free: spec::ConvertSpec makes it from a
+// nimbus.v1.JobSpec, the server's admission prices it, a runner runs it.
+//
+// Adding a job kind (docs/architecture.md):
+//   1. its plan type, beside its engine in core/<family>/, added to JobKindPlan;
+//   2. a proto message in proto/nimbus/v1/ and a converter in proto/convert_*.cc,
+//      called from ConvertSpec's switch in proto/spec_convert.cc;
+//   3. a runner in server/, one RunKind overload in server/job_runner.h;
+//   4. its memory price in server/memory_admission.cc.
+// std::visit over JobKindPlan makes steps 3 and 4 compile errors until done.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <string_view>
+#include <variant>
+#include <vector>
+
+#include "core/base/geometry.h"
+#include "core/chaos/chaos_game.h"
+#include "core/io/vdb_io.h"
+#include "core/matrix/ifs_matrix_plan.h"
+#include "core/sets/set_ifs_plan.h"
+
+namespace nimbus {
+
+/// @brief A plain (or nonlinear) IFS run by the chaos game.
+struct ChaosGamePlan {
+  ChaosGameParams params;
+};
+
+/// One alternative per job kind.
+using JobKindPlan = std::variant<ChaosGamePlan, IfsMatrixPlan, SetIfsPlan>;
+
+/// @brief The units a job's iterating phase counts, for progress.
+struct WorkPlan {
+  uint64_t total = 0;
+  /// "points", "set iterations", "pages", ...
+  std::string unit;
+};
+
+/// @brief A validated job.
+struct JobPlan {
+  std::string name;
+  GridFrame frame;
+  DensityOptions density;
+  JobKindPlan kind;
+  WorkPlan work;
+  std::vector<std::string> warnings;
+  /// Largest singular value of each map's affine part (point IFS kinds).
+  std::vector<double> contraction_factors;
+
+  // Typed access for callers that know the kind; null otherwise.
+  const ChaosGamePlan* chaos_game() const { return std::get_if<ChaosGamePlan>(&kind); }
+  const IfsMatrixPlan* ifs_matrix() const { return std::get_if<IfsMatrixPlan>(&kind); }
+  const SetIfsPlan* set_ifs() const { return std::get_if<SetIfsPlan>(&kind); }
+  /// The chaos game of a point-IFS job (plain, or the whole matrix
+  /// selection); null for set IFS.
+  const ChaosGameParams* point_run() const;
+};
+
+/// "chaos_game", "ifs_matrix" or "set_ifs": for logs and messages.
+std::string_view KindName(const JobKindPlan& kind);
+
+}  // namespace nimbus

@@ -1,0 +1,25 @@
+// Pieces the point-IFS runners share (chaos_game_runner.cc,
+// matrix_runner.cc): a chaos game driven in rounds and its reports.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "core/chaos/chaos_game.h"
+#include "server/job_driver.h"
+
+namespace nimbus::server {
+
+/// Publishes a chaos game's counters as job stats and warns when many
+/// points went non-finite or fell outside the grid.
+void ReportChaosGameStats(const ChaosGameStats& stats, JobContext& ctx);
+
+/// Rounds that advance `game`; previews show `fixed_parts` plus the game's
+/// partial counts; `peak_bytes` (may be null) tracks the game's memory.
+JobDriver::Rounds ChaosRounds(ChaosGame& game, JobDriver& driver, uint64_t offset,
+                              std::vector<const CountGrid*> fixed_parts, uint64_t* peak_bytes);
+
+/// Runs one chaos game as the whole job and writes its density.
+absl::Status RunChaosGameParams(const JobPlan& plan, ChaosGameParams params, JobContext& ctx);
+
+}  // namespace nimbus::server

@@ -1,0 +1,97 @@
+#include "server/memory_admission.h"
+
+#include <algorithm>
+#include <cstdio>
+#include <variant>
+
+#include "absl/strings/str_cat.h"
+#include "core/base/status_macros.h"
+
+namespace nimbus::server {
+
+namespace {
+
+using absl::StrCat;
+
+std::string GiB(uint64_t bytes) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.2f GiB", double(bytes) / double(uint64_t{1} << 30));
+  return buf;
+}
+
+// A chaos game's peak. When the geometric bound is above 1 GiB (or the
+// limit), a pilot run of 2^21 points (10-40 ms) measures the tiles the
+// attractor really touches, so thin fractals on huge grids are admitted at
+// what they will hold.
+struct ChaosEstimate {
+  ChaosGameMemory memory;
+  uint64_t pilot_samples = 0;
+};
+
+ChaosEstimate EstimateChaosGame(const ChaosGameParams& params, int threads,
+                                const DensityOptions& density, const spec::Limits& limits,
+                                Interrupter* interrupter) {
+  constexpr uint64_t kPilotSamples = uint64_t{1} << 21;
+  constexpr uint64_t kPilotAbove = uint64_t{1} << 30;
+  const uint64_t per_voxel = OutputBytesPerVoxel(density);
+  ChaosEstimate e{ChaosGame::EstimateMemory(params, threads, per_voxel), 0};
+  if (e.memory.peak() <= std::min(limits.max_memory_bytes, kPilotAbove)) return e;
+  auto census = ChaosGame::Pilot(params, kPilotSamples, interrupter);
+  if (!census.ok()) return e;
+  e.pilot_samples = census->samples;
+  e.memory = ChaosGame::EstimateMemory(params, threads, per_voxel, census->estimate);
+  return e;
+}
+
+absl::StatusOr<MemoryAdmission> CheckChaos(const ChaosEstimate& e, uint64_t extra, int threads,
+                                           const spec::Limits& limits) {
+  const uint64_t peak = e.memory.peak() + extra;
+  if (peak > limits.max_memory_bytes)
+    return absl::ResourceExhaustedError(StrCat(
+        "grid.resolution: the chaos game needs up to ", GiB(peak), " of memory (",
+        GiB(e.memory.accumulation), " to accumulate on ", threads, " threads, ",
+        GiB(e.memory.output), " to write",
+        e.pilot_samples ? StrCat(", measured by a pilot run of ", e.pilot_samples, " points")
+                        : "",
+        "); the server limit is ", GiB(limits.max_memory_bytes)));
+  return MemoryAdmission{peak, e.pilot_samples};
+}
+
+// Per median map: its set and its closest-point field; per step: the
+// current and next sets, a field over the moving set and image scratch;
+// the output counts; the book's page cache.
+uint64_t SetIfsBytes(const SetIfsPlan& plan, Int3 r) {
+  uint64_t field_maps = 0;
+  for (const SetMapPlan& m : plan.maps)
+    field_maps += m.kind == SetMapKind::kMedian || m.kind == SetMapKind::kRotatedMedian;
+  const uint64_t voxels = uint64_t(r.Volume());
+  const uint64_t set_bytes = (uint64_t(r.x + 63) / 64) * 8 * uint64_t(r.y) * uint64_t(r.z);
+  uint64_t bytes = field_maps * (voxels * 4 + set_bytes) + plan.maps.size() * set_bytes +
+                   voxels * 8 + set_bytes * 6 + CountGrid::MaxMemoryBytes(r);
+  if (plan.book) bytes += plan.book_cache_bytes;
+  return bytes;
+}
+
+}  // namespace
+
+absl::StatusOr<MemoryAdmission> AdmitMemory(const JobPlan& plan, const spec::Limits& limits,
+                                            int threads, Interrupter* interrupter) {
+  if (const SetIfsPlan* s = plan.set_ifs()) {
+    const uint64_t bytes = SetIfsBytes(*s, plan.frame.resolution);
+    if (bytes > limits.max_memory_bytes)
+      return absl::ResourceExhaustedError(
+          StrCat("grid.resolution: the job needs up to ", GiB(bytes),
+                 " of memory; the server limit is ", GiB(limits.max_memory_bytes)));
+    return MemoryAdmission{bytes, 0};
+  }
+  // Point IFS kinds: one engine runs at a time, so the whole selection's
+  // run bounds the job, plus a component grid's accumulator.
+  const ChaosEstimate e =
+      EstimateChaosGame(*plan.point_run(), threads, plan.density, limits, interrupter);
+  uint64_t extra = 0;
+  if (const IfsMatrixPlan* m = plan.ifs_matrix(); m && m->component_grid != ComponentGridType::kNone)
+    extra = ComponentAccumulator::MaxMemoryBytes(plan.frame.resolution);
+  return CheckChaos(e, extra, threads, limits);
+}
+
+}  // namespace nimbus::server
