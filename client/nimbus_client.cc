@@ -164,6 +164,12 @@ absl::Status NimbusClient::Fetch(const std::string& job_id, const std::filesyste
       offset += chunk.data().size();
     }
     out.close();
+    if (!out) {
+      ctx.TryCancel();
+      reader->Finish();
+      return absl::ResourceExhaustedError(
+          absl::StrCat("cannot write ", part.string(), " (disk full?)"));
+    }
     const grpc::Status s = reader->Finish();
     if (s.ok()) break;
     if (!Retryable(s) || attempt >= 20) {

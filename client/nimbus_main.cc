@@ -36,8 +36,9 @@ namespace {
 using nimbus::client::NimbusClient;
 namespace v1 = nimbus::v1;
 
-// Exit codes: 0 success, 1 job failed or was cancelled, 2 bad input,
-// 3 server unreachable or internal error.
+// Exit codes: 0 success, 1 job failed or was cancelled, 2 bad input or
+// bad data (a download whose size or sha256 does not match), 3 server
+// unreachable or internal error.
 constexpr int kJobFailed = 1, kBadInput = 2, kServerError = 3;
 
 int ExitFor(const absl::Status& s) {
@@ -47,7 +48,8 @@ int ExitFor(const absl::Status& s) {
     case absl::StatusCode::kNotFound:
     case absl::StatusCode::kFailedPrecondition:
     case absl::StatusCode::kResourceExhausted:
-    case absl::StatusCode::kOutOfRange: return kBadInput;
+    case absl::StatusCode::kOutOfRange:
+    case absl::StatusCode::kDataLoss: return kBadInput;
     default: return kServerError;
   }
 }
@@ -83,6 +85,9 @@ absl::StatusOr<Connection> Connect(const GlobalOptions& g) {
   o.listen = "";
   o.data_dir = g.data_dir.empty() ? DefaultDataDir() : std::filesystem::path(g.data_dir);
   o.threads_per_job = g.threads;
+  // One user, one job: no reserve to keep for others. A full disk still
+  // fails the render with "disk full while writing the result".
+  o.min_free_disk_mib = 0;
   auto server = nimbus::server::NimbusServer::Start(o);
   if (!server.ok()) return server.status();
   c.embedded = std::move(*server);

@@ -22,14 +22,13 @@ absl::StatusOr<PointMap> ConvertMap(const v1::Map& m, const std::string& path) {
       return Invalid(vpath + ".name", StrCat("unknown variation '", v.name(),
                                              "' (known: ", absl::StrJoin(names, ", "), ")"));
     }
-    if (!std::isfinite(v.weight())) return Invalid(vpath + ".weight", "must be finite");
+    NIMBUS_RETURN_IF_ERROR(CheckNumber(v.weight(), vpath + ".weight"));
     if (v.params_size() > 4) return Invalid(vpath + ".params", "at most 4 values");
     VariationTerm term;
     term.kind = *kind;
     term.weight = v.weight() == 0 ? 1.0 : v.weight();
     for (int p = 0; p < v.params_size(); ++p) {
-      if (!std::isfinite(v.params(p)))
-        return Invalid(StrCat(vpath, ".params[", p, "]"), "must be finite");
+      NIMBUS_RETURN_IF_ERROR(CheckNumber(v.params(p), StrCat(vpath, ".params[", p, "]")));
       term.params[p] = v.params(p);
     }
     out.variations.push_back(term);
@@ -79,9 +78,11 @@ absl::Status ConvertIfs(const v1::Ifs& ifs, const std::string& path, const Limit
   if (floor == 0) floor = 0.01;
   for (int i = 0; i < ifs.maps_size(); ++i) {
     const double p = ifs.maps(i).probability();
-    if (!(p >= 0) || !std::isfinite(p))
-      return Invalid(StrCat(path, ".maps[", i, "].probability"), "must be finite and >= 0");
+    if (!(p >= 0) || !InRange(p))
+      return Invalid(StrCat(path, ".maps[", i, "].probability"),
+                     StrCat("must be >= 0 and at most 1e12, got ", p));
   }
+  NIMBUS_RETURN_IF_ERROR(CheckProbabilityMode(ifs.probability_mode(), path + ".probability_mode"));
   v1::ProbabilityMode mode = ifs.probability_mode();
   if (mode == v1::PROBABILITY_MODE_UNSPECIFIED) {
     bool all_set = true;
@@ -112,7 +113,7 @@ absl::Status ConvertFinal(const v1::Ifs& ifs, const std::string& path, Ifs& out)
     for (auto [v, name] :
          {std::pair{a.angle_per_unit(), "angle_per_unit"}, std::pair{a.amplitude(), "amplitude"},
           std::pair{a.frequency(), "frequency"}})
-      if (!std::isfinite(v)) return Invalid(StrCat(path, ".arcs.", name), "must be finite");
+      NIMBUS_RETURN_IF_ERROR(CheckNumber(v, StrCat(path, ".arcs.", name)));
     out.arcs = ArcsTransform{a.angle_per_unit(), a.amplitude(), a.frequency()};
   }
   return absl::OkStatus();
@@ -131,7 +132,7 @@ absl::Status ConvertColor(const v1::ChaosGame& cg, ColorParams& p, DensityOption
       p.mode = ColorMode::kMap;
       break;
     default:
-      return Invalid(path + ".mode", "unknown value");
+      return Invalid(path + ".mode", StrCat("unknown value ", int(c.mode())));
   }
   if (!(c.blend() >= 0 && c.blend() <= 1)) return Invalid(path + ".blend", "must be in (0, 1]");
   p.blend = c.blend() == 0 ? 0.05 : c.blend();
@@ -143,7 +144,7 @@ absl::Status ConvertColor(const v1::ChaosGame& cg, ColorParams& p, DensityOption
       return Invalid(spath + ".position", "must be in [0, 1]");
     if (i > 0 && !(s.position() >= stops.back().position))
       return Invalid(spath + ".position", "stops must be in increasing order");
-    if (!Finite(s.rgb())) return Invalid(spath + ".rgb", "must be finite");
+    if (!Finite(s.rgb())) return Invalid(spath + ".rgb", "must be finite and within ±1e12");
     stops.push_back({s.position(), ToVec3(s.rgb())});
   }
   density.color = true;
@@ -160,6 +161,20 @@ absl::Status CheckIterations(const v1::ChaosGame& cg, const Limits& limits) {
     return absl::ResourceExhaustedError(StrCat("chaos_game.iterations: ", cg.iterations(),
                                                " exceeds the server limit of ",
                                                limits.max_iterations));
+  if (cg.warmup() > kMaxWarmup)
+    return Invalid("chaos_game.warmup",
+                   StrCat("at most ", kMaxWarmup, " steps per walker, got ", cg.warmup()));
+  // Warm-up is work too: every walker of every chunk takes it (and again
+  // after a re-seed), so it counts toward the iteration budget.
+  const uint64_t warmup = cg.warmup() == 0 ? 100 : cg.warmup();
+  const uint64_t chunks =
+      (cg.iterations() + ChaosGame::kChunkIterations - 1) / ChaosGame::kChunkIterations;
+  const unsigned __int128 warm = (unsigned __int128)warmup * ChaosGame::kWalkers * chunks;
+  if (warm + cg.iterations() > limits.max_iterations)
+    return absl::ResourceExhaustedError(StrCat(
+        "chaos_game.warmup: ", uint64_t(warm), " warm-up steps (", warmup, " × ",
+        ChaosGame::kWalkers, " walkers × ", chunks, " chunks) plus ", cg.iterations(),
+        " iterations exceed the server limit of ", limits.max_iterations));
   return absl::OkStatus();
 }
 
@@ -198,7 +213,7 @@ absl::Status ConvertEngineOptions(const v1::ChaosGame& cg, ChaosGameParams& para
       density.raw_counts = RawCounts::kInteger;
       break;
     default:
-      return Invalid("chaos_game.raw_counts", "unknown value");
+      return Invalid("chaos_game.raw_counts", StrCat("unknown value ", int(cg.raw_counts())));
   }
   if (cg.has_convergence()) {
     const v1::Convergence& c = cg.convergence();

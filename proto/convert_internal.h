@@ -15,7 +15,24 @@ using absl::StrCat;
 
 /// INVALID_ARGUMENT "path: what".
 absl::Status Invalid(const std::string& path, const std::string& what);
+
+/// The largest magnitude of any coordinate, bound, matrix entry, weight or
+/// probability of a spec: far beyond any useful fractal, far below where
+/// the engines' arithmetic overflows, so an absurd number is refused at
+/// submit by name instead of failing the run.
+inline constexpr double kMaxMagnitude = 1e12;
+/// Finite and within ±kMaxMagnitude.
+bool InRange(double x);
+/// INVALID_ARGUMENT "path: must be finite and within ±1e12, got x" unless
+/// InRange(x).
+absl::Status CheckNumber(double x, const std::string& path);
+/// Every component InRange (the name says finite; it also bounds them).
 bool Finite(const v1::Vec3& v);
+/// INVALID_ARGUMENT naming `path` for a ProbabilityMode this server does
+/// not know (a newer client's, or a bad number).
+absl::Status CheckProbabilityMode(v1::ProbabilityMode mode, const std::string& path);
+/// Most warm-up steps per walker (chaos_game.warmup).
+inline constexpr uint32_t kMaxWarmup = 1'000'000;
 Vec3 ToVec3(const v1::Vec3& v);
 /// "1.50 GiB".
 std::string GiB(uint64_t bytes);
@@ -26,7 +43,9 @@ absl::StatusOr<PointMap> ConvertMap(const v1::Map& m, const std::string& path);
 /// counts, convergence and splatting.
 absl::Status ConvertEngineOptions(const v1::ChaosGame& cg, ChaosGameParams& params,
                                   DensityOptions& density);
-/// chaos_game.iterations, within the server limit.
+/// chaos_game.iterations and warmup: iterations > 0, warmup <= kMaxWarmup,
+/// and iterations plus warm-up steps (warmup × ChaosGame::kWalkers × chunks
+/// of ChaosGame::kChunkIterations) within limits.max_iterations.
 absl::Status CheckIterations(const v1::ChaosGame& cg, const Limits& limits);
 
 /// Per-kind converters: fill `plan` (kind, work, warnings) from their part

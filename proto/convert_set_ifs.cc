@@ -20,6 +20,15 @@ using namespace internal;  // NOLINT: converter helpers
 
 constexpr int kMaxSourceDepth = 8;
 constexpr uint64_t kMaxBookPages = 4096;
+// Text a spec hands us that ends up in messages, warnings and logs.
+constexpr size_t kMaxLabelBytes = 255;
+constexpr size_t kMaxPathBytes = 4096;
+constexpr size_t kMaxGridNameBytes = 256;
+
+absl::Status CheckLength(const std::string& value, size_t max, const std::string& field) {
+  if (value.size() <= max) return absl::OkStatus();
+  return Invalid(field, StrCat("must be at most ", max, " bytes, got ", value.size()));
+}
 
 std::string Deterministic(const google::protobuf::Message& m) {
   std::string bytes;
@@ -41,6 +50,8 @@ bool IsHexSha256(const std::string& s) {
 // Resolves an Asset to a readable local file.
 absl::Status ResolveAsset(const v1::Asset& asset, const std::string& field, const Limits& limits,
                           SetSourcePlan& out) {
+  if (auto st = CheckLength(asset.label(), kMaxLabelBytes, field + ".label"); !st.ok()) return st;
+  if (auto st = CheckLength(asset.path(), kMaxPathBytes, field + ".path"); !st.ok()) return st;
   switch (asset.source_case()) {
     case v1::Asset::kSha256: {
       if (!IsHexSha256(asset.sha256()))
@@ -124,6 +135,8 @@ absl::Status ConvertSource(const v1::SetSource& s, const std::string& field, con
       out.kind = SetSourcePlan::Kind::kGrid;
       if (!g.has_asset()) return Invalid(f + ".asset", "required");
       if (auto st = ResolveAsset(g.asset(), f + ".asset", limits, out); !st.ok()) return st;
+      if (auto st = CheckLength(g.grid_name(), kMaxGridNameBytes, f + ".grid_name"); !st.ok())
+        return st;
       out.grid_name = g.grid_name();
       if (!std::isfinite(g.threshold())) return Invalid(f + ".threshold", "must be finite");
       out.threshold = g.threshold() == 0 ? 0.5 : g.threshold();

@@ -15,8 +15,26 @@ absl::Status Invalid(const std::string& path, const std::string& what) {
   return absl::InvalidArgumentError(StrCat(path, ": ", what));
 }
 
-bool Finite(const v1::Vec3& v) {
-  return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z());
+bool InRange(double x) { return std::isfinite(x) && std::abs(x) <= kMaxMagnitude; }
+
+absl::Status CheckNumber(double x, const std::string& path) {
+  if (InRange(x)) return absl::OkStatus();
+  return Invalid(path, StrCat("must be finite and within ±1e12, got ", x));
+}
+
+bool Finite(const v1::Vec3& v) { return InRange(v.x()) && InRange(v.y()) && InRange(v.z()); }
+
+absl::Status CheckProbabilityMode(v1::ProbabilityMode mode, const std::string& path) {
+  switch (mode) {
+    case v1::PROBABILITY_MODE_UNSPECIFIED:
+    case v1::PROBABILITY_MODE_EXPLICIT:
+    case v1::PROBABILITY_MODE_DETERMINANT:
+      return absl::OkStatus();
+    default:
+      return Invalid(path, StrCat("unknown value ", int(mode),
+                                  " (known: PROBABILITY_MODE_EXPLICIT, "
+                                  "PROBABILITY_MODE_DETERMINANT)"));
+  }
 }
 Vec3 ToVec3(const v1::Vec3& v) { return {v.x(), v.y(), v.z()}; }
 
@@ -35,12 +53,13 @@ using namespace internal;  // NOLINT: converter helpers
 absl::StatusOr<Affine3> ConvertStep(const v1::Step& s, const std::string& path) {
   switch (s.kind_case()) {
     case v1::Step::kTranslate:
-      if (!Finite(s.translate())) return Invalid(path + ".translate", "must be finite");
+      if (!Finite(s.translate()))
+        return Invalid(path + ".translate", "must be finite and within ±1e12");
       return Affine3::Translate(ToVec3(s.translate()));
     case v1::Step::kRotate: {
       const Vec3 axis = ToVec3(s.rotate().axis());
-      if (!Finite(s.rotate().axis()) || !std::isfinite(s.rotate().degrees()))
-        return Invalid(path + ".rotate", "axis and degrees must be finite");
+      if (!Finite(s.rotate().axis()) || !InRange(s.rotate().degrees()))
+        return Invalid(path + ".rotate", "axis and degrees must be finite and within ±1e12");
       if (Length(axis) == 0) return Invalid(path + ".rotate.axis", "must not be zero");
       return Affine3::Rotate(axis, s.rotate().degrees());
     }
@@ -49,16 +68,17 @@ absl::StatusOr<Affine3> ConvertStep(const v1::Step& s, const std::string& path) 
       if (sc.has_xyz() == (sc.uniform() != 0))
         return Invalid(path + ".scale", "set exactly one of uniform or xyz");
       if (sc.has_xyz()) {
-        if (!Finite(sc.xyz())) return Invalid(path + ".scale.xyz", "must be finite");
+        if (!Finite(sc.xyz()))
+          return Invalid(path + ".scale.xyz", "must be finite and within ±1e12");
         return Affine3::Scale(ToVec3(sc.xyz()));
       }
-      if (!std::isfinite(sc.uniform())) return Invalid(path + ".scale.uniform", "must be finite");
+      NIMBUS_RETURN_IF_ERROR(CheckNumber(sc.uniform(), path + ".scale.uniform"));
       return Affine3::Scale({sc.uniform(), sc.uniform(), sc.uniform()});
     }
     case v1::Step::kShear: {
       const v1::Shear& h = s.shear();
       for (double v : {h.xy(), h.xz(), h.yx(), h.yz(), h.zx(), h.zy()})
-        if (!std::isfinite(v)) return Invalid(path + ".shear", "must be finite");
+        if (!InRange(v)) return Invalid(path + ".shear", "must be finite and within ±1e12");
       return Affine3::Shear(h.xy(), h.xz(), h.yx(), h.yz(), h.zx(), h.zy());
     }
     case v1::Step::kMatrix: {
@@ -68,8 +88,7 @@ absl::StatusOr<Affine3> ConvertStep(const v1::Step& s, const std::string& path) 
                        StrCat("needs 12 numbers (3 rows of 4, row-major), got ", v.size()));
       Affine3 a;
       for (int i = 0; i < 12; ++i) {
-        if (!std::isfinite(v[i]))
-          return Invalid(StrCat(path, ".matrix.values[", i, "]"), "must be finite");
+        NIMBUS_RETURN_IF_ERROR(CheckNumber(v[i], StrCat(path, ".matrix.values[", i, "]")));
         a.m[i / 4][i % 4] = v[i];
       }
       return a;
@@ -103,8 +122,13 @@ absl::StatusOr<GridFrame> ConvertGrid(const v1::JobSpec& spec, const Limits& lim
   if (!g.has_bounds_min() && !g.has_bounds_max()) {
     f.bounds = {{-1, -1, -1}, {1, 1, 1}};
   } else {
-    if (!Finite(g.bounds_min()) || !Finite(g.bounds_max()))
-      return Invalid("grid.bounds_min", "bounds must be finite");
+    // Each bound by name; the width must stay finite too (±1e12 keeps it).
+    NIMBUS_RETURN_IF_ERROR(CheckNumber(g.bounds_min().x(), "grid.bounds_min.x"));
+    NIMBUS_RETURN_IF_ERROR(CheckNumber(g.bounds_min().y(), "grid.bounds_min.y"));
+    NIMBUS_RETURN_IF_ERROR(CheckNumber(g.bounds_min().z(), "grid.bounds_min.z"));
+    NIMBUS_RETURN_IF_ERROR(CheckNumber(g.bounds_max().x(), "grid.bounds_max.x"));
+    NIMBUS_RETURN_IF_ERROR(CheckNumber(g.bounds_max().y(), "grid.bounds_max.y"));
+    NIMBUS_RETURN_IF_ERROR(CheckNumber(g.bounds_max().z(), "grid.bounds_max.z"));
     f.bounds = {ToVec3(g.bounds_min()), ToVec3(g.bounds_max())};
     static const char* kAxis[3] = {"x", "y", "z"};
     for (int a = 0; a < 3; ++a)
@@ -149,9 +173,13 @@ absl::Status ConvertOutput(const v1::Output& o, DensityOptions& density) {
     case v1::DENSITY_MAPPING_SQRT: density.mapping = DensityMapping::kSqrt; break;
     case v1::DENSITY_MAPPING_LOG: density.mapping = DensityMapping::kLog; break;
     case v1::DENSITY_MAPPING_GAMMA: density.mapping = DensityMapping::kGamma; break;
-    default: return Invalid("output.density_mapping", "unknown value");
+    default:
+      return Invalid("output.density_mapping",
+                     StrCat("unknown value ", int(o.density_mapping())));
   }
-  if (o.gamma() < 0 || !std::isfinite(o.gamma())) return Invalid("output.gamma", "must be > 0");
+  // 0 means the default; beyond 1000 every density maps to 0 or 1.
+  if (!(o.gamma() >= 0 && o.gamma() <= 1000))
+    return Invalid("output.gamma", StrCat("must be in (0, 1000], got ", o.gamma()));
   density.gamma = o.gamma() == 0 ? 2.2 : o.gamma();
   return absl::OkStatus();
 }

@@ -5,6 +5,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "proto/asset_paths.h"
+#include "server/untrusted_file.h"
 
 namespace nimbus::server {
 
@@ -31,7 +32,8 @@ std::string CleanAssetName(const std::string& file_name) {
   return name;
 }
 
-absl::StatusOr<std::unique_ptr<AssetStore>> AssetStore::Open(const std::filesystem::path& dir) {
+absl::StatusOr<std::unique_ptr<AssetStore>> AssetStore::Open(const std::filesystem::path& dir,
+                                                             SandboxLimits sandbox) {
   std::error_code ec;
   std::filesystem::create_directories(dir / "incoming", ec);
   if (ec)
@@ -40,7 +42,7 @@ absl::StatusOr<std::unique_ptr<AssetStore>> AssetStore::Open(const std::filesyst
   for (std::filesystem::directory_iterator it(dir / "incoming", ec), end; !ec && it != end;
        it.increment(ec))
     std::filesystem::remove(it->path(), ec);
-  return std::unique_ptr<AssetStore>(new AssetStore(dir));
+  return std::unique_ptr<AssetStore>(new AssetStore(dir, sandbox));
 }
 
 absl::StatusOr<AssetInfo> AssetStore::Find(const std::string& sha256) const {
@@ -127,6 +129,22 @@ absl::Status AssetStore::Upload::Append(const std::string& data) {
   return absl::OkStatus();
 }
 
+absl::Status AssetStore::Upload::CheckContent() const {
+  // A name without a known format says nothing of the content; the spec
+  // that uses the asset decides, and submit checks it then.
+  const std::string format = spec::KnownAssetFormat(name_);
+  if (format.empty()) return absl::OkStatus();
+  UntrustedFile file;
+  file.kind = format == ".vdb" ? UntrustedKind::kVdbGrid : UntrustedKind::kMesh;
+  file.path = tmp_;
+  file.format = format;
+  absl::Status st = CheckStoredAsset(sha256_, file, store_->sandbox_);
+  if (!absl::IsInvalidArgument(st)) return st;
+  return absl::InvalidArgumentError(
+      absl::StrCat(file.kind == UntrustedKind::kVdbGrid ? "grid asset " : "mesh asset ",
+                   spec::AssetDisplayName(name_, sha256_), ": ", st.message()));
+}
+
 absl::StatusOr<AssetInfo> AssetStore::Upload::Finish() {
   out_.close();
   if (received_ != expected_)
@@ -136,6 +154,7 @@ absl::StatusOr<AssetInfo> AssetStore::Upload::Finish() {
   if (digest != sha256_)
     return absl::DataLossError(
         absl::StrCat("upload hashes to ", digest, ", not the announced ", sha256_));
+  if (auto st = CheckContent(); !st.ok()) return st;
   bool fresh = false;
   std::error_code ec;
   // Same bytes, same file: a second upload only adds its name.

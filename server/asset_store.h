@@ -14,6 +14,7 @@
 
 #include "absl/status/statusor.h"
 #include "core/base/sha256.h"
+#include "server/untrusted_file.h"
 
 namespace nimbus::server {
 
@@ -39,7 +40,9 @@ class AssetStore {
   /// Largest accepted upload.
   static constexpr uint64_t kMaxAssetBytes = uint64_t{2} << 30;
 
-  static absl::StatusOr<std::unique_ptr<AssetStore>> Open(const std::filesystem::path& dir);
+  /// `sandbox` limits the child that reads an upload named as a mesh or grid.
+  static absl::StatusOr<std::unique_ptr<AssetStore>> Open(const std::filesystem::path& dir,
+                                                          SandboxLimits sandbox = {});
 
   const std::filesystem::path& dir() const { return dir_; }
 
@@ -52,12 +55,18 @@ class AssetStore {
     /// announced size arrived.
     absl::Status Append(const std::string& data);
     /// Checks size and hash and moves the file into place. INVALID_ARGUMENT
-    /// for a truncated upload, DATA_LOSS for a hash mismatch.
+    /// for a truncated upload, DATA_LOSS for a hash mismatch. A file whose
+    /// name gives a format (.vdb, .obj, .ply, .stl) is first read whole by a
+    /// sandboxed child (server/untrusted_file.h); one that fails is refused
+    /// with INVALID_ARGUMENT ("grid asset cow.vdb (sha256 3fa2c81d9e07...):
+    /// not a readable VDB file: ...") and not stored.
     absl::StatusOr<AssetInfo> Finish();
 
    private:
     friend class AssetStore;
     Upload() = default;
+    // The sandboxed read of a file whose name gives its format.
+    absl::Status CheckContent() const;
     AssetStore* store_ = nullptr;
     std::string sha256_, name_;
     uint64_t expected_ = 0, received_ = 0;
@@ -77,7 +86,8 @@ class AssetStore {
   absl::StatusOr<AssetInfo> Find(const std::string& sha256) const;
 
  private:
-  explicit AssetStore(std::filesystem::path dir) : dir_(std::move(dir)) {}
+  AssetStore(std::filesystem::path dir, SandboxLimits sandbox)
+      : dir_(std::move(dir)), sandbox_(sandbox) {}
   /// Adds `name` to the hash's names file unless it is there already.
   absl::Status RememberName(const std::string& sha256, const std::string& name);
 
@@ -85,6 +95,7 @@ class AssetStore {
   static constexpr size_t kMaxNames = 64;
 
   std::filesystem::path dir_;
+  SandboxLimits sandbox_;
   std::mutex names_mu_;  // serialises rewrites of the names files
 };
 

@@ -68,6 +68,10 @@ struct ListOptions {
   /// Opaque token from a previous page; empty for the first page.
   std::string page_token;
   std::optional<JobState> state;
+  /// A page ends before its jobs' text (names, errors, warnings, ids) would
+  /// pass this many bytes, so a response stays far below gRPC's message
+  /// limit; a page always holds at least one job.
+  uint64_t max_bytes = uint64_t{1} << 20;
 };
 
 struct ListPage {
@@ -92,7 +96,8 @@ class JobStore {
  public:
   virtual ~JobStore() = default;
 
-  /// Inserts a QUEUED job. When `job.request_id` is non-empty and a job with
+  /// Inserts a QUEUED job. A name longer than kMaxJobNameBytes is
+  /// INVALID_ARGUMENT; warnings are bounded (server/bounded_text.h). When `job.request_id` is non-empty and a job with
   /// that key exists, returns the existing job instead (idempotent submit).
   virtual absl::StatusOr<JobRecord> Create(const NewJob& job, TimeMs now) = 0;
   /// NOT_FOUND for an unknown id.
@@ -101,18 +106,31 @@ class JobStore {
 
   /// Atomically claims the oldest QUEUED job, or a RUNNING job whose lease
   /// has lapsed: it becomes RUNNING, held by `worker_id` until now + lease,
-  /// attempts + 1. nullopt when nothing is claimable.
-  virtual absl::StatusOr<std::optional<JobRecord>> ClaimNext(const std::string& worker_id,
-                                                             TimeMs now, TimeMs lease_ms) = 0;
+  /// attempts + 1. nullopt when nothing is claimable. With `max_attempts`
+  /// > 0, a job that has already had that many attempts is not claimed but
+  /// FAILED, with the error of its last attempt (AbandonAttempt) or a note
+  /// that its worker stopped without one: a job that kills its worker or
+  /// cannot record its end does not loop forever. Such jobs are appended
+  /// to `given_up` (when not null) as they are afterwards.
+  virtual absl::StatusOr<std::optional<JobRecord>> ClaimNext(
+      const std::string& worker_id, TimeMs now, TimeMs lease_ms, uint32_t max_attempts = 0,
+      std::vector<JobRecord>* given_up = nullptr) = 0;
   /// Extends the lease and records progress. FAILED_PRECONDITION when the
   /// worker no longer holds the claim. Returns whether cancel was requested.
   virtual absl::StatusOr<bool> Heartbeat(const std::string& id, const std::string& worker_id,
                                          TimeMs now, TimeMs lease_ms, uint64_t progress_done,
                                          uint64_t progress_total) = 0;
   /// Moves a claimed job to a terminal state. FAILED_PRECONDITION when the
-  /// worker no longer holds the claim.
+  /// worker no longer holds the claim. The error and warnings are stored
+  /// bounded (BoundText), however long they arrive.
   virtual absl::Status Complete(const std::string& id, const std::string& worker_id,
                                 const Completion& completion, TimeMs now) = 0;
+  /// Ends an attempt that could not be completed: records its error (kept
+  /// for the job's final message once attempts run out) and gives the job
+  /// back to the queue. FAILED_PRECONDITION when the worker no longer
+  /// holds the claim.
+  virtual absl::Status AbandonAttempt(const std::string& id, const std::string& worker_id,
+                                      const std::string& error, int error_code) = 0;
   /// Gives a claimed job back to the queue (graceful shutdown).
   virtual absl::Status Release(const std::string& id, const std::string& worker_id) = 0;
   /// QUEUED jobs become CANCELLED at once; RUNNING ones get cancel_requested

@@ -3,6 +3,7 @@
 #include <chrono>
 
 #include "absl/strings/str_split.h"
+#include "server/bounded_text.h"
 
 namespace nimbus::server {
 
@@ -44,7 +45,10 @@ std::optional<JobState> FromProto(v1::JobState s) {
 v1::Job ToProto(const JobRecord& r, bool with_spec) {
   v1::Job j;
   j.set_id(r.id);
-  j.set_name(r.name);
+  // Bounded again here: stores written before the bounds may hold giants.
+  const std::string name = BoundText(r.name, kMaxJobNameBytes);
+  const std::string error = BoundText(r.error, kMaxErrorBytes);
+  j.set_name(name);
   j.set_state(ToProto(r.state));
   if (with_spec) j.mutable_spec()->ParseFromString(r.spec);
   SetTime(r.create_time, j.mutable_create_time());
@@ -52,24 +56,25 @@ v1::Job ToProto(const JobRecord& r, bool with_spec) {
   if (r.end_time) SetTime(r.end_time, j.mutable_end_time());
   j.mutable_progress()->set_done(r.progress_done);
   j.mutable_progress()->set_total(r.progress_total);
-  j.set_error(r.error);
+  j.set_error(error);
   if (r.state == JobState::kFailed || r.state == JobState::kCancelled) {
     // Records written before codes were stored have none: CANCELLED for a
     // cancelled job, UNKNOWN for a failed one.
     int code = r.error_code;
     if (code == 0) code = r.state == JobState::kCancelled ? 1 : 2;
     j.mutable_status()->set_code(code);
-    j.mutable_status()->set_message(r.error);
+    j.mutable_status()->set_message(error);
   }
   // Only while it still matters: a finished job has stopped either way.
   j.set_cancel_requested(r.cancel_requested && !IsTerminal(r.state));
   if (r.state == JobState::kSucceeded) {
     j.mutable_result()->set_size_bytes(r.result_size);
     j.mutable_result()->set_sha256(r.result_sha256);
-    j.mutable_result()->set_file_name(r.name + ".vdb");
+    j.mutable_result()->set_file_name(name + ".vdb");
   }
   j.set_attempts(r.attempts);
-  for (auto w : absl::StrSplit(r.warnings, '\n', absl::SkipEmpty())) j.add_warnings(std::string(w));
+  const std::string warnings = BoundText(r.warnings, kMaxWarningsBytes);
+  for (auto w : absl::StrSplit(warnings, '\n', absl::SkipEmpty())) j.add_warnings(std::string(w));
   j.set_estimated_memory_bytes(r.estimated_memory_bytes);
   return j;
 }

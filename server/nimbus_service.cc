@@ -7,8 +7,10 @@
 #include <random>
 
 #include "absl/strings/str_cat.h"
+#include "server/bounded_text.h"
 #include "server/job_view.h"
 #include "server/memory_admission.h"
+#include "server/untrusted_file.h"
 
 namespace nimbus::server {
 
@@ -275,7 +277,7 @@ class FetchReactor : public grpc::ServerWriteReactor<v1::FetchResultResponse> {
       if (!found)
         return grpc::Status(
             grpc::StatusCode::NOT_FOUND,
-            absl::StrCat("job ", rec->id, " has no result file '", file_name_, "'"));
+            absl::StrCat("job ", rec->id, " has no result file '", EchoId(file_name_), "'"));
     }
     if (offset_ > size_)
       return grpc::Status(
@@ -343,8 +345,30 @@ grpc::ServerUnaryReactor* NimbusServiceImpl::SubmitJob(grpc::CallbackServerConte
   return reactor;
 }
 
+namespace {
+
+// Strings a submission stores: bounded before any work, so a 10 MB name is
+// never logged, stored or listed.
+grpc::Status CheckSubmittedText(const v1::SubmitJobRequest& req) {
+  const auto too_long = [](const char* field, size_t size, size_t max) {
+    return grpc::Status(grpc::StatusCode::INVALID_ARGUMENT,
+                        absl::StrCat(field, ": must be at most ", max, " bytes, got ", size));
+  };
+  if (req.spec().name().size() > kMaxJobNameBytes)
+    return too_long("name", req.spec().name().size(), kMaxJobNameBytes);
+  if (req.request_id().size() > kMaxJobNameBytes)
+    return too_long("request_id", req.request_id().size(), kMaxJobNameBytes);
+  return grpc::Status::OK;
+}
+
+}  // namespace
+
 grpc::Status NimbusServiceImpl::Admit(const v1::SubmitJobRequest& req,
                                       v1::SubmitJobResponse& resp) {
+  if (grpc::Status st = CheckSubmittedText(req); !st.ok()) return st;
+  // Meshes and grids are read whole by a sandboxed child before the
+  // converter parses any of them in this process (server/untrusted_file.h).
+  if (auto st = CheckSpecAssets(req.spec(), limits_.asset_dir); !st.ok()) return ToGrpc(st);
   // Validation names the offending field; nothing is allocated for grids.
   auto job = spec::ConvertSpec(req.spec(), limits_);
   if (!job.ok()) return ToGrpc(job.status());
@@ -402,6 +426,8 @@ grpc::ServerUnaryReactor* NimbusServiceImpl::ListJobs(grpc::CallbackServerContex
     ListOptions o;
     o.page_size = req->page_size() <= 0 ? 50 : std::min(req->page_size(), 500);
     o.page_token = req->page_token();
+    // Well below gRPC's 4 MiB default, whatever the jobs hold.
+    o.max_bytes = uint64_t{1} << 20;
     if (req->state() != v1::JOB_STATE_UNSPECIFIED) o.state = FromProto(req->state());
     auto page = store_->List(o);
     if (!page.ok()) return ToGrpc(page.status());

@@ -8,6 +8,11 @@
 #include <fstream>
 #include <pthread.h>
 
+#include <chrono>
+#include <cstdlib>
+#include <ctime>
+#include <thread>
+
 #include "server/server.h"
 
 namespace {
@@ -62,8 +67,20 @@ int main(int argc, char** argv) {
   app.add_option("--max-voxels", o.limits.max_voxels, "largest grid, voxels")->capture_default_str();
   app.add_option("--max-memory-gib", max_memory_gib, "largest estimated job memory, GiB")
       ->capture_default_str();
-  app.add_option("--max-iterations", o.limits.max_iterations, "largest iteration budget")
+  app.add_option("--max-iterations", o.limits.max_iterations,
+                 "largest iteration budget (plotted steps plus warm-up steps)")
       ->capture_default_str();
+  app.add_option("--max-maps", o.limits.max_maps, "most maps in one IFS")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  app.add_option("--min-free-disk-mib", o.min_free_disk_mib,
+                 "free space to keep in --data-dir: below it new jobs are refused (0: none), MiB")
+      ->capture_default_str();
+  app.add_option("--drain-ms", o.drain_ms,
+                 "on SIGTERM, how long open RPCs may finish; the process exits within this "
+                 "plus one second, ms")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error")->capture_default_str();
   CLI11_PARSE(app, argc, argv);
   o.data_dir = data_dir;
@@ -95,6 +112,18 @@ int main(int argc, char** argv) {
   int signal = 0;
   sigwait(&stop_signals, &signal);
   spdlog::info("event=stopping signal={}", signal);
+  // The bound on stopping: whatever still runs after the drain time plus
+  // a little (or a second signal), the process ends; jobs it held are
+  // requeued by the next start or claimed by another replica.
+  std::thread([stop_signals, deadline = std::chrono::milliseconds(o.drain_ms + 700)] {
+    timespec ts{time_t(deadline.count() / 1000), long(deadline.count() % 1000) * 1'000'000};
+    siginfo_t info;
+    const int again = sigtimedwait(&stop_signals, &info, &ts);
+    spdlog::error("event=forced_exit reason={}", again > 0 ? "second signal" : "drain timeout");
+    spdlog::shutdown();
+    std::_Exit(1);
+  }).detach();
   (*server)->Shutdown();
+  spdlog::info("event=exited");
   return 0;
 }

@@ -1,6 +1,12 @@
 #include "server/result_store.h"
 
+#include <fcntl.h>
+#include <sys/statvfs.h>
+#include <unistd.h>
+
 #include <algorithm>
+#include <cerrno>
+#include <cstring>
 #include <fstream>
 #include <map>
 #include <mutex>
@@ -32,9 +38,55 @@ absl::StatusOr<std::string> ReadRange(const std::filesystem::path& path, uint64_
   return buf;
 }
 
+absl::Status DiskError(const std::string& what, int err) {
+  const std::string detail = absl::StrCat(what, ": ", std::strerror(err));
+  if (err == ENOSPC || err == EDQUOT)
+    return absl::ResourceExhaustedError(absl::StrCat("disk full while writing the result: ", detail));
+  return absl::InternalError(detail);
+}
+
+// Writes a small file with every error checked, and fsyncs it.
+absl::Status WriteSmallFile(const std::filesystem::path& path, const std::string& bytes) {
+  const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0) return DiskError(absl::StrCat("create ", path.string()), errno);
+  size_t done = 0;
+  int err = 0;
+  while (done < bytes.size() && err == 0) {
+    const ssize_t w = ::write(fd, bytes.data() + done, bytes.size() - done);
+    if (w < 0 && errno == EINTR) continue;
+    if (w <= 0) err = w < 0 ? errno : ENOSPC;
+    else done += size_t(w);
+  }
+  if (err == 0 && ::fsync(fd) != 0) err = errno;
+  if (::close(fd) != 0 && err == 0) err = errno;
+  if (err == 0) return absl::OkStatus();
+  std::error_code ec;
+  std::filesystem::remove(path, ec);
+  return DiskError(absl::StrCat("write ", path.string()), err);
+}
+
+void SyncDir(const std::filesystem::path& dir) {
+  const int fd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (fd < 0) return;
+  ::fsync(fd);
+  ::close(fd);
+}
+
 class LocalResultStore : public ResultStore {
  public:
-  explicit LocalResultStore(std::filesystem::path dir) : dir_(std::move(dir)) {}
+  LocalResultStore(std::filesystem::path dir, uint64_t min_free_bytes)
+      : dir_(std::move(dir)), min_free_bytes_(min_free_bytes) {}
+
+  absl::Status CheckFreeSpace() override {
+    if (min_free_bytes_ == 0) return absl::OkStatus();
+    struct statvfs fs {};
+    if (::statvfs(dir_.c_str(), &fs) != 0) return absl::OkStatus();  // unknown: do not refuse
+    const uint64_t free_bytes = uint64_t(fs.f_bavail) * uint64_t(fs.f_frsize);
+    if (free_bytes >= min_free_bytes_) return absl::OkStatus();
+    return absl::ResourceExhaustedError(absl::StrCat(
+        "the server's disk is nearly full: ", free_bytes >> 20, " MiB free, below the reserve of ",
+        min_free_bytes_ >> 20, " MiB (--min-free-disk-mib); try again later"));
+  }
 
   std::filesystem::path ScratchPath(const std::string& key) override {
     return dir_ / "scratch" / (key + ".partial.vdb");
@@ -49,21 +101,27 @@ class LocalResultStore : public ResultStore {
     if (ec) return absl::InternalError(absl::StrCat("stat ", scratch.string(), ": ", ec.message()));
     StoredResult result{key, size, *sha, {}};
     const std::filesystem::path extra = ExtraFilesDir(scratch);
-    if (std::filesystem::is_directory(extra, ec)) {
+    const bool has_files = std::filesystem::is_directory(extra, ec);
+    if (has_files) {
       result.files = Scan(extra);
       // The manifest is written before the folder moves, so a committed
       // folder always has one and listing never hashes again.
-      std::ofstream m(extra / kManifest, std::ios::trunc);
+      std::string manifest;
       for (const StoredFile& f : result.files)
-        m << f.name << ' ' << f.size << ' ' << f.sha256 << '\n';
-      m.close();
-      if (!m) return absl::InternalError(absl::StrCat("cannot write the manifest of ", key));
+        absl::StrAppend(&manifest, f.name, " ", f.size, " ", f.sha256, "\n");
+      if (auto st = WriteSmallFile(extra / kManifest, manifest); !st.ok()) return st;
       std::filesystem::remove_all(FilesDir(key), ec);
       std::filesystem::rename(extra, FilesDir(key), ec);
-      if (ec) return absl::InternalError(absl::StrCat("commit files of ", key, ": ", ec.message()));
+      if (ec) return DiskError(absl::StrCat("commit the files of ", key), ec.value());
     }
     std::filesystem::rename(scratch, Path(key), ec);
-    if (ec) return absl::InternalError(absl::StrCat("commit ", key, ": ", ec.message()));
+    if (ec) {
+      // All or nothing: put the files back so no half result is listed.
+      std::error_code undo;
+      if (has_files) std::filesystem::rename(FilesDir(key), extra, undo);
+      return DiskError(absl::StrCat("commit ", key), ec.value());
+    }
+    SyncDir(dir_);
     return result;
   }
 
@@ -138,6 +196,7 @@ class LocalResultStore : public ResultStore {
   }
 
   std::filesystem::path dir_;
+  uint64_t min_free_bytes_;
   std::mutex mu_;
   std::map<std::string, std::string> sha_cache_;
 };
@@ -148,13 +207,15 @@ std::filesystem::path ExtraFilesDir(const std::filesystem::path& scratch) {
   return scratch.string() + ".files";
 }
 
-absl::StatusOr<std::unique_ptr<ResultStore>> OpenLocalResultStore(
-    const std::filesystem::path& dir) {
+absl::StatusOr<std::unique_ptr<ResultStore>> OpenLocalResultStore(const std::filesystem::path& dir,
+                                                                  uint64_t min_free_bytes) {
   std::error_code ec;
-  std::filesystem::create_directories(dir / "scratch", ec);
+  // An existing store opens on a full disk: start-up writes nothing here.
+  if (!std::filesystem::is_directory(dir / "scratch", ec))
+    std::filesystem::create_directories(dir / "scratch", ec);
   if (ec)
     return absl::InternalError(absl::StrCat("cannot create ", dir.string(), ": ", ec.message()));
-  return std::unique_ptr<ResultStore>(new LocalResultStore(dir));
+  return std::unique_ptr<ResultStore>(new LocalResultStore(dir, min_free_bytes));
 }
 
 }  // namespace nimbus::server

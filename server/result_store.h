@@ -42,7 +42,8 @@ class ResultStore {
   /// A scratch path where a worker may write a file before committing it.
   virtual std::filesystem::path ScratchPath(const std::string& key) = 0;
   /// Moves the scratch file (and its ExtraFilesDir) into the store, hashing
-  /// every file.
+  /// every file. All or nothing: on failure nothing of the result is left
+  /// under its final name (a full disk is RESOURCE_EXHAUSTED).
   virtual absl::StatusOr<StoredResult> Commit(const std::string& key,
                                               const std::filesystem::path& scratch) = 0;
   /// Reads up to `max_bytes` at `offset`. Returns an empty string at EOF.
@@ -53,6 +54,10 @@ class ResultStore {
   /// Further files of a committed result, in name order; or, when
   /// `running`, the finished files the job has written so far.
   virtual std::vector<StoredFile> ListFiles(const std::string& key, bool running) = 0;
+  /// RESOURCE_EXHAUSTED when less than the store's free-space reserve is
+  /// left, so new jobs are refused before the disk fills (SubmitJob calls
+  /// it). Cheap: one statvfs.
+  virtual absl::Status CheckFreeSpace() { return absl::OkStatus(); }
   /// Reads part of a further file (committed, or written so far when
   /// `running`). NOT_FOUND for an unknown name.
   virtual absl::StatusOr<std::string> ReadFile(const std::string& key, const std::string& name,
@@ -60,7 +65,10 @@ class ResultStore {
                                                uint64_t max_bytes) = 0;
 };
 
-/// Results as files in `dir` (created if needed).
-absl::StatusOr<std::unique_ptr<ResultStore>> OpenLocalResultStore(const std::filesystem::path& dir);
+/// Results as files in `dir` (created if needed). CheckFreeSpace refuses
+/// work while the file system holding `dir` has less than
+/// `min_free_bytes` available (0: never).
+absl::StatusOr<std::unique_ptr<ResultStore>> OpenLocalResultStore(const std::filesystem::path& dir,
+                                                                  uint64_t min_free_bytes = 0);
 
 }  // namespace nimbus::server

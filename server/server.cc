@@ -28,6 +28,7 @@ struct NimbusServer::Impl {
   std::string address;
   std::mutex mu;
   bool shut_down = false;
+  int64_t drain_ms = 2'000;
 };
 
 NimbusServer::NimbusServer(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
@@ -36,6 +37,7 @@ NimbusServer::~NimbusServer() { Shutdown(); }
 
 absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOptions& options) {
   auto impl = std::make_unique<Impl>();
+  impl->drain_ms = options.drain_ms;
   std::error_code ec;
   std::filesystem::create_directories(options.data_dir, ec);
   if (ec)
@@ -44,7 +46,8 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
   auto store = OpenSqliteJobStore((options.data_dir / "jobs.db").string());
   if (!store.ok()) return store.status();
   impl->store = std::move(*store);
-  auto results = OpenLocalResultStore(options.data_dir / "results");
+  auto results =
+      OpenLocalResultStore(options.data_dir / "results", options.min_free_disk_mib << 20);
   if (!results.ok()) return results.status();
   impl->results = std::move(*results);
   auto assets = AssetStore::Open(options.data_dir / "assets");
@@ -58,9 +61,15 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
 
   // This process is the only user of its SQLite store, so anything still
   // RUNNING belonged to a process that died: run it again.
+  // Not fatal: on a full disk the server must still start and serve
+  // reads, and a RUNNING job whose lease lapsed is claimed again anyway.
   auto requeued = impl->store->RequeueRunning();
-  if (!requeued.ok()) return requeued.status();
-  if (*requeued > 0) spdlog::warn("event=recovered requeued_jobs={}", *requeued);
+  if (!requeued.ok())
+    spdlog::error("event=requeue_failed error=\"{}\"", requeued.status().ToString());
+  else if (*requeued > 0)
+    spdlog::warn("event=recovered requeued_jobs={}", *requeued);
+  if (auto space = impl->results->CheckFreeSpace(); !space.ok())
+    spdlog::warn("event=low_disk error=\"{}\"", std::string(space.message()));
 
   WorkerOptions wo;
   wo.workers = options.workers;
@@ -125,7 +134,8 @@ void NimbusServer::Shutdown() {
   // Stop workers first so watchers see jobs go back to the queue, then
   // close the streams.
   impl_->pool->Stop();
-  impl_->server->Shutdown(std::chrono::system_clock::now() + std::chrono::seconds(2));
+  impl_->server->Shutdown(std::chrono::system_clock::now() +
+                          std::chrono::milliseconds(impl_->drain_ms));
   spdlog::info("event=stopped");
 }
 

@@ -29,6 +29,12 @@ struct ServerOptions {
   /// How long CancelJob waits for a running job to stop before answering
   /// it RUNNING with cancel_requested; 0 answers at once.
   int64_t cancel_wait_ms = 5'000;
+  /// Free space the data folder keeps: below it SubmitJob refuses new jobs
+  /// (RESOURCE_EXHAUSTED) so running ones can still write; 0 = no reserve.
+  uint64_t min_free_disk_mib = 1024;
+  /// How long Shutdown() lets open RPCs finish before cancelling them.
+  /// Running jobs are interrupted at once and given back to the queue.
+  int64_t drain_ms = 2'000;
 };
 
 /// @brief A running server. Jobs left RUNNING by a previous process are
@@ -46,6 +52,8 @@ class NimbusServer {
   std::shared_ptr<grpc::Channel> InProcessChannel();
   /// Blocks until Shutdown() is called from another thread.
   void Wait();
+  /// Interrupts running jobs (they go back to the queue), then closes the
+  /// RPCs still open after `drain_ms`.
   void Shutdown();
 
  private:

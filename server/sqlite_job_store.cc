@@ -18,12 +18,14 @@
 #include <string>
 #include <unordered_map>
 #include <utility>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "absl/strings/escaping.h"
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
+#include "server/bounded_text.h"
 #include "server/job_store.h"
 
 namespace nimbus::server {
@@ -79,11 +81,15 @@ UPDATE jobs SET error_code = 1 WHERE state = 5;
 UPDATE jobs SET error_code = 2 WHERE state = 4;
 )sql";
 
-// Column order shared by every SELECT that feeds RowToRecord.
-#define NIMBUS_JOB_COLUMNS                                                            \
-  "id, name, state, spec, request_id, create_time, start_time, end_time, attempts, "  \
-  "cancel_requested, worker_id, lease_expiry, progress_done, progress_total, error, " \
-  "result_key, result_size, result_sha256, warnings, estimated_memory_bytes, error_code"
+// Column order shared by every SELECT that feeds RowToRecord. Text a client
+// or a reader could make huge is cut in SQL already (stores written before
+// the bounds may hold a gigabyte of error text), and again by BoundText
+// wherever it is shown.
+#define NIMBUS_JOB_COLUMNS                                                                   \
+  "id, substr(name, 1, 256), state, spec, request_id, create_time, start_time, end_time, "  \
+  "attempts, cancel_requested, worker_id, lease_expiry, progress_done, progress_total, "    \
+  "substr(error, 1, 4200), result_key, result_size, result_sha256, "                        \
+  "substr(warnings, 1, 16500), estimated_memory_bytes, error_code"
 
 absl::StatusCode CodeFor(int rc) {
   switch (rc & 0xff) {
@@ -234,13 +240,26 @@ std::string EncodePageToken(TimeMs create_time, const std::string& id) {
 
 absl::Status DecodePageToken(const std::string& token, TimeMs* create_time, std::string* id) {
   std::string raw;
-  absl::Status bad = absl::InvalidArgumentError(absl::StrCat("invalid page_token \"", token, "\""));
+  absl::Status bad =
+      absl::InvalidArgumentError(absl::StrCat("invalid page_token \"", EchoId(token), "\""));
   if (!absl::WebSafeBase64Unescape(token, &raw)) return bad;
   const size_t colon = raw.find(':');
   if (colon == std::string::npos) return bad;
   if (!absl::SimpleAtoi(raw.substr(0, colon), create_time)) return bad;
   *id = raw.substr(colon + 1);
   return absl::OkStatus();
+}
+
+// What a record adds to a ListJobs response, about: the view's text (the
+// error twice: as error and as status.message) plus fixed fields. Counted
+// with the bounds the view applies, so a stored giant does not end a page.
+uint64_t ViewBytes(const JobRecord& r) {
+  const auto bounded = [](const std::string& s, size_t max) {
+    return std::min<uint64_t>(s.size(), max + 64);
+  };
+  return 256 + r.id.size() + bounded(r.name, kMaxJobNameBytes) * 2 +
+         bounded(r.error, kMaxErrorBytes) * 2 + bounded(r.warnings, kMaxWarningsBytes) +
+         r.result_sha256.size();
 }
 
 // RequeueRunning takes no `now`; it runs once at startup, so the wall clock is
@@ -264,12 +283,15 @@ class SqliteJobStore final : public JobStore {
   absl::StatusOr<JobRecord> Get(const std::string& id) override;
   absl::StatusOr<ListPage> List(const ListOptions& options) override;
   absl::StatusOr<std::optional<JobRecord>> ClaimNext(const std::string& worker_id, TimeMs now,
-                                                     TimeMs lease_ms) override;
+                                                     TimeMs lease_ms, uint32_t max_attempts,
+                                                     std::vector<JobRecord>* given_up) override;
   absl::StatusOr<bool> Heartbeat(const std::string& id, const std::string& worker_id, TimeMs now,
                                  TimeMs lease_ms, uint64_t progress_done,
                                  uint64_t progress_total) override;
   absl::Status Complete(const std::string& id, const std::string& worker_id,
                         const Completion& completion, TimeMs now) override;
+  absl::Status AbandonAttempt(const std::string& id, const std::string& worker_id,
+                              const std::string& error, int error_code) override;
   absl::Status Release(const std::string& id, const std::string& worker_id) override;
   absl::StatusOr<JobRecord> RequestCancel(const std::string& id, TimeMs now) override;
   absl::StatusOr<int> RequeueRunning() override;
@@ -330,6 +352,10 @@ class SqliteJobStore final : public JobStore {
   // A cancel-requested RUNNING job whose worker is gone (lease lapsed or
   // process restarted) can never be finished by that worker; finish it here.
   absl::Status CancelOrphansLocked(const char* where_clause_sql, TimeMs now);
+  // The (create_time, id) of the oldest claimable job, if any.
+  absl::StatusOr<std::optional<std::pair<TimeMs, std::string>>> PickClaimableLocked(TimeMs now);
+  // Fails a job whose attempts ran out, keeping its last attempt's error.
+  absl::Status GiveUpLocked(const std::string& id, uint32_t attempts, TimeMs now);
 
   std::mutex mu_;  // guards w_
   Connection w_;
@@ -495,7 +521,8 @@ absl::StatusOr<JobRecord> SqliteJobStore::LoadExistingLocked(Connection& c,
                                                              const std::string& id) {
   absl::StatusOr<std::optional<JobRecord>> r = LoadLocked(c, id);
   if (!r.ok()) return r.status();
-  if (!r->has_value()) return absl::NotFoundError(absl::StrCat("job \"", id, "\" not found"));
+  if (!r->has_value())
+    return absl::NotFoundError(absl::StrCat("job \"", EchoId(id), "\" not found"));
   return std::move(**r);
 }
 
@@ -522,6 +549,10 @@ absl::Status SqliteJobStore::CancelOrphansLocked(const char* sql, TimeMs now) {
 }
 
 absl::StatusOr<JobRecord> SqliteJobStore::Create(const NewJob& job, TimeMs now) {
+  // The service checks names first; this keeps any caller from storing more.
+  if (job.name.size() > kMaxJobNameBytes)
+    return absl::InvalidArgumentError(absl::StrCat("name: must be at most ", kMaxJobNameBytes,
+                                                   " bytes, got ", job.name.size()));
   std::lock_guard<std::mutex> lock(mu_);
   Transaction txn(this);
   if (absl::Status s = txn.Begin(); !s.ok()) return s;
@@ -542,7 +573,8 @@ absl::StatusOr<JobRecord> SqliteJobStore::Create(const NewJob& job, TimeMs now) 
         "warnings, estimated_memory_bytes) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)");
     if (!s.ok()) return s.status();
     s->Bind(1, job.id).Bind(2, job.name).Bind(3, JobState::kQueued).BindBlob(4, job.spec);
-    s->Bind(5, job.request_id).Bind(6, now).Bind(7, job.progress_total).Bind(8, job.warnings);
+    s->Bind(5, job.request_id).Bind(6, now).Bind(7, job.progress_total);
+    s->Bind(8, BoundText(job.warnings, kMaxWarningsBytes));
     s->Bind(9, job.estimated_memory_bytes);
     if (absl::Status st = s->Run(); !st.ok()) {
       if (st.code() == absl::StatusCode::kAlreadyExists) {
@@ -602,35 +634,28 @@ absl::StatusOr<ListPage> SqliteJobStore::List(const ListOptions& options) {
   s->Bind(4, page_size + 1);
 
   ListPage page;
+  uint64_t bytes = 0;
   while (true) {
     absl::StatusOr<bool> row = s->Step();
     if (!row.ok()) return row.status();
     if (!*row) break;
-    if (static_cast<int>(page.jobs.size()) == page_size) {
+    JobRecord r = RowToRecord(*s);
+    const uint64_t more = ViewBytes(r);
+    // Full by count or by bytes: the row just read proves a next page.
+    if (static_cast<int>(page.jobs.size()) == page_size ||
+        (!page.jobs.empty() && bytes + more > options.max_bytes)) {
       const JobRecord& last = page.jobs.back();
       page.next_page_token = EncodePageToken(last.create_time, last.id);
       break;
     }
-    page.jobs.push_back(RowToRecord(*s));
+    bytes += more;
+    page.jobs.push_back(std::move(r));
   }
   return page;
 }
 
-absl::StatusOr<std::optional<JobRecord>> SqliteJobStore::ClaimNext(const std::string& worker_id,
-                                                                   TimeMs now, TimeMs lease_ms) {
-  std::lock_guard<std::mutex> lock(mu_);
-  Transaction txn(this);
-  if (absl::Status s = txn.Begin(); !s.ok()) return s;
-
-  if (absl::Status s = CancelOrphansLocked(
-          "UPDATE jobs SET end_time = ?1, state = ?2, error = ?3, error_code = ?5, "
-          "worker_id = '', lease_expiry = 0 "
-          "WHERE state = ?4 AND cancel_requested <> 0 AND lease_expiry < ?1",
-          now);
-      !s.ok()) {
-    return s;
-  }
-
+absl::StatusOr<std::optional<std::pair<TimeMs, std::string>>>
+SqliteJobStore::PickClaimableLocked(TimeMs now) {
   // Two index-friendly probes instead of one OR: the oldest QUEUED job and the
   // oldest RUNNING job whose lease lapsed; the older of the two wins.
   std::optional<std::pair<TimeMs, std::string>> best;
@@ -663,8 +688,60 @@ absl::StatusOr<std::optional<JobRecord>> SqliteJobStore::ClaimNext(const std::st
       !s.ok()) {
     return s;
   }
+  return best;
+}
+
+absl::Status SqliteJobStore::GiveUpLocked(const std::string& id, uint32_t attempts, TimeMs now) {
+  absl::StatusOr<Statement> s = Prepare(
+      "UPDATE jobs SET state = ?1, end_time = ?2, worker_id = '', lease_expiry = 0, "
+      "error = CASE WHEN error = '' THEN ?3 ELSE ?4 || error END, "
+      "error_code = CASE WHEN error_code <> 0 THEN error_code ELSE ?5 END WHERE id = ?6");
+  if (!s.ok()) return s.status();
+  s->Bind(1, JobState::kFailed).Bind(2, now);
+  s->Bind(3, absl::StrCat("gave up after ", attempts,
+                          " attempts: none recorded an end (the worker stopped or lost its "
+                          "claim)"));
+  s->Bind(4, absl::StrCat("gave up after ", attempts, " attempts; the last one: "));
+  s->Bind(5, static_cast<int>(absl::StatusCode::kInternal)).Bind(6, id);
+  return s->Run();
+}
+
+absl::StatusOr<std::optional<JobRecord>> SqliteJobStore::ClaimNext(const std::string& worker_id,
+                                                                   TimeMs now, TimeMs lease_ms,
+                                                                   uint32_t max_attempts,
+                                                                   std::vector<JobRecord>* given_up) {
+  std::lock_guard<std::mutex> lock(mu_);
+  Transaction txn(this);
+  if (absl::Status s = txn.Begin(); !s.ok()) return s;
+
+  if (absl::Status s = CancelOrphansLocked(
+          "UPDATE jobs SET end_time = ?1, state = ?2, error = ?3, error_code = ?5, "
+          "worker_id = '', lease_expiry = 0 "
+          "WHERE state = ?4 AND cancel_requested <> 0 AND lease_expiry < ?1",
+          now);
+      !s.ok()) {
+    return s;
+  }
+
+  std::optional<std::pair<TimeMs, std::string>> best;
+  while (true) {
+    absl::StatusOr<std::optional<std::pair<TimeMs, std::string>>> pick = PickClaimableLocked(now);
+    if (!pick.ok()) return pick.status();
+    best = std::move(*pick);
+    if (!best.has_value() || max_attempts == 0) break;
+    absl::StatusOr<JobRecord> r = LoadExistingLocked(best->second);
+    if (!r.ok()) return r.status();
+    if (r->attempts < max_attempts) break;
+    // Out of attempts: fail it and look again (each pass ends one job).
+    if (absl::Status s = GiveUpLocked(best->second, r->attempts, now); !s.ok()) return s;
+    if (given_up != nullptr) {
+      absl::StatusOr<JobRecord> failed = LoadExistingLocked(best->second);
+      if (!failed.ok()) return failed.status();
+      given_up->push_back(std::move(*failed));
+    }
+  }
   if (!best.has_value()) {
-    // Still commit: the orphan cancellation above must stick.
+    // Still commit: the orphan cancellations and give-ups above must stick.
     if (absl::Status s = txn.Commit(); !s.ok()) return s;
     return std::optional<JobRecord>();
   }
@@ -734,10 +811,34 @@ absl::Status SqliteJobStore::Complete(const std::string& id, const std::string& 
         "warnings = CASE WHEN ?7 = '' THEN warnings ELSE ?7 END, "
         "worker_id = '', lease_expiry = 0, error_code = ?9 WHERE id = ?8");
     if (!s.ok()) return s.status();
-    s->Bind(1, completion.state).Bind(2, now).Bind(3, completion.error);
+    s->Bind(1, completion.state).Bind(2, now).Bind(3, BoundText(completion.error, kMaxErrorBytes));
     s->Bind(4, completion.result_key).Bind(5, completion.result_size);
-    s->Bind(6, completion.result_sha256).Bind(7, completion.warnings).Bind(8, id);
+    s->Bind(6, completion.result_sha256);
+    s->Bind(7, BoundText(completion.warnings, kMaxWarningsBytes)).Bind(8, id);
     s->Bind(9, completion.error_code);
+    if (absl::Status st = s->Run(); !st.ok()) return st;
+  }
+  return txn.Commit();
+}
+
+absl::Status SqliteJobStore::AbandonAttempt(const std::string& id, const std::string& worker_id,
+                                            const std::string& error, int error_code) {
+  std::lock_guard<std::mutex> lock(mu_);
+  Transaction txn(this);
+  if (absl::Status s = txn.Begin(); !s.ok()) return s;
+  if (absl::Status s = CheckClaimLocked(id, worker_id); !s.ok()) return s;
+  {
+    // Back to QUEUED with its attempts counted; a cancel already asked for
+    // ends it as CANCELLED, as Release does.
+    absl::StatusOr<Statement> s = Prepare(
+        "UPDATE jobs SET worker_id = '', lease_expiry = 0, "
+        "state = CASE WHEN cancel_requested <> 0 THEN ?1 ELSE ?2 END, "
+        "error = CASE WHEN cancel_requested <> 0 THEN ?3 ELSE ?4 END, "
+        "error_code = CASE WHEN cancel_requested <> 0 THEN ?5 ELSE ?6 END WHERE id = ?7");
+    if (!s.ok()) return s.status();
+    s->Bind(1, JobState::kCancelled).Bind(2, JobState::kQueued);
+    s->Bind(3, std::string(kCancelledByRequest)).Bind(4, BoundText(error, kMaxErrorBytes));
+    s->Bind(5, kCancelledCode).Bind(6, error_code).Bind(7, id);
     if (absl::Status st = s->Run(); !st.ok()) return st;
   }
   return txn.Commit();

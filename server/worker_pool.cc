@@ -9,8 +9,10 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
+#include "server/bounded_text.h"
 #include "server/job_runner.h"
 #include "server/job_view.h"
+#include "server/untrusted_file.h"
 
 namespace nimbus::server {
 
@@ -201,7 +203,10 @@ void WorkerPool::Loop(int index) {
       if (stopping_) return;
       generation = wake_generation_;
     }
-    auto claimed = store_->ClaimNext(worker_id, NowMs(), options_.lease_ms);
+    std::vector<JobRecord> given_up;
+    auto claimed =
+        store_->ClaimNext(worker_id, NowMs(), options_.lease_ms, options_.max_attempts, &given_up);
+    PublishGivenUp(given_up);
     if (!claimed.ok()) {
       spdlog::error("worker={} claim failed: {}", worker_id, claimed.status().ToString());
     } else if (claimed->has_value()) {
@@ -230,8 +235,17 @@ void WorkerPool::RunJob(const JobRecord& record, const std::string& worker_id) {
   Context ctx(this, record, worker_id, cancel, spec);
   hub_->PublishJob(ctx.view());
 
-  const absl::Status status = parsed ? ConvertAndRun(spec, ctx)
-                                     : absl::DataLossError("the stored spec is unreadable");
+  absl::Status status = absl::DataLossError("the stored spec is unreadable");
+  if (parsed) {
+    // Core returns statuses, but an allocation can still throw; a poison
+    // job must end as FAILED, not take the worker thread with it.
+    try {
+      status = ConvertAndRun(spec, ctx);
+    } catch (const std::exception& e) {
+      status = absl::InternalError(
+          absl::StrCat("the job stopped on an exception: ", BoundText(e.what(), 512)));
+    }
+  }
 
   Completion done;
   std::vector<std::string> warnings;
@@ -251,11 +265,11 @@ void WorkerPool::RunJob(const JobRecord& record, const std::string& worker_id) {
     }
   } else if (!status.ok()) {
     done.state = JobState::kFailed;
-    done.error = std::string(status.message());
+    done.error = BoundText(status.message(), kMaxErrorBytes);
     done.error_code = int(status.code());
   } else if (auto stored = results_->Commit(id, ctx.ResultScratchPath()); !stored.ok()) {
     done.state = JobState::kFailed;
-    done.error = std::string(stored.status().message());
+    done.error = BoundText(stored.status().message(), kMaxErrorBytes);
     done.error_code = int(stored.status().code());
   } else {
     done.state = JobState::kSucceeded;
@@ -275,8 +289,7 @@ void WorkerPool::RunJob(const JobRecord& record, const std::string& worker_id) {
       const auto& p = ctx.view().progress();
       (void)store_->Heartbeat(id, worker_id, NowMs(), options_.lease_ms, p.total(), p.total());
     }
-    auto st = store_->Complete(id, worker_id, done, NowMs());
-    if (!st.ok()) spdlog::error("job={} event=complete_failed error=\"{}\"", id, st.ToString());
+    RecordEnd(id, worker_id, done);
     spdlog::info("job={} event=end state={} error=\"{}\"", id,
                  v1::JobState_Name(ToProto(done.state)), done.error);
   }
@@ -291,6 +304,39 @@ void WorkerPool::RunJob(const JobRecord& record, const std::string& worker_id) {
   running_.erase(id);
 }
 
+// A Complete the store refuses (an error it cannot take, a write that
+// fails) is tried once more with a short error and no warnings. If that
+// fails too, the attempt is abandoned with its reason: the job goes back to
+// the queue, and ClaimNext fails it once its attempts run out.
+void WorkerPool::RecordEnd(const std::string& id, const std::string& worker_id,
+                           const Completion& done) {
+  absl::Status st = store_->Complete(id, worker_id, done, NowMs());
+  // Not ours any more (or gone): nothing to record.
+  if (st.ok() || absl::IsFailedPrecondition(st) || absl::IsNotFound(st)) return;
+  spdlog::error("job={} event=complete_failed error=\"{}\"", id, BoundText(st.ToString(), 512));
+  Completion brief = done;
+  brief.error = BoundText(done.error, 256);
+  brief.warnings.clear();
+  st = store_->Complete(id, worker_id, brief, NowMs());
+  if (st.ok() || absl::IsFailedPrecondition(st) || absl::IsNotFound(st)) return;
+  const std::string reason =
+      absl::StrCat("could not record the job's end (", BoundText(st.message(), 256), ")",
+                   done.error.empty() ? "" : "; it ended: ", BoundText(done.error, 256));
+  const int code = done.error_code != 0 ? done.error_code : int(st.code());
+  st = store_->AbandonAttempt(id, worker_id, reason, code);
+  spdlog::error("job={} event=attempt_abandoned reason=\"{}\" status=\"{}\"", id, reason,
+                BoundText(st.ToString(), 512));
+}
+
+void WorkerPool::PublishGivenUp(const std::vector<JobRecord>& jobs) {
+  for (const JobRecord& job : jobs) {
+    spdlog::warn("job={} event=gave_up attempts={} error=\"{}\"", job.id, job.attempts,
+                 BoundText(job.error, 512));
+    hub_->PublishJob(ToProto(job, false));
+    hub_->Forget(job.id);
+  }
+}
+
 absl::Status WorkerPool::ConvertAndRun(const v1::JobSpec& spec, JobContext& ctx) {
   // The plan is rebuilt from the stored spec on purpose: the spec is the
   // durable, versioned record; conversion is deterministic and cheap next
@@ -298,6 +344,10 @@ absl::Status WorkerPool::ConvertAndRun(const v1::JobSpec& spec, JobContext& ctx)
   // files); a stored plan would need a second format holding parsed meshes.
   // Memory admission (the pilot census) is not repeated: it ran once at
   // submit, and the run-time budget is the safety net.
+  // Files are parsed in this process only after a sandboxed reader read
+  // them whole (once per asset: the result is remembered), so a poison
+  // file stored before that check existed fails here, not in the worker.
+  if (auto st = CheckSpecAssets(spec, options_.limits.asset_dir); !st.ok()) return st;
   auto plan = spec::ConvertSpec(spec, options_.limits);
   if (!plan.ok()) return plan.status();
   // Every engine thread of this job, TBB loops included, runs in its own

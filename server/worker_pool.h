@@ -28,6 +28,10 @@ struct WorkerOptions {
   TimeMs heartbeat_ms = 2'000;
   /// Identifies this process in leases.
   std::string instance_id = "nimbusd";
+  /// Attempts a job gets; a job that would need more (its worker died, or
+  /// its end could not be recorded) FAILS with its last attempt's error.
+  /// 0: no limit.
+  uint32_t max_attempts = 3;
 };
 
 /// @brief A fixed pool of job workers.
@@ -50,6 +54,11 @@ class WorkerPool {
   void Loop(int index);
   void RunJob(const JobRecord& job, const std::string& worker_id);
   absl::Status ConvertAndRun(const v1::JobSpec& spec, JobContext& ctx);
+  // Stores the end of an attempt; see worker_pool.cc for what a failing
+  // store gets.
+  void RecordEnd(const std::string& id, const std::string& worker_id, const Completion& done);
+  // Tells watchers of jobs the store failed for running out of attempts.
+  void PublishGivenUp(const std::vector<JobRecord>& jobs);
 
   JobStore* store_;
   ResultStore* results_;

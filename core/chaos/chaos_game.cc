@@ -314,6 +314,28 @@ ChaosGameStats ChaosGame::stats() const {
   return s;
 }
 
+bool ChaosGame::Stopping(uint64_t chunk) {
+  if (!poll_stop_) return false;
+  if (poll_stop_->load(std::memory_order_relaxed)) return true;
+  if (!OrNull(poll_intr_).WasInterrupted(chunk * kChunkIterations, params_.iterations)) return false;
+  poll_stop_->store(true, std::memory_order_relaxed);
+  return true;
+}
+
+// Counts steps and polls every kPollSteps; once stopped, stays stopped.
+struct ChaosGame::Poll {
+  ChaosGame* game;
+  uint64_t chunk;
+  uint64_t left = kPollSteps;
+  bool stopped = false;
+  bool Tick() {
+    if (--left > 0) [[likely]]
+      return stopped;
+    left = kPollSteps;
+    return stopped = stopped || game->Stopping(chunk);
+  }
+};
+
 // One fast-path chunk: the walkers, the kernel's view of the job and the
 // callbacks it makes for the rare cases (a full bin, a point off the grid).
 struct ChaosGame::FastChunk {
@@ -324,6 +346,7 @@ struct ChaosGame::FastChunk {
   const AliasTable* table = nullptr;
   const std::vector<AliasTable>* state_tables = nullptr;  // with a chain
   uint64_t outside = 0, reseeded = 0;
+  Poll* poll = nullptr;
 
   Rng LoadRng(int l) const {
     return Rng::FromState(lanes.s0[l], lanes.s1[l], lanes.s2[l], lanes.s3[l]);
@@ -340,6 +363,9 @@ struct ChaosGame::FastChunk {
     const MarkovChain* chain = p->chain ? &*p->chain : nullptr;
     uint32_t state = chain ? chain->start_state : 0;
     for (uint32_t i = 0; i < p->warmup; ++i) {
+      // A stopped chunk's counts are thrown away: leave the walker as is.
+      if (poll->Tick()) [[unlikely]]
+        break;
       uint32_t map;
       if (chain) {
         const ChainTransition& t =
@@ -377,6 +403,8 @@ void ChaosGame::RunChunkFast(uint64_t chunk, Worker& w) {
   const uint64_t begin = chunk * kChunkIterations;
   const uint64_t count = std::min(kChunkIterations, p.iterations - begin);
   FastChunk c;
+  Poll poll{this, chunk};
+  c.poll = &poll;
   c.bins = w.bins.get();
   c.p = &p;
   c.table = &map_table_;
@@ -451,6 +479,7 @@ void ChaosGame::RunChunk(uint64_t chunk, Worker& w) {
   uint64_t reseeded = 0, outside = 0, final_nonfinite = 0;
   uint64_t* keys = w.keys.data();
   const size_t cap = w.keys.size();
+  Poll poll{this, chunk};
   size_t n_keys = w.n;
   auto flush = [&] {
     w.n = n_keys;
@@ -490,6 +519,8 @@ void ChaosGame::RunChunk(uint64_t chunk, Worker& w) {
       state = chain ? chain->start_state : 0;
       if (color_mode != ColorMode::kNone) addr = col = rng.Uniform();
       for (uint32_t i = 0; i < p.warmup; ++i) {
+        if (poll.Tick()) [[unlikely]]
+          return;
         if (!step()) {
           pos = RandomPoint(rng, b);
           ++reseeded;
@@ -552,6 +583,9 @@ void ChaosGame::RunChunk(uint64_t chunk, Worker& w) {
     // Walker k plots steps k, k + kWalkers, ... of the chunk.
     const uint64_t steps = count / kWalkers + (uint64_t(k) < count % kWalkers ? 1 : 0);
     for (uint64_t j = 0; j < steps; ++j) {
+      // A stopped chunk's counts are thrown away with the job.
+      if (poll.Tick()) [[unlikely]]
+        break;
       if (n_keys + keys_per_step > cap) [[unlikely]]
         flush();
       if (!step()) [[unlikely]] {
@@ -576,6 +610,8 @@ absl::Status ChaosGame::RunUntil(uint64_t iterations, Interrupter* interrupter) 
   if (next_chunk_ >= target) return absl::OkStatus();
   std::atomic<uint64_t> next{next_chunk_};
   std::atomic<bool> stop{false}, over_budget{false};
+  poll_intr_ = interrupter;
+  poll_stop_ = &stop;
   auto body = [&](int t) {
     Worker& w = *workers_[t];
     while (!stop.load(std::memory_order_relaxed)) {
@@ -595,6 +631,8 @@ absl::Status ChaosGame::RunUntil(uint64_t iterations, Interrupter* interrupter) 
   for (int t = 1; t < n; ++t) group.run([&body, t] { body(t); });
   body(0);
   group.wait();
+  poll_intr_ = nullptr;
+  poll_stop_ = nullptr;
   if (over_budget)
     return absl::ResourceExhaustedError(absl::StrCat(
         "the chaos game's counters outgrew the memory budget of ", params_.memory_budget >> 20,

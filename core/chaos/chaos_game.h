@@ -2,6 +2,7 @@
 // (recurrent) IFS, accumulating integer visit counts.
 #pragma once
 
+#include <atomic>
 #include <cstdint>
 #include <optional>
 #include <vector>
@@ -200,6 +201,14 @@ class ChaosGame {
   // write into per-thread TileBins. Same random streams and arithmetic as
   // RunChunk, so the same counts.
   void RunChunkFast(uint64_t chunk, Worker& worker);
+  // Inside a chunk the interrupter is polled every kPollSteps steps of
+  // work, warm-up and re-seeds included, so a cancel lands within about a
+  // millisecond whatever the warm-up. RunUntil sets the two pointers.
+  struct Poll;
+  static constexpr uint64_t kPollSteps = uint64_t{1} << 17;
+  bool Stopping(uint64_t chunk);
+  Interrupter* poll_intr_ = nullptr;
+  std::atomic<bool>* poll_stop_ = nullptr;
 
   ChaosGameParams params_;
   int threads_;

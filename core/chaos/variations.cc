@@ -56,14 +56,15 @@ static_assert(kInfo.back().name == "polar_doubling", "kInfo must follow the enum
 
 // Planar radius and the cosine/sine of the planar angle. Ratios instead of
 // atan2 + sincos because this runs in the chaos-game hot loop; at the axis
-// the angle is taken as 0, matching atan2(0, 0).
+// the angle is taken as 0, matching atan2(0, 0). A NaN radius must stay NaN
+// (so the walker is re-seeded), hence the test for zero, not for > 0.
 struct PlanarAngle {
   double rho, cos_t, sin_t;
 };
 inline PlanarAngle Planar(Vec3 p) {
   const double rho = std::sqrt(p.x * p.x + p.y * p.y);
-  if (rho > 0) return {rho, p.x / rho, p.y / rho};
-  return {0.0, 1.0, 0.0};
+  if (rho == 0) return {0.0, 1.0, 0.0};
+  return {rho, p.x / rho, p.y / rho};
 }
 
 // Uniform direction on the unit sphere from exactly two draws (no rejection

@@ -22,11 +22,16 @@ void SetFrameMetadata(openvdb::GridBase& grid, const GridFrame& frame);
 /// Every grid of a .vdb file. Throws OpenVDB's exceptions; callers turn
 /// them into statuses.
 openvdb::GridPtrVecPtr ReadAllGrids(const std::filesystem::path& path);
-/// Writes `grids` (Blosc) to `path` + ".partial", stamps the content UUID
-/// and renames it into place, so readers never see a half-written file.
-/// Removes the partial file on failure.
+/// Writes `grids` (Blosc) to `path` + ".partial", checking every write,
+/// fsyncs it, checks its size, stamps the content UUID and renames it into
+/// place, so readers never see a half-written file. A full disk (ENOSPC,
+/// EDQUOT) is RESOURCE_EXHAUSTED "disk full while writing the result: …";
+/// other failures INTERNAL. Removes the partial file on failure.
 absl::Status WriteGridsAtomically(const std::filesystem::path& path,
                                   const openvdb::GridPtrVec& grids);
+/// Tests only: every later write fails with `error` (errno) once a file
+/// would grow past `fail_after_bytes`; -1 turns the fault off.
+void SetWriteFaultForTesting(int64_t fail_after_bytes, int error);
 /// OpenVDB writes a random UUID into every file; these replace it with one
 /// derived from the SHA-256 of the rest of the file, so the same grids give
 /// the same bytes. The UUID only tells readers whether two files are the

@@ -9,6 +9,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <string_view>
 #include <unordered_map>
 
 #include "absl/strings/str_cat.h"
@@ -422,7 +423,13 @@ absl::StatusOr<VoxelSet> LoadGridSet(const std::filesystem::path& path, const Gr
       return absl::InvalidArgumentError(
           absl::StrCat(name, ": grid '", chosen, "' is not a float grid"));
   } catch (const std::exception& e) {
-    return absl::InvalidArgumentError(absl::StrCat(name, ": not a readable VDB file: ", e.what()));
+    // OpenVDB's text can be a gigabyte for a damaged file: keep its start.
+    constexpr size_t kMaxWhat = 300;
+    const size_t len = ::strnlen(e.what(), kMaxWhat + 1);
+    return absl::InvalidArgumentError(
+        absl::StrCat(name, ": not a readable VDB file: ",
+                     std::string(e.what(), std::min(len, kMaxWhat)),
+                     len > kMaxWhat ? "\xe2\x80\xa6" : ""));
   }
   const bool level_set = grid->getGridClass() == openvdb::GRID_LEVEL_SET;
   const float threshold = float(options.threshold);

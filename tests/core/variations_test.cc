@@ -442,13 +442,11 @@ TEST(Variations, InfiniteInputsGiveNonFiniteResults) {
   }
 }
 
-// Fails today: Planar() in core/chaos/variations.cc tests `rho > 0`, which
-// is false for NaN, so a NaN point is treated as lying on the z axis
-// (angle 0) and spiral, hyperbolic (NaN y), diamond, power and
-// polar_doubling return finite points -- e.g. diamond gives (0, 0, z).
-// A pre-affine that overflows to inf - inf = NaN then escapes the engine's
-// re-seeding. Enable once Planar() lets NaN through (test `rho == 0`).
-TEST(Variations, DISABLED_NanInputsGiveNonFiniteResults) {
+// A NaN point must not be taken for a point on the z axis (angle 0): spiral,
+// hyperbolic, diamond, power and polar_doubling once returned finite points
+// for it, so a pre-affine that overflowed to inf - inf = NaN escaped the
+// engine's re-seeding.
+TEST(Variations, NanInputsGiveNonFiniteResults) {
   for (VariationKind kind : AllVariations()) {
     if (kind == VariationKind::kBlur) continue;
     for (Vec3 p : NanPoints()) EXPECT_FALSE(IsFinite(Eval(kind, p))) << At(kind, p);

@@ -13,6 +13,9 @@
 #include "core/base/sha256.h"
 #include "core/io/vdb_io.h"
 #include "proto/asset_paths.h"
+#include "proto/spec_convert.h"
+#include "tests/support/fake_job_context.h"
+#include "server/job_runner.h"
 #include "proto/spec_io.h"
 #include "tests/support/nimbusd_process.h"
 #include "tests/support/test_util.h"
@@ -139,6 +142,21 @@ TEST_F(CondensationE2E, CowCloudProducesAVdb) {
   }
   EXPECT_FLOAT_EQ(max, 1.0f);
   EXPECT_GT(nonzero, 500);  // a cow-sized cloud, not a speck
+  // The server's result is exactly what the engine makes of the same spec
+  // with the mesh read locally: upload, content addressing and the worker
+  // change nothing.
+  v1::JobSpec local = Example("cow_cloud.json");
+  local.mutable_grid()->set_resolution(0, 48);
+  local.mutable_set_ifs()->mutable_random()->set_iterations(300);
+  spec::ResolveAssetPaths(local, testing::SourcePath("examples"));
+  auto plan = spec::ConvertSpec(local, {});
+  ASSERT_TRUE(plan.ok()) << plan.status();
+  testing::FakeJobContext ctx;
+  ASSERT_TRUE(server::RunJobPlan(*plan, ctx).ok());
+  auto direct = ReadVdbFile(ctx.result());
+  ASSERT_TRUE(direct.ok()) << direct.status();
+  EXPECT_EQ(direct->values, vol->values);
+  EXPECT_EQ(ctx.stats["set_iterations"], done->stats().at("set_iterations"));
 }
 
 TEST_F(CondensationE2E, CancelStopsASetIfsJob) {

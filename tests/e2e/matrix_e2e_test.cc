@@ -72,6 +72,15 @@ TEST_F(MatrixE2e, TreeJobWritesDensityAndComponents) {
     if ((*labels)[v] >= 0) seen[size_t((*labels)[v])] = 1;
   }
   EXPECT_EQ(seen, (std::vector<int>{1, 1, 1}));
+  // COMPONENT_GRID_INT: the result holds the ids as floats (readable by
+  // pyopenvdb and Blender); the Int32 grid is a further file of the result.
+  ASSERT_EQ(done->result().files_size(), 1);
+  EXPECT_EQ(done->result().files(0).file_name(), "tree_matrix.component.vdb");
+  ASSERT_TRUE(
+      client_->Fetch(job->id(), dir_ / "ids.vdb", "tree_matrix.component.vdb").ok());
+  auto ints = ReadComponentGrid(dir_ / "ids.vdb", density->frame.resolution);
+  ASSERT_TRUE(ints.ok()) << ints.status();
+  EXPECT_EQ(*ints, *labels);
 }
 
 TEST_F(MatrixE2e, UnknownMapIsRefusedAtSubmit) {

@@ -6,11 +6,15 @@
 
 #include <gmock/gmock.h>
 
+#include <openvdb/openvdb.h>
+#include <openvdb/tools/LevelSetSphere.h>
+
 #include <fstream>
 
 #include "core/base/sha256.h"
 #include "core/io/mesh_io.h"
 #include "proto/asset_paths.h"
+#include "server/untrusted_file.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus::server {
@@ -25,6 +29,25 @@ size_t FilesIn(const std::filesystem::path& dir) {
   size_t n = 0;
   for (const auto& e : std::filesystem::directory_iterator(dir)) n += e.is_regular_file();
   return n;
+}
+
+// A real level-set sphere written by OpenVDB, as bytes.
+std::string SphereVdbBytes(const std::filesystem::path& scratch) {
+  openvdb::initialize();
+  auto grid = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(10.0f, {0, 0, 0}, 0.5f);
+  grid->setName("surface");
+  openvdb::io::File file(scratch.string());
+  file.write({grid});
+  file.close();
+  return ReadFile(scratch);
+}
+
+absl::StatusOr<AssetInfo> UploadBytes(AssetStore& store, const std::string& bytes,
+                                      const std::string& name) {
+  auto u = store.Begin(Sha256Hex(bytes), bytes.size(), name);
+  if (!u.ok()) return u.status();
+  if (auto st = (*u)->Append(bytes); !st.ok()) return st;
+  return (*u)->Finish();
 }
 
 class AssetStoreTest : public ::testing::Test {
@@ -101,13 +124,18 @@ TEST_F(AssetStoreTest, ABlobUploadedAgainAsObjBecomesAReadableMesh) {
 TEST_F(AssetStoreTest, MeshErrorsNameTheLabelNotTheServerPath) {
   const std::string flat = "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n";  // zero area
   const std::string sha = Sha256Hex(flat);
-  auto u = store_->Begin(sha, flat.size(), "flat.obj");
-  ASSERT_TRUE((*u)->Append(flat).ok());
-  auto info = (*u)->Finish();
-  ASSERT_TRUE(info.ok());
+  // Named as a mesh, it is read at upload (in a sandbox) and refused.
+  const absl::Status refused = UploadBytes(*store_, flat, "flat.obj").status();
+  EXPECT_EQ(refused.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_THAT(std::string(refused.message()),
+              ::testing::StartsWith("mesh asset flat.obj (sha256 " + sha.substr(0, 12) + "...)"));
+  EXPECT_THAT(std::string(refused.message()), ::testing::HasSubstr("degenerate"));
+  EXPECT_EQ(std::string(refused.message()).find(dir_.path().string()), std::string::npos);
+  // Under a name without a format it is kept, and read as the spec says.
+  auto info = UploadBytes(*store_, flat, "flat");
+  ASSERT_TRUE(info.ok()) << info.status();
   const std::string label = spec::AssetDisplayName("flat.obj", sha);
-  const absl::Status s =
-      LoadMesh(info->path, {MeshFileTypeFromName(info->format), label}).status();
+  const absl::Status s = LoadMesh(info->path, {MeshFileType::kObj, label}).status();
   const std::string message(s.message());
   EXPECT_THAT(message, ::testing::StartsWith("flat.obj (sha256 " + sha.substr(0, 12) + "...): "));
   EXPECT_THAT(message, ::testing::HasSubstr("degenerate"));
@@ -196,6 +224,96 @@ TEST(AssetNames, KnownFormatsAndCleanNames) {
   EXPECT_EQ(CleanAssetName("a\nb.obj"), "ab.obj");
   EXPECT_EQ(CleanAssetName(".."), "");
   EXPECT_EQ(CleanAssetName(std::string(300, 'x')).size(), 255u);
+}
+
+
+// ---- Poison uploads: read in a sandboxed child, refused, never stored ----
+
+TEST_F(AssetStoreTest, AReadableVdbIsStored) {
+  const std::string vdb = SphereVdbBytes(dir_.path() / "sphere-scratch.vdb");
+  std::filesystem::remove(dir_.path() / "sphere-scratch.vdb");
+  auto info = UploadBytes(*store_, vdb, "sphere.vdb");
+  ASSERT_TRUE(info.ok()) << info.status();
+  EXPECT_EQ(info->format, ".vdb");
+  EXPECT_EQ(ReadFile(info->path), vdb);
+}
+
+TEST_F(AssetStoreTest, ATruncatedVdbIsRefusedAndNotStored) {
+  const std::string vdb = SphereVdbBytes(dir_.path() / "sphere-scratch.vdb");
+  std::filesystem::remove(dir_.path() / "sphere-scratch.vdb");
+  const size_t files_before = FilesIn(dir_.path());
+  const std::string cut = vdb.substr(0, vdb.size() / 2);
+  auto info = UploadBytes(*store_, cut, "cow.vdb");
+  ASSERT_EQ(info.status().code(), absl::StatusCode::kInvalidArgument) << info.status();
+  const std::string msg(info.status().message());
+  EXPECT_THAT(msg, ::testing::StartsWith("grid asset cow.vdb (sha256 " +
+                                         Sha256Hex(cut).substr(0, 12) + "...): "
+                                         "not a readable VDB file: "));
+  EXPECT_LT(msg.size(), 600u);
+  EXPECT_EQ(FilesIn(dir_.path()), files_before);
+  EXPECT_EQ(store_->Find(Sha256Hex(cut)).status().code(), absl::StatusCode::kNotFound);
+  EXPECT_EQ(FilesIn(dir_.path() / "incoming"), 0u);
+  // The store still takes good files.
+  EXPECT_TRUE(UploadBytes(*store_, vdb, "sphere.vdb").ok());
+}
+
+TEST_F(AssetStoreTest, BitFlippedVdbsAreRefusedOrHarmless) {
+  const std::string vdb = SphereVdbBytes(dir_.path() / "sphere-scratch.vdb");
+  std::filesystem::remove(dir_.path() / "sphere-scratch.vdb");
+  // Some flips make OpenVDB allocate without end: a small limit ends those
+  // readers sooner than the default would.
+  SandboxLimits small;
+  small.memory_bytes = 512 << 20;
+  auto store = AssetStore::Open(dir_.path() / "small", small);
+  ASSERT_TRUE(store.ok()) << store.status();
+  int refused = 0;
+  // Header, grid descriptor and metadata: lengths, counts and offsets.
+  for (size_t offset : {0, 9, 20, 40, 60, 80, 100, 130, 160, 200, 260, 320}) {
+    ASSERT_LT(offset, vdb.size());
+    std::string flipped = vdb;
+    flipped[offset] = char(flipped[offset] ^ 0xff);
+    auto info = UploadBytes(**store, flipped, "flip.vdb");
+    if (info.ok()) continue;  // a flip in plain data is still a VDB
+    ++refused;
+    EXPECT_EQ(info.status().code(), absl::StatusCode::kInvalidArgument) << offset;
+    EXPECT_THAT(std::string(info.status().message()),
+                ::testing::HasSubstr("not a readable VDB file: "));
+    EXPECT_LT(info.status().message().size(), 600u);
+  }
+  EXPECT_GT(refused, 0);
+}
+
+TEST_F(AssetStoreTest, GarbageMeshesAreRefused) {
+  std::string garbage;
+  for (int i = 0; i < 4096; ++i) garbage.push_back(char((i * 131 + 7) & 0xff));
+  auto obj = UploadBytes(*store_, garbage, "cow.obj");
+  ASSERT_EQ(obj.status().code(), absl::StatusCode::kInvalidArgument) << obj.status();
+  EXPECT_THAT(std::string(obj.status().message()),
+              ::testing::StartsWith("mesh asset cow.obj (sha256 "));
+  EXPECT_THAT(std::string(obj.status().message()),
+              ::testing::HasSubstr(": not a readable mesh: "));
+  // A PLY header promising two billion vertices is refused, not believed.
+  const std::string ply =
+      "ply\nformat binary_little_endian 1.0\nelement vertex 2000000000\n"
+      "property float x\nproperty float y\nproperty float z\nelement face 1\n"
+      "property list uchar int vertex_indices\nend_header\n" + std::string(64, '\0');
+  auto big = UploadBytes(*store_, ply, "huge.ply");
+  ASSERT_EQ(big.status().code(), absl::StatusCode::kInvalidArgument) << big.status();
+  EXPECT_EQ(store_->Find(Sha256Hex(ply)).status().code(), absl::StatusCode::kNotFound);
+  // Without a format in its name the bytes are kept: the spec decides.
+  EXPECT_TRUE(UploadBytes(*store_, garbage, "blob").ok());
+}
+
+TEST(UntrustedFile, LimitsStopAGreedyReader) {
+  testing::TempDir dir;
+  const std::string vdb = SphereVdbBytes(dir / "sphere.vdb");
+  UntrustedFile file{UntrustedKind::kVdbGrid, dir / "sphere.vdb", ".vdb"};
+  EXPECT_TRUE(CheckUntrustedFile(file).ok());
+  SandboxLimits tiny;
+  tiny.memory_bytes = 16 << 20;  // less than the reader's own program needs
+  absl::Status st = CheckUntrustedFile(file, tiny);
+  EXPECT_EQ(st.code(), absl::StatusCode::kInvalidArgument) << st;
+  EXPECT_THAT(std::string(st.message()), ::testing::StartsWith("not a readable VDB file: "));
 }
 
 }  // namespace

@@ -4,6 +4,10 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <cstring>
+#include <set>
+#include <tuple>
+
 #include "tests/support/attractors.h"
 #include "core/chaos/variations.h"
 #include "proto/spec_convert.h"
@@ -269,21 +273,64 @@ TEST(ChaosSpec, SplatIsRecordedAndScalesCounts) {
 
 // The colour examples, shrunk to a quick run: they stay mostly inside their
 // bounds, rarely go non-finite and write Cd.
+// FNV-1a over a volume's float bits: pins a result exactly without
+// depending on the file format's bytes.
+uint64_t ValuesHash(const std::vector<float>& values) {
+  uint64_t h = 1469598103934665603ull;
+  for (float v : values) {
+    uint32_t bits;
+    std::memcpy(&bits, &v, 4);
+    h = (h ^ bits) * 1099511628211ull;
+  }
+  return h;
+}
+
+// The colour examples at a small size: every plotted point is counted, the
+// colours spread over the palette, and the density is pinned bit for bit.
 TEST(ChaosSpec, ColourExamplesRunCleanly) {
-  for (const char* name : {"examples/flame_cloud.json", "examples/arcs_post.json"}) {
-    auto spec = spec::LoadSpecFile(testing::SourcePath(name));
-    ASSERT_TRUE(spec.ok()) << name << ": " << spec.status();
+  struct Case {
+    const char* name;
+    uint64_t density_hash;
+    size_t min_colours;
+  };
+  for (const Case& c : {Case{"examples/flame_cloud.json", 0x54f3ea19950611a5ull, 200},
+                        Case{"examples/arcs_post.json", 0x9623f0ec0d35b1daull, 100}}) {
+    auto spec = spec::LoadSpecFile(testing::SourcePath(c.name));
+    ASSERT_TRUE(spec.ok()) << c.name << ": " << spec.status();
     spec->mutable_chaos_game()->set_iterations(3'000'000);
     auto& res = *spec->mutable_grid()->mutable_resolution();
     for (int i = 0; i < res.size(); ++i) res[i] = std::max(8, res[i] / 8);
     auto job = spec::ConvertSpec(*spec, {});
-    ASSERT_TRUE(job.ok()) << name << ": " << job.status();
+    ASSERT_TRUE(job.ok()) << c.name << ": " << job.status();
     testing::FakeJobContext ctx;
-    ASSERT_TRUE(server::RunJobPlan(*job, ctx).ok()) << name;
-    EXPECT_TRUE(ctx.warnings.empty()) << name << ": " << ctx.warnings.front();
-    EXPECT_LT(ctx.stats["outside"], 3'000'000u / 10) << name;
+    ASSERT_TRUE(server::RunJobPlan(*job, ctx).ok()) << c.name;
+    EXPECT_TRUE(ctx.warnings.empty()) << c.name << ": " << ctx.warnings.front();
+    EXPECT_LT(ctx.stats["outside"], 3'000'000u / 10) << c.name;
+    auto density = ReadVdbFile(ctx.result());
+    ASSERT_TRUE(density.ok()) << c.name << ": " << density.status();
+    // Every point that landed in the grid is counted once.
+    const MetaValue* total = density->Find("nimbus_total_count");
+    ASSERT_NE(total, nullptr);
+    EXPECT_EQ(std::get<int64_t>(*total), int64_t(3'000'000 - ctx.stats["outside"])) << c.name;
+    EXPECT_EQ(ValuesHash(density->values), c.density_hash) << c.name << std::hex << " 0x"
+                                                           << ValuesHash(density->values);
+    // Address colouring spreads over the palette: many distinct colours,
+    // each within the palette's bounds, on exactly the dense voxels.
     auto cd = ReadVec3VdbFile(ctx.result());
-    ASSERT_TRUE(cd.ok()) << name << ": " << cd.status();
+    ASSERT_TRUE(cd.ok()) << c.name << ": " << cd.status();
+    const Vec3 lo = job->density.palette.MinColor(), hi = job->density.palette.MaxColor();
+    std::set<std::tuple<int, int, int>> colours;
+    for (size_t i = 0; i < cd->values.size(); ++i) {
+      ASSERT_EQ(bool(cd->active[i]), density->values[i] > 0) << c.name << " voxel " << i;
+      if (!cd->active[i]) continue;
+      const Vec3 v = cd->values[i];
+      for (int a = 0; a < 3; ++a) {
+        ASSERT_GE(v[a], lo[a] - 1e-5) << c.name;
+        ASSERT_LE(v[a], hi[a] + 1e-5) << c.name;
+      }
+      colours.insert({int(v.x * 255), int(v.y * 255), int(v.z * 255)});
+    }
+    EXPECT_GE(colours.size(), c.min_colours) << c.name;
   }
 }
 

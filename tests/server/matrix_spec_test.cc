@@ -128,6 +128,50 @@ TEST(MatrixSpec, MutableTreeConverts) {
   EXPECT_TRUE(job->ifs_matrix()->component_runs.empty());
   EXPECT_GT(job->ifs_matrix()->chain_states, 2u);
   EXPECT_EQ(job->work.total, 200000u);
+  // The chain of component (0, 1) of H: from the start, 17 unplotted
+  // steps of A_11's maps {T1, T2} forget the start point; a state for
+  // A_11 = {T1, T2} A_11 feeds the plotted state of A_01 = {T3, T4} A_01 U
+  // {T1, T2} A_11, which restarts with probability 1/34.
+  const MarkovChain& chain = *job->point_run()->chain;
+  const auto& maps = job->point_run()->ifs.maps;
+  auto name = [&](const ChainTransition& t) { return maps[t.map].name; };
+  ASSERT_EQ(chain.states.size(), 19u);
+  uint32_t s = chain.start_state;
+  for (int step = 0; step < 17; ++step) {
+    const ChainState& st = chain.states[s];
+    ASSERT_FALSE(st.plotted) << "warm-up state " << step;
+    ASSERT_EQ(st.transitions.size(), 2u);
+    EXPECT_EQ(name(st.transitions[0]), "T1");
+    EXPECT_EQ(name(st.transitions[1]), "T2");
+    EXPECT_EQ(st.transitions[0].next_state, st.transitions[1].next_state);
+    EXPECT_DOUBLE_EQ(st.probabilities[0], 0.5);
+    s = st.transitions[0].next_state;
+  }
+  const ChainState& a11 = chain.states[s];
+  EXPECT_FALSE(a11.plotted);
+  ASSERT_EQ(a11.transitions.size(), 4u);
+  uint32_t plotted = 0;
+  for (size_t i = 0; i < chain.states.size(); ++i) plotted += chain.states[i].plotted;
+  EXPECT_EQ(plotted, 1u);
+  for (size_t t = 0; t < 4; ++t) {
+    EXPECT_EQ(name(a11.transitions[t]), t % 2 ? "T2" : "T1");
+    EXPECT_DOUBLE_EQ(a11.probabilities[t], 0.25);
+    const uint32_t next = a11.transitions[t].next_state;
+    EXPECT_TRUE(next == s || chain.states[next].plotted) << t;
+  }
+  const uint32_t p = a11.transitions[0].next_state == s ? a11.transitions[2].next_state
+                                                         : a11.transitions[0].next_state;
+  const ChainState& a01 = chain.states[p];
+  ASSERT_TRUE(a01.plotted);
+  EXPECT_EQ(a01.label, 0);
+  ASSERT_EQ(a01.transitions.size(), 3u);
+  EXPECT_EQ(name(a01.transitions[0]), "T3");
+  EXPECT_EQ(name(a01.transitions[1]), "T4");
+  EXPECT_EQ(a01.transitions[0].next_state, p);
+  EXPECT_EQ(a01.transitions[1].next_state, p);
+  EXPECT_EQ(a01.transitions[2].next_state, chain.start_state);
+  EXPECT_NEAR(a01.probabilities[2], 1.0 / 34, 1e-12);
+  EXPECT_NEAR(a01.probabilities[0], 33.0 / 68, 1e-12);
   auto memory = server::AdmitMemory(*job, {}, 2);
   ASSERT_TRUE(memory.ok()) << memory.status();
   EXPECT_GT(memory->estimated_bytes, 0u);

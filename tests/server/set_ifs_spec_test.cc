@@ -239,9 +239,16 @@ TEST(SetIfsSpec, MeshesAreFittedIntoTheGrid) {
   ASSERT_TRUE(set.ok()) << set.status();
   auto box = set->BoundingBox();
   ASSERT_TRUE(box.has_value());
-  // Fitted with a 2-voxel margin on the tightest axis.
+  // Scaled uniformly to fill the grid but for a 2-voxel margin on its
+  // longest axis, and centred on every axis (voxel indices 0..31, so the
+  // centre is 15.5).
   const Int3 size = box->Size();
-  EXPECT_GE(std::max({size.x, size.y, size.z}), 26);
+  const int longest = size.x >= size.y && size.x >= size.z ? 0 : (size.y >= size.z ? 1 : 2);
+  EXPECT_GE(size[longest], 27);
+  EXPECT_LE(size[longest], 28);
+  EXPECT_GE(box->min[longest], 2);
+  EXPECT_LE(box->max[longest], 29);
+  for (int a = 0; a < 3; ++a) EXPECT_LE(std::abs(box->min[a] + box->max[a] - 31), 1) << "axis " << a;
 }
 
 TEST(SetIfsSpec, ResolveAssetPathsIsRelativeToTheSpecFolder) {

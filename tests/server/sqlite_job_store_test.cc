@@ -868,5 +868,122 @@ TEST_F(SqliteJobStoreTest, ReadsDoNotWaitForABlockedWrite) {
   EXPECT_EQ(a->error_code, 1);
 }
 
+
+// ---- Poison input: bounded text, byte-bounded pages, capped attempts ----
+
+TEST_F(SqliteJobStoreTest, ErrorOfManyMegabytesIsStoredTruncated) {
+  CreateOrDie(*store_, "big-error", kT0);
+  ASSERT_TRUE(store_->ClaimNext("w", kT0 + 1, 1000).ok());
+  Completion done;
+  done.state = JobState::kFailed;
+  done.error = std::string(8 << 20, 'x');
+  done.error_code = static_cast<int>(absl::StatusCode::kInvalidArgument);
+  ASSERT_TRUE(store_->Complete("big-error", "w", done, kT0 + 2).ok());
+  absl::StatusOr<JobRecord> got = store_->Get("big-error");
+  ASSERT_TRUE(got.ok()) << got.status();
+  EXPECT_EQ(got->state, JobState::kFailed);
+  EXPECT_LT(got->error.size(), 4200u);
+  EXPECT_EQ(got->error.substr(0, 100), std::string(100, 'x'));
+  EXPECT_NE(got->error.find("[truncated, 8388608 bytes]"), std::string::npos) << got->error;
+}
+
+TEST_F(SqliteJobStoreTest, HugeNameIsRefusedAndHugeIdIsNotEchoedWhole) {
+  NewJob job = MakeJob("named");
+  job.name = std::string(10 << 20, 'n');
+  absl::StatusOr<JobRecord> r = store_->Create(job, kT0);
+  ASSERT_EQ(r.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_LT(r.status().message().size(), 200u);
+  EXPECT_NE(r.status().message().find("name"), absl::string_view::npos);
+  EXPECT_EQ(store_->Get("named").status().code(), absl::StatusCode::kNotFound);
+
+  absl::StatusOr<JobRecord> missing = store_->Get(std::string(100'000, 'i'));
+  ASSERT_EQ(missing.status().code(), absl::StatusCode::kNotFound);
+  EXPECT_LT(missing.status().message().size(), 200u);
+}
+
+TEST_F(SqliteJobStoreTest, ListPagesStayUnderTheByteBound) {
+  // 400 failed jobs with errors of 1 MB each, stored as 4 KiB.
+  for (int i = 0; i < 400; ++i) {
+    const std::string id = "j" + std::to_string(1000 + i);
+    CreateOrDie(*store_, id, kT0 + i);
+    ASSERT_TRUE(store_->ClaimNext("w", kT0 + 1000, 100000).ok());
+    Completion done;
+    done.state = JobState::kFailed;
+    done.error = std::string(1 << 20, 'e');
+    ASSERT_TRUE(store_->Complete(id, "w", done, kT0 + 1001).ok());
+  }
+  ListOptions o;
+  o.page_size = 500;
+  o.max_bytes = 256 << 10;
+  std::set<std::string> seen;
+  int pages = 0;
+  while (true) {
+    absl::StatusOr<ListPage> page = store_->List(o);
+    ASSERT_TRUE(page.ok()) << page.status();
+    ++pages;
+    uint64_t bytes = 0;
+    for (const JobRecord& j : page->jobs) {
+      bytes += j.id.size() + j.name.size() + 2 * j.error.size() + j.warnings.size();
+      EXPECT_TRUE(seen.insert(j.id).second) << j.id;
+    }
+    EXPECT_LE(bytes, o.max_bytes);
+    EXPECT_FALSE(page->jobs.empty());
+    if (page->next_page_token.empty()) break;
+    o.page_token = page->next_page_token;
+  }
+  EXPECT_EQ(seen.size(), 400u);
+  EXPECT_GT(pages, 2);
+}
+
+TEST_F(SqliteJobStoreTest, AbandonedAttemptsEndFailedWithTheLastError) {
+  CreateOrDie(*store_, "poison", kT0);
+  CreateOrDie(*store_, "fine", kT0 + 1);
+  for (int attempt = 1; attempt <= 3; ++attempt) {
+    absl::StatusOr<std::optional<JobRecord>> c = store_->ClaimNext("w", kT0 + 10, 1000, 3);
+    ASSERT_TRUE(c.ok() && c->has_value()) << c.status();
+    ASSERT_EQ((*c)->id, "poison");
+    EXPECT_EQ((*c)->attempts, static_cast<uint32_t>(attempt));
+    ASSERT_TRUE(store_->AbandonAttempt("poison", "w",
+                                       "could not record the end, attempt " +
+                                           std::to_string(attempt),
+                                       static_cast<int>(absl::StatusCode::kInternal))
+                    .ok());
+    EXPECT_EQ(store_->Get("poison")->state, JobState::kQueued);
+  }
+  // The fourth claim gives the poison job up and hands out the next one.
+  std::vector<JobRecord> given_up;
+  absl::StatusOr<std::optional<JobRecord>> c =
+      store_->ClaimNext("w", kT0 + 20, 1000, 3, &given_up);
+  ASSERT_TRUE(c.ok() && c->has_value()) << c.status();
+  EXPECT_EQ((*c)->id, "fine");
+  ASSERT_EQ(given_up.size(), 1u);
+  EXPECT_EQ(given_up[0].id, "poison");
+  absl::StatusOr<JobRecord> poison = store_->Get("poison");
+  ASSERT_TRUE(poison.ok());
+  EXPECT_EQ(poison->state, JobState::kFailed);
+  EXPECT_EQ(poison->attempts, 3u);
+  EXPECT_EQ(poison->error,
+            "gave up after 3 attempts; the last one: could not record the end, attempt 3");
+  EXPECT_EQ(poison->error_code, static_cast<int>(absl::StatusCode::kInternal));
+}
+
+TEST_F(SqliteJobStoreTest, LapsedLeasesCountAsAttempts) {
+  CreateOrDie(*store_, "crashy", kT0);
+  for (int attempt = 1; attempt <= 2; ++attempt) {
+    absl::StatusOr<std::optional<JobRecord>> c =
+        store_->ClaimNext("w", kT0 + attempt * 1000, 100, 2);
+    ASSERT_TRUE(c.ok() && c->has_value()) << c.status();
+  }
+  absl::StatusOr<std::optional<JobRecord>> c = store_->ClaimNext("w", kT0 + 5000, 100, 2);
+  ASSERT_TRUE(c.ok()) << c.status();
+  EXPECT_FALSE(c->has_value());
+  absl::StatusOr<JobRecord> got = store_->Get("crashy");
+  ASSERT_TRUE(got.ok());
+  EXPECT_EQ(got->state, JobState::kFailed);
+  EXPECT_NE(got->error.find("gave up after 2 attempts: none recorded an end"),
+            std::string::npos)
+      << got->error;
+}
+
 }  // namespace
 }  // namespace nimbus::server

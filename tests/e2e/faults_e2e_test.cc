@@ -1,0 +1,141 @@
+// Hostile jobs against a real nimbusd on loopback: a job that spends its
+// time in warm-up still cancels at once, SIGTERM ends the server within its
+// drain time whatever runs, and absurd specs are refused at submit.
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <future>
+
+#include <grpcpp/grpcpp.h>
+
+#include "client/nimbus_client.h"
+#include "nimbus/v1/nimbus_service.grpc.pb.h"
+#include "proto/spec_io.h"
+#include "tests/support/nimbusd_process.h"
+#include "tests/support/test_util.h"
+
+namespace nimbus {
+namespace {
+
+using client::NimbusClient;
+using Clock = std::chrono::steady_clock;
+using ::testing::HasSubstr;
+
+// The largest warm-up allowed, on the slow (nonlinear) path, over many
+// chunks: each chunk is 16 million warm-up steps before its first point.
+v1::JobSpec WarmupHeavy() {
+  auto spec = spec::LoadSpecFile(testing::SourcePath("examples/sierpinski_tetrahedron.json"));
+  EXPECT_TRUE(spec.ok());
+  spec->mutable_grid()->set_resolution(0, 32);
+  auto* cg = spec->mutable_chaos_game();
+  cg->set_iterations(uint64_t{1} << 32);
+  cg->set_warmup(1'000'000);
+  for (auto& m : *cg->mutable_ifs()->mutable_maps()) {
+    auto* v = m.add_variations();
+    v->set_name("sinusoidal");
+    v->set_weight(0.5);
+  }
+  return *spec;
+}
+
+class FaultsE2E : public ::testing::Test {
+ protected:
+  void Start(std::vector<std::string> more) {
+    std::vector<std::string> args = {"--workers", "1", "--threads-per-job", "2", "--log-level",
+                                     "warn", "--min-free-disk-mib", "0"};
+    args.insert(args.end(), more.begin(), more.end());
+    server_.set_args(args);
+    const absl::Status s = server_.Start();
+    ASSERT_TRUE(s.ok()) << s;
+    client_ = NimbusClient::Connect(server_.target());
+    ASSERT_TRUE(client_->WaitForReady(20).ok()) << "nimbusd did not answer";
+  }
+
+  // Submits `spec` and returns its id once a worker runs it: reads the
+  // job's watch stream (events) until RUNNING, under a guard deadline.
+  std::string SubmitAndAwaitRunning(const v1::JobSpec& spec) {
+    auto job = client_->Submit(spec);
+    EXPECT_TRUE(job.ok()) << job.status();
+    if (!job.ok()) return "";
+    auto stub = v1::NimbusService::NewStub(
+        grpc::CreateChannel(server_.target(), grpc::InsecureChannelCredentials()));
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
+    v1::WatchJobRequest req;
+    req.set_job_id(job->id());
+    auto reader = stub->WatchJob(&ctx, req);
+    v1::WatchJobResponse r;
+    bool running = false;
+    while (!running && reader->Read(&r)) running = r.job().state() == v1::JOB_STATE_RUNNING;
+    ctx.TryCancel();
+    reader->Finish();
+    EXPECT_TRUE(running) << "the job never ran";
+    return running ? job->id() : "";
+  }
+
+  testing::TempDir dir_;
+  testing::NimbusdProcess server_{dir_ / "data"};
+  std::unique_ptr<NimbusClient> client_;
+};
+
+TEST_F(FaultsE2E, WarmupHeavyJobCancelsPromptly) {
+  // CancelJob answers CANCELLED only if the job stops within the wait.
+  Start({"--cancel-wait-ms", "30000"});
+  const std::string id = SubmitAndAwaitRunning(WarmupHeavy());
+  ASSERT_FALSE(id.empty());
+  auto cancelled = client_->Cancel(id);
+  ASSERT_TRUE(cancelled.ok()) << cancelled.status();
+  EXPECT_EQ(cancelled->state(), v1::JOB_STATE_CANCELLED);
+  EXPECT_EQ(cancelled->status().code(), 1);  // google.rpc.Code CANCELLED
+}
+
+TEST_F(FaultsE2E, SigtermEndsTheServerWithinItsDrainTime) {
+  constexpr int kDrainMs = 2000;
+  Start({"--drain-ms", std::to_string(kDrainMs)});
+  const std::string id = SubmitAndAwaitRunning(WarmupHeavy());
+  ASSERT_FALSE(id.empty());
+  const auto t0 = Clock::now();
+  auto stopped = std::async(std::launch::async, [this] { return server_.Stop(); });
+  // Guard only; the bound is asserted on the measured time below.
+  if (stopped.wait_for(std::chrono::seconds(60)) != std::future_status::ready) {
+    server_.Kill();
+    FAIL() << "nimbusd ignored SIGTERM for a minute";
+  }
+  const double seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  EXPECT_EQ(stopped.get(), 0) << "nimbusd did not stop cleanly";
+  EXPECT_LT(seconds, kDrainMs / 1000.0 + 3) << "a bound on stopping, not a speed claim";
+
+  // The interrupted job went back to the queue and runs again.
+  Start({"--cancel-wait-ms", "30000"});
+  auto job = client_->Get(id);
+  ASSERT_TRUE(job.ok()) << job.status();
+  EXPECT_TRUE(job->state() == v1::JOB_STATE_QUEUED || job->state() == v1::JOB_STATE_RUNNING)
+      << v1::JobState_Name(job->state());
+  EXPECT_TRUE(client_->Cancel(id).ok());
+}
+
+TEST_F(FaultsE2E, AbsurdSpecsAreRefusedAtSubmitByFieldName) {
+  Start({});
+  auto spec = WarmupHeavy();
+  spec.mutable_chaos_game()->set_warmup(4294967295u);
+  auto job = client_->Submit(spec);
+  ASSERT_FALSE(job.ok());
+  EXPECT_EQ(job.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_THAT(job.status().message(), HasSubstr("chaos_game.warmup"));
+
+  spec = WarmupHeavy();
+  spec.mutable_chaos_game()->mutable_ifs()->set_probability_mode(v1::ProbabilityMode(99));
+  job = client_->Submit(spec);
+  ASSERT_FALSE(job.ok());
+  EXPECT_THAT(job.status().message(), HasSubstr("chaos_game.ifs.probability_mode"));
+
+  spec = WarmupHeavy();
+  spec.mutable_grid()->mutable_bounds_max()->set_x(1e308);
+  job = client_->Submit(spec);
+  ASSERT_FALSE(job.ok());
+  EXPECT_THAT(job.status().message(), HasSubstr("grid.bounds_max.x"));
+}
+
+}  // namespace
+}  // namespace nimbus
