@@ -10,6 +10,10 @@ PACKAGES=(
   libspdlog-dev libcli11-dev libsqlite3-dev libssl-dev libabsl-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   python3-openvdb libopenvdb-tools
+  # The Python client (python/) and the Blender add-on test (dcc/blender/):
+  # Debian's grpc and protobuf for /usr/bin/python3, and Blender 3.4, whose
+  # Python is the system one.
+  python3-grpcio python3-protobuf blender
 )
 
 missing=()

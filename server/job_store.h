@@ -97,8 +97,9 @@ class JobStore {
   virtual ~JobStore() = default;
 
   /// Inserts a QUEUED job. A name longer than kMaxJobNameBytes is
-  /// INVALID_ARGUMENT; warnings are bounded (server/bounded_text.h). When `job.request_id` is non-empty and a job with
-  /// that key exists, returns the existing job instead (idempotent submit).
+  /// INVALID_ARGUMENT; warnings are bounded (server/bounded_text.h). When
+  /// `job.request_id` is non-empty and a job with that key exists, returns
+  /// the existing job instead (idempotent submit).
   virtual absl::StatusOr<JobRecord> Create(const NewJob& job, TimeMs now) = 0;
   /// NOT_FOUND for an unknown id.
   virtual absl::StatusOr<JobRecord> Get(const std::string& id) = 0;

@@ -41,7 +41,8 @@ absl::StatusOr<std::string> ReadRange(const std::filesystem::path& path, uint64_
 absl::Status DiskError(const std::string& what, int err) {
   const std::string detail = absl::StrCat(what, ": ", std::strerror(err));
   if (err == ENOSPC || err == EDQUOT)
-    return absl::ResourceExhaustedError(absl::StrCat("disk full while writing the result: ", detail));
+    return absl::ResourceExhaustedError(
+        absl::StrCat("disk full while writing the result: ", detail));
   return absl::InternalError(detail);
 }
 

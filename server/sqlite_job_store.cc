@@ -706,10 +706,9 @@ absl::Status SqliteJobStore::GiveUpLocked(const std::string& id, uint32_t attemp
   return s->Run();
 }
 
-absl::StatusOr<std::optional<JobRecord>> SqliteJobStore::ClaimNext(const std::string& worker_id,
-                                                                   TimeMs now, TimeMs lease_ms,
-                                                                   uint32_t max_attempts,
-                                                                   std::vector<JobRecord>* given_up) {
+absl::StatusOr<std::optional<JobRecord>> SqliteJobStore::ClaimNext(
+    const std::string& worker_id, TimeMs now, TimeMs lease_ms, uint32_t max_attempts,
+    std::vector<JobRecord>* given_up) {
   std::lock_guard<std::mutex> lock(mu_);
   Transaction txn(this);
   if (absl::Status s = txn.Begin(); !s.ok()) return s;

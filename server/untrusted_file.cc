@@ -37,6 +37,7 @@ constexpr char kEnvPath[] = "NIMBUS_FILE_CHECK_PATH";
 constexpr char kEnvFormat[] = "NIMBUS_FILE_CHECK_FORMAT";
 constexpr char kEnvMemory[] = "NIMBUS_FILE_CHECK_MEMORY";
 constexpr char kEnvCpu[] = "NIMBUS_FILE_CHECK_CPU";
+constexpr char kCheckerArg0[] = "nimbus-file-check";
 constexpr int kExitRejected = 3;
 // The reader's own words kept in a message; its text can be a gigabyte.
 constexpr size_t kMaxReasonBytes = 300;
@@ -121,10 +122,14 @@ int RunChecker(const char* mode) {
   return kExitRejected;
 }
 
-// The checker's entry point: a process started with NIMBUS_FILE_CHECK set
-// never reaches main. _Exit skips the static destructors of a program that
-// never ran.
-__attribute__((constructor)) void FileCheckEntry() {
+// The checker's entry point: a process started as kCheckerArg0 with
+// NIMBUS_FILE_CHECK set never reaches main (both, so a stray variable in an
+// operator's shell cannot turn nimbusd into a checker). glibc passes
+// main's arguments to constructors. _Exit skips the static destructors of a
+// program that never ran.
+__attribute__((constructor)) void FileCheckEntry(int argc, char** argv, char**) {
+  if (argc < 1 || argv == nullptr || argv[0] == nullptr) return;
+  if (std::strcmp(argv[0], kCheckerArg0) != 0) return;
   const char* mode = std::getenv(kEnvMode);
   if (mode != nullptr && *mode != '\0') std::_Exit(RunChecker(mode));
 }
@@ -156,8 +161,8 @@ absl::StatusOr<pid_t> Spawn(const UntrustedFile& file, const SandboxLimits& limi
   std::vector<char*> envp;
   for (std::string& e : env) envp.push_back(e.data());
   envp.push_back(nullptr);
-  char arg0[] = "nimbus-file-check";
-  char* argv[] = {arg0, nullptr};
+  std::string arg0 = kCheckerArg0;
+  char* argv[] = {arg0.data(), nullptr};
 
   posix_spawn_file_actions_t actions;
   posix_spawn_file_actions_init(&actions);

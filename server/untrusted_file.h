@@ -8,11 +8,11 @@
 // parent); a poison file costs that child, never nimbusd.
 //
 // How the child starts: the parent posix_spawn()s /proc/self/exe (safe in
-// a multithreaded process: nothing of ours runs between fork and exec) with
-// NIMBUS_FILE_CHECK in its environment. A constructor in untrusted_file.cc
-// sees that variable before main, runs the check with its limits applied
-// and _exits, so every binary linking the server library (nimbusd and the
-// tests) is its own checker and no extra executable is installed.
+// a multithreaded process: nothing of ours runs between fork and exec) as
+// "nimbus-file-check" with NIMBUS_FILE_CHECK in its environment. A
+// constructor in untrusted_file.cc sees both before main, applies the
+// limits to itself, runs the check and _exits, so every binary linking the server library (nimbusd
+// and the tests) is its own checker and no extra executable is installed.
 #pragma once
 
 #include <cstdint>

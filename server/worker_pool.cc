@@ -289,9 +289,9 @@ void WorkerPool::RunJob(const JobRecord& record, const std::string& worker_id) {
       const auto& p = ctx.view().progress();
       (void)store_->Heartbeat(id, worker_id, NowMs(), options_.lease_ms, p.total(), p.total());
     }
-    RecordEnd(id, worker_id, done);
-    spdlog::info("job={} event=end state={} error=\"{}\"", id,
-                 v1::JobState_Name(ToProto(done.state)), done.error);
+    if (RecordEnd(id, worker_id, done))
+      spdlog::info("job={} event=end state={} error=\"{}\"", id,
+                   v1::JobState_Name(ToProto(done.state)), done.error);
   }
   if (auto final_record = store_->Get(id); final_record.ok()) {
     v1::Job final_view = ToProto(*final_record, false);
@@ -308,17 +308,19 @@ void WorkerPool::RunJob(const JobRecord& record, const std::string& worker_id) {
 // fails) is tried once more with a short error and no warnings. If that
 // fails too, the attempt is abandoned with its reason: the job goes back to
 // the queue, and ClaimNext fails it once its attempts run out.
-void WorkerPool::RecordEnd(const std::string& id, const std::string& worker_id,
+bool WorkerPool::RecordEnd(const std::string& id, const std::string& worker_id,
                            const Completion& done) {
   absl::Status st = store_->Complete(id, worker_id, done, NowMs());
+  if (st.ok()) return true;
   // Not ours any more (or gone): nothing to record.
-  if (st.ok() || absl::IsFailedPrecondition(st) || absl::IsNotFound(st)) return;
+  if (absl::IsFailedPrecondition(st) || absl::IsNotFound(st)) return false;
   spdlog::error("job={} event=complete_failed error=\"{}\"", id, BoundText(st.ToString(), 512));
   Completion brief = done;
   brief.error = BoundText(done.error, 256);
   brief.warnings.clear();
   st = store_->Complete(id, worker_id, brief, NowMs());
-  if (st.ok() || absl::IsFailedPrecondition(st) || absl::IsNotFound(st)) return;
+  if (st.ok()) return true;
+  if (absl::IsFailedPrecondition(st) || absl::IsNotFound(st)) return false;
   const std::string reason =
       absl::StrCat("could not record the job's end (", BoundText(st.message(), 256), ")",
                    done.error.empty() ? "" : "; it ended: ", BoundText(done.error, 256));
@@ -326,6 +328,7 @@ void WorkerPool::RecordEnd(const std::string& id, const std::string& worker_id,
   st = store_->AbandonAttempt(id, worker_id, reason, code);
   spdlog::error("job={} event=attempt_abandoned reason=\"{}\" status=\"{}\"", id, reason,
                 BoundText(st.ToString(), 512));
+  return false;
 }
 
 void WorkerPool::PublishGivenUp(const std::vector<JobRecord>& jobs) {

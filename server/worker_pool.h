@@ -54,9 +54,9 @@ class WorkerPool {
   void Loop(int index);
   void RunJob(const JobRecord& job, const std::string& worker_id);
   absl::Status ConvertAndRun(const v1::JobSpec& spec, JobContext& ctx);
-  // Stores the end of an attempt; see worker_pool.cc for what a failing
-  // store gets.
-  void RecordEnd(const std::string& id, const std::string& worker_id, const Completion& done);
+  // Stores the end of an attempt; false when it could not (see
+  // worker_pool.cc for what a failing store gets).
+  bool RecordEnd(const std::string& id, const std::string& worker_id, const Completion& done);
   // Tells watchers of jobs the store failed for running out of attempts.
   void PublishGivenUp(const std::vector<JobRecord>& jobs);
 

@@ -317,7 +317,8 @@ ChaosGameStats ChaosGame::stats() const {
 bool ChaosGame::Stopping(uint64_t chunk) {
   if (!poll_stop_) return false;
   if (poll_stop_->load(std::memory_order_relaxed)) return true;
-  if (!OrNull(poll_intr_).WasInterrupted(chunk * kChunkIterations, params_.iterations)) return false;
+  if (!OrNull(poll_intr_).WasInterrupted(chunk * kChunkIterations, params_.iterations))
+    return false;
   poll_stop_->store(true, std::memory_order_relaxed);
   return true;
 }

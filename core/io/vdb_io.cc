@@ -102,7 +102,8 @@ std::atomic<int> g_fail_errno{0};
 absl::Status WriteError(const std::filesystem::path& path, int err, const std::string& what) {
   const std::string detail = absl::StrCat(path.string(), ": ", what, ": ", std::strerror(err));
   if (err == ENOSPC || err == EDQUOT)
-    return absl::ResourceExhaustedError(absl::StrCat("disk full while writing the result: ", detail));
+    return absl::ResourceExhaustedError(
+        absl::StrCat("disk full while writing the result: ", detail));
   return absl::InternalError(absl::StrCat("cannot write the result: ", detail));
 }
 
@@ -192,7 +193,8 @@ absl::Status WriteChecked(const std::filesystem::path& path, const std::filesyst
     archive.WriteTo(os, grids);
     os.flush();
   } catch (const std::exception& e) {
-    if (buf.error() == 0) st = absl::InternalError(absl::StrCat("writing ", path.string(), ": ", e.what()));
+    if (buf.error() == 0)
+      st = absl::InternalError(absl::StrCat("writing ", path.string(), ": ", e.what()));
   }
   buf.Flush();
   if (st.ok() && buf.error() != 0) st = WriteError(path, buf.error(), "write failed");

@@ -26,7 +26,8 @@ class StopAtOnce : public Interrupter {
 // walker: one chunk's warm-up alone is 6.4·10¹⁰ steps, minutes of work.
 ChaosGameParams EndlessWarmup(bool nonlinear) {
   ChaosGameParams p;
-  const Vec3 corners[4] = {{0.5, 0.5, 0.5}, {0.5, -0.5, -0.5}, {-0.5, 0.5, -0.5}, {-0.5, -0.5, 0.5}};
+  const Vec3 corners[4] = {
+      {0.5, 0.5, 0.5}, {0.5, -0.5, -0.5}, {-0.5, 0.5, -0.5}, {-0.5, -0.5, 0.5}};
   for (const Vec3& c : corners) {
     PointMap m;
     m.pre = Affine3::Translate(c) * Affine3::Scale({0.5, 0.5, 0.5});

@@ -4,12 +4,18 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <sys/mount.h>
+
+#include <cerrno>
 #include <chrono>
+#include <cstring>
+#include <fstream>
 #include <future>
 
 #include <grpcpp/grpcpp.h>
 
 #include "client/nimbus_client.h"
+#include "core/base/sha256.h"
 #include "nimbus/v1/nimbus_service.grpc.pb.h"
 #include "proto/spec_io.h"
 #include "tests/support/nimbusd_process.h"
@@ -135,6 +141,70 @@ TEST_F(FaultsE2E, AbsurdSpecsAreRefusedAtSubmitByFieldName) {
   job = client_->Submit(spec);
   ASSERT_FALSE(job.ok());
   EXPECT_THAT(job.status().message(), HasSubstr("grid.bounds_max.x"));
+}
+
+v1::JobSpec Tetrahedron(int resolution, uint64_t iterations) {
+  auto spec = spec::LoadSpecFile(testing::SourcePath("examples/sierpinski_tetrahedron.json"));
+  EXPECT_TRUE(spec.ok());
+  spec->mutable_grid()->set_resolution(0, resolution);
+  spec->mutable_chaos_game()->set_iterations(iterations);
+  return *spec;
+}
+
+// Fills the file system of `dir`, leaving about `keep` bytes free.
+void FillLeaving(const std::filesystem::path& dir, uint64_t keep) {
+  const std::filesystem::space_info space = std::filesystem::space(dir);
+  std::ofstream out(dir / "filler", std::ios::binary);
+  const std::string block(4096, 'x');
+  for (uint64_t left = space.available > keep ? space.available - keep : 0; left >= block.size();
+       left -= block.size())
+    if (!out.write(block.data(), std::streamsize(block.size()))) break;
+}
+
+// results/ on a 8 MiB tmpfs (the job database stays on the normal disk,
+// so only the result write meets the full disk).
+TEST_F(FaultsE2E, FullDiskFailsTheJobClearlyAndKeepsServingReads) {
+  const std::filesystem::path mnt = dir_ / "tiny";
+  std::filesystem::create_directories(mnt);
+  if (::mount("tmpfs", mnt.c_str(), "tmpfs", 0, "size=8m") != 0)
+    GTEST_SKIP() << "cannot mount a tmpfs here (" << std::strerror(errno) << ")";
+  struct Unmount {
+    std::filesystem::path p;
+    ~Unmount() { ::umount2(p.c_str(), MNT_DETACH); }
+  } unmount{mnt};
+  std::filesystem::create_directories(mnt / "results" / "scratch");
+  std::filesystem::create_directories(dir_ / "data");
+  std::filesystem::create_directory_symlink(mnt / "results", dir_ / "data" / "results");
+  Start({"--cancel-wait-ms", "30000"});
+
+  auto small = client_->Submit(Tetrahedron(32, 100'000));
+  ASSERT_TRUE(small.ok()) << small.status();
+  auto small_done = client_->Watch(small->id(), {}, [](const v1::WatchJobResponse&) {});
+  ASSERT_TRUE(small_done.ok() && small_done->state() == v1::JOB_STATE_SUCCEEDED);
+
+  FillLeaving(mnt, 600 << 10);
+  auto big = client_->Submit(Tetrahedron(200, 80'000'000));
+  ASSERT_TRUE(big.ok()) << big.status();
+  auto big_done = client_->Watch(big->id(), {}, [](const v1::WatchJobResponse&) {});
+  ASSERT_TRUE(big_done.ok()) << big_done.status();
+  EXPECT_EQ(big_done->state(), v1::JOB_STATE_FAILED);
+  EXPECT_EQ(big_done->status().code(), int(absl::StatusCode::kResourceExhausted));
+  EXPECT_THAT(big_done->error(), HasSubstr("disk full while writing the result"));
+  // Nothing of the failed job is left, in results/ or its scratch.
+  std::vector<std::string> names;
+  for (const auto& e : std::filesystem::recursive_directory_iterator(mnt / "results"))
+    if (e.is_regular_file()) names.push_back(e.path().filename().string());
+  EXPECT_EQ(names, std::vector<std::string>{small->id() + ".vdb"});
+
+  // Restarted on the full disk, the server still answers and serves files.
+  server_.Stop();
+  std::ofstream(mnt / "filler", std::ios::app) << std::string(1 << 20, 'x');
+  Start({});
+  auto got = client_->Get(big->id());
+  ASSERT_TRUE(got.ok()) << got.status();
+  EXPECT_EQ(got->state(), v1::JOB_STATE_FAILED);
+  ASSERT_TRUE(client_->Fetch(small->id(), dir_ / "small.vdb").ok());
+  EXPECT_EQ(*Sha256File(dir_ / "small.vdb"), small_done->result().sha256());
 }
 
 }  // namespace

@@ -2,9 +2,8 @@
 // garbage meshes are refused at upload or submit with a message naming the
 // field, huge names and ids are refused or cut, and the server keeps
 // serving everyone else.
-#include <gtest/gtest.h>
-
 #include <gmock/gmock.h>
+#include <gtest/gtest.h>
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/LevelSetSphere.h>
 
@@ -107,8 +106,8 @@ TEST_F(PoisonE2E, DamagedVdbIsRefusedAtUploadAndAtSubmit) {
   // is refused at submit, naming the field.
   ASSERT_TRUE(Upload("blob", cut).ok());
   v1::JobSpec spec = CowCloud();
-  v1::GridSource* grid = spec.mutable_set_ifs()->mutable_maps(0)->mutable_condensation()
-                             ->mutable_grid();
+  v1::GridSource* grid =
+      spec.mutable_set_ifs()->mutable_maps(0)->mutable_condensation()->mutable_grid();
   grid->mutable_asset()->set_sha256(sha);
   grid->mutable_asset()->set_label("cow.vdb");
   auto job = client_->Submit(spec);

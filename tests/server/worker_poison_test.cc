@@ -2,9 +2,8 @@
 // completion once with a short error, then abandons the attempt with its
 // reason, and the store fails the job once its attempts run out. The
 // worker keeps serving other jobs throughout.
-#include <gtest/gtest.h>
-
 #include <gmock/gmock.h>
+#include <gtest/gtest.h>
 
 #include <atomic>
 #include <chrono>
@@ -13,6 +12,7 @@
 
 #include "server/job_hub.h"
 #include "server/job_store.h"
+#include "server/job_view.h"
 #include "server/result_store.h"
 #include "server/worker_pool.h"
 #include "tests/support/test_util.h"
@@ -30,8 +30,8 @@ class CompleteFailsStore final : public JobStore {
   }
   absl::StatusOr<JobRecord> Get(const std::string& id) override { return inner_->Get(id); }
   absl::StatusOr<ListPage> List(const ListOptions& o) override { return inner_->List(o); }
-  absl::StatusOr<std::optional<JobRecord>> ClaimNext(const std::string& w, TimeMs now,
-                                                     TimeMs lease, uint32_t max_attempts,
+  absl::StatusOr<std::optional<JobRecord>> ClaimNext(const std::string& w, TimeMs now, TimeMs lease,
+                                                     uint32_t max_attempts,
                                                      std::vector<JobRecord>* given_up) override {
     return inner_->ClaimNext(w, now, lease, max_attempts, given_up);
   }
@@ -44,8 +44,8 @@ class CompleteFailsStore final : public JobStore {
     ++completes;
     return absl::ResourceExhaustedError(std::string(2 << 20, 'm'));
   }
-  absl::Status AbandonAttempt(const std::string& id, const std::string& w,
-                              const std::string& error, int code) override {
+  absl::Status AbandonAttempt(const std::string& id, const std::string& w, const std::string& error,
+                              int code) override {
     return inner_->AbandonAttempt(id, w, error, code);
   }
   absl::Status Release(const std::string& id, const std::string& w) override {

@@ -1,0 +1,266 @@
+"""The nimbus Python client against a real nimbusd on loopback.
+
+Run: /usr/bin/python3 -m unittest discover -s python/tests (with NIMBUSD set,
+or nimbusd in build/bin); ctest runs it as python_client.
+"""
+
+import hashlib
+import json
+import shutil
+import sys
+import tempfile
+import unittest
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent.parent
+sys.path.insert(0, str(REPO / "python"))
+
+import grpc  # noqa: E402
+
+import nimbus  # noqa: E402
+from nimbus.testing import LocalServer  # noqa: E402
+
+EXAMPLES = REPO / "examples"
+
+
+def small_tree(resolution=(8, 64, 60), iterations=4_000_000):
+    """examples/tree.json with a small grid and budget: runs in well under a second."""
+    spec = json.loads((EXAMPLES / "tree.json").read_text())
+    spec["grid"]["resolution"] = list(resolution)
+    spec["chaos_game"]["iterations"] = str(iterations)
+    return spec
+
+
+def sha256(path):
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+class ClientTest(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        cls.server = LocalServer().start()
+        cls.client = nimbus.Client(cls.server.address)
+
+    @classmethod
+    def tearDownClass(cls):
+        cls.client.close()
+        cls.server.cleanup()
+
+    def setUp(self):
+        self.tmp = Path(tempfile.mkdtemp(prefix="nimbus-pytest-"))
+        self.addCleanup(shutil.rmtree, self.tmp, True)
+
+    def test_submit_get_list_and_wait(self):
+        job = self.client.submit(small_tree())
+        self.assertTrue(job.id)
+        self.assertEqual(job.name, "tree")
+        self.assertEqual(self.client.get(job.id).id, job.id)
+        self.assertIn(job.id, [j.id for j in self.client.list()])
+        final = self.client.wait(job)
+        self.assertEqual(nimbus.state_name(final.state), "SUCCEEDED")
+        self.assertIn(job.id, [j.id for j in self.client.list(state="SUCCEEDED")])
+        self.assertEqual(final.result.file_name, "tree.vdb")
+        self.assertEqual(len(final.result.sha256), 64)
+
+    def test_text_format_spec_file(self):
+        spec, _ = nimbus.load_spec(EXAMPLES / "sierpinski_tetrahedron.txtpb")
+        spec.grid.ClearField("resolution")
+        spec.grid.resolution.append(32)
+        spec.chaos_game.iterations = 200_000
+        out = self.tmp / "tet.vdb"
+        r = self.client.render(spec, out)
+        self.assertEqual(r.sha256, sha256(out))
+        info = nimbus.vdb.read_info(out)
+        self.assertEqual(info.grids[0].metadata["nimbus_resolution"], (32, 32, 32))
+        self.assertEqual(info.grids[0].name, "density")
+        self.assertEqual(info.grids[0].metadata["class"], "fog volume")
+
+    def test_vdb_metadata_reader_agrees_with_pyopenvdb(self):
+        try:
+            import pyopenvdb
+        except ImportError:
+            self.skipTest("pyopenvdb (python3-openvdb) is not installed")
+        out = self.tmp / "tree.vdb"
+        self.client.render(small_tree(), out)
+        grids, _ = pyopenvdb.readAll(str(out))
+        info = nimbus.vdb.read_info(out)
+        self.assertEqual([g.name for g in info.grids], [g.name for g in grids])
+        ours = info.grids[0].metadata
+        theirs = grids[0].metadata
+        self.assertGreater(len(theirs), 10)
+        for key, value in theirs.items():
+            got = ours[key]
+            if isinstance(value, float):
+                self.assertAlmostEqual(got, value, msg=key)
+            elif isinstance(value, (tuple, list)):
+                for a, b in zip(got, value):
+                    self.assertAlmostEqual(a, b, msg=key)
+            else:
+                self.assertEqual(got, value, key)
+
+    def test_watch_saves_dense_previews_with_their_progress(self):
+        job = self.client.submit(small_tree(iterations=40_000_000))
+        previews_dir = self.tmp / "previews"
+        events = list(self.client.watch(job, previews_dir=previews_dir, preview_interval=0.05))
+        self.assertEqual(events[-1].state, "SUCCEEDED")
+        previews = [e.preview for e in events if e.preview is not None]
+        self.assertGreaterEqual(len(previews), 2, "a 40M-point job should send several previews")
+        # Files are numbered 1..n in the order received; sequence numbers
+        # only increase but may skip (the hub sends the newest one).
+        self.assertEqual([p.index for p in previews], list(range(1, len(previews) + 1)))
+        seqs = [p.sequence for p in previews]
+        self.assertEqual(seqs, sorted(set(seqs)))
+        names = sorted(f.name for f in previews_dir.glob("*.vdb"))
+        self.assertEqual(names, [f"tree.preview.{i:04d}.vdb" for i in range(1, len(previews) + 1)])
+        manifest = json.loads((previews_dir / "tree.previews.json").read_text())
+        self.assertEqual(manifest["job_id"], job.id)
+        self.assertEqual([m["done"] for m in manifest["previews"]], [p.done for p in previews])
+        dones = [p.done for p in previews]
+        self.assertEqual(dones, sorted(dones))
+        self.assertTrue(all(0 < d <= 40_000_000 for d in dones), dones)
+        for p in previews:
+            self.assertEqual(p.path.read_bytes(), p.vdb)
+            self.assertEqual(p.vdb[:8], (0x56444220).to_bytes(8, "little"))  # VDB magic
+
+        # Re-attaching to the finished job into the same folder ends at once
+        # and leaves the saved previews as they were.
+        again = list(self.client.watch(job, previews_dir=previews_dir))
+        self.assertEqual(again[-1].state, "SUCCEEDED")
+        for p in previews:
+            self.assertEqual(p.path.read_bytes(), p.vdb)
+
+    def test_fetch_resumes_a_truncated_file_and_checks_sha256(self):
+        final = self.client.wait(self.client.submit(small_tree(resolution=(16, 128, 120))))
+        out = self.tmp / "tree.vdb"
+        first = self.client.fetch(final, out)
+        whole = out.read_bytes()
+        self.assertEqual(first.resumed_from, 0)
+        self.assertEqual(first.received, len(whole))
+        self.assertEqual(first.sha256, final.result.sha256)
+        self.assertEqual(sha256(out), final.result.sha256)
+        self.assertGreater(len(whole), 1000)
+
+        # A truncated download resumes from where it stopped.
+        half = len(whole) // 2
+        out.write_bytes(whole[:half])
+        again = self.client.fetch(final.id, out)
+        self.assertEqual(again.resumed_from, half)
+        self.assertEqual(again.received, len(whole) - half)
+        self.assertEqual(out.read_bytes(), whole)
+        self.assertFalse(Path(str(out) + ".part").exists())
+
+        # So does an interrupted one left in OUT.part.
+        Path(str(out) + ".part").write_bytes(whole[:100])
+        out.unlink()
+        self.assertEqual(self.client.fetch(final, out).resumed_from, 100)
+        self.assertEqual(out.read_bytes(), whole)
+
+        # A partial file that is not a prefix of the result fails the sha256
+        # check and is downloaded again from the start.
+        out.write_bytes(b"x" * half)
+        fixed = self.client.fetch(final, out)
+        self.assertEqual(fixed.resumed_from, 0)
+        self.assertEqual(out.read_bytes(), whole)
+
+    def test_fetch_before_the_job_succeeded_is_failed_precondition(self):
+        job = self.client.submit(small_tree(resolution=(32, 256, 240), iterations=4_000_000_000))
+        try:
+            with self.assertRaises(nimbus.NimbusError) as cm:
+                self.client.fetch(job, self.tmp / "early.vdb")
+            self.assertEqual(cm.exception.code, grpc.StatusCode.FAILED_PRECONDITION)
+        finally:
+            cancelled = self.client.cancel(job)
+        final = self.client.wait(cancelled)
+        self.assertEqual(nimbus.state_name(final.state), "CANCELLED")
+        with self.assertRaises(nimbus.JobFailedError) as cm:
+            nimbus.raise_for_job(final)
+        self.assertEqual(cm.exception.code, grpc.StatusCode.CANCELLED)
+
+    def test_mesh_assets_are_uploaded_and_pinned(self):
+        spec = json.loads((EXAMPLES / "cow_cloud.json").read_text())
+        spec["grid"]["resolution"] = [40]
+        spec["set_ifs"]["random"]["iterations"] = "6"
+        spec["set_ifs"]["random"]["warmup"] = 2
+        spec_path = self.tmp / "cow_small.json"
+        spec_path.write_text(json.dumps(spec))
+        # Relative mesh paths resolve against the spec's folder, so point
+        # this copy's base at examples/.
+        job = self.client.submit(spec_path, base_dir=EXAMPLES)
+        cow_sha = sha256(EXAMPLES / "meshes" / "cow.obj")
+        stored = self.client.get(job).spec
+        assets = []
+        nimbus.for_each_asset(stored, lambda f, a: assets.append((f, a)))
+        self.assertEqual([f for f, _ in assets],
+                         ["set_ifs.maps[0].condensation.mesh.asset",
+                          "set_ifs.maps[1].condensation.random_balls.inside.mesh.asset"])
+        for _, a in assets:
+            self.assertEqual(a.WhichOneof("source"), "sha256")
+            self.assertEqual(a.sha256, cow_sha)
+            self.assertEqual(a.label, "cow.obj")
+        final = self.client.wait(job)
+        self.assertEqual(nimbus.state_name(final.state), "SUCCEEDED", final.status.message)
+        out = self.tmp / "cow.vdb"
+        self.client.fetch(final, out)
+        info = nimbus.vdb.read_info(out)
+        self.assertEqual(info.grids[0].metadata["nimbus_resolution"][0], 40)
+
+    def test_missing_asset_names_its_field(self):
+        spec = json.loads((EXAMPLES / "cow_cloud.json").read_text())
+        spec["set_ifs"]["maps"][1]["condensation"]["random_balls"]["inside"]["mesh"]["asset"][
+            "path"] = "meshes/no_such_mesh.obj"
+        with self.assertRaises(nimbus.NimbusError) as cm:
+            self.client.submit(spec, base_dir=EXAMPLES)
+        self.assertEqual(cm.exception.code, grpc.StatusCode.NOT_FOUND)
+        self.assertEqual(cm.exception.field,
+                         "set_ifs.maps[1].condensation.random_balls.inside.mesh.asset.path")
+        self.assertIn("no_such_mesh.obj", cm.exception.details)
+
+    def test_invalid_spec_error_carries_code_and_field_path(self):
+        spec = small_tree()
+        spec["grid"]["resolution"] = [8, 0, 60]
+        with self.assertRaises(nimbus.NimbusError) as cm:
+            self.client.submit(spec)
+        e = cm.exception
+        self.assertEqual(e.code, grpc.StatusCode.INVALID_ARGUMENT)
+        self.assertEqual(e.field, "grid.resolution[1]")
+        self.assertIn("must be positive", e.details)
+
+    def test_unknown_job_is_not_found(self):
+        with self.assertRaises(nimbus.NimbusError) as cm:
+            self.client.get("j-does-not-exist")
+        self.assertEqual(cm.exception.code, grpc.StatusCode.NOT_FOUND)
+        self.assertIsNone(cm.exception.field)
+
+    def test_unparseable_spec_is_invalid_argument_before_any_call(self):
+        bad = self.tmp / "bad.json"
+        bad.write_text('{"grid": {"resolutoin": [8]}}')
+        with self.assertRaises(nimbus.NimbusError) as cm:
+            self.client.submit(bad)
+        self.assertEqual(cm.exception.code, grpc.StatusCode.INVALID_ARGUMENT)
+        self.assertIn("resolutoin", cm.exception.details)
+
+
+class FieldPathTest(unittest.TestCase):
+    def test_parse(self):
+        p = nimbus.parse_field_path
+        self.assertEqual(p("grid.resolution[1]: must be positive, got 0"), "grid.resolution[1]")
+        self.assertEqual(p("chaos_game.ifs.maps[2].steps[0].rotate.axis: must be non-zero"),
+                         "chaos_game.ifs.maps[2].steps[0].rotate.axis")
+        self.assertIsNone(p("server busy, retry later"))
+        self.assertIsNone(p("no job j-1"))
+
+
+class UnreachableServerTest(unittest.TestCase):
+    def test_unavailable(self):
+        with LocalServer() as srv:
+            address = srv.address
+        c = nimbus.Client(address, reconnect_timeout=0.5)
+        c.timeout = 1.0
+        with self.assertRaises(nimbus.NimbusError) as cm:
+            c.get("j-x")
+        self.assertIn(cm.exception.code, (grpc.StatusCode.UNAVAILABLE,
+                                          grpc.StatusCode.DEADLINE_EXCEEDED))
+
+
+if __name__ == "__main__":
+    unittest.main()
