@@ -121,26 +121,41 @@ const char* StateName(v1::JobState s) {
   }
 }
 
-// Draws a progress bar on a terminal, or a line per 10% otherwise.
+// The phase a running job is in, as the progress line names it.
+std::string PhaseLabel(const v1::Job& job) {
+  if (job.state() != v1::JOB_STATE_RUNNING) return StateName(job.state());
+  switch (job.progress().phase()) {
+    case v1::PROGRESS_PHASE_PREPARING: return "preparing";
+    case v1::PROGRESS_PHASE_ITERATING: return "iterating";
+    case v1::PROGRESS_PHASE_WRITING: return "writing";
+    default: return "running";
+  }
+}
+
+// Draws a progress bar on a terminal, or a line per 10% otherwise. Each
+// phase counts its own units, so the bar restarts when the phase changes.
 class ProgressView {
  public:
   ProgressView() : tty_(::isatty(2)) {}
   void Update(const v1::Job& job) {
     const auto& p = job.progress();
     const double f = p.total() ? double(p.done()) / double(p.total()) : 0;
+    const std::string label = PhaseLabel(job);
+    const std::string unit = p.unit().empty() ? "it" : p.unit();
     if (tty_) {
       const int width = 30, filled = int(f * width);
       std::string bar(filled, '#');
       bar.resize(width, '.');
-      std::fprintf(stderr, "\r%-9s [%s] %5.1f%%  %s it/s  ETA %s   ", StateName(job.state()),
-                   bar.c_str(), 100 * f, Human(p.rate()).c_str(), Duration(p.eta_seconds()).c_str());
+      std::fprintf(stderr, "\r%-9s [%s] %5.1f%%  %s %s/s  ETA %s   ", label.c_str(), bar.c_str(),
+                   100 * f, Human(p.rate()).c_str(), unit.c_str(),
+                   Duration(p.eta_seconds()).c_str());
       std::fflush(stderr);
       drawn_ = true;
-    } else if (int(f * 10) != last_decile_ || job.state() != last_state_) {
+    } else if (int(f * 10) != last_decile_ || label != last_label_) {
       last_decile_ = int(f * 10);
-      last_state_ = job.state();
-      std::fprintf(stderr, "%s %5.1f%%  %s it/s  ETA %s\n", StateName(job.state()), 100 * f,
-                   Human(p.rate()).c_str(), Duration(p.eta_seconds()).c_str());
+      last_label_ = label;
+      std::fprintf(stderr, "%s %5.1f%%  %s %s/s  ETA %s\n", label.c_str(), 100 * f,
+                   Human(p.rate()).c_str(), unit.c_str(), Duration(p.eta_seconds()).c_str());
     }
   }
   void Done() {
@@ -152,7 +167,7 @@ class ProgressView {
   bool tty_;
   bool drawn_ = false;
   int last_decile_ = -1;
-  v1::JobState last_state_ = v1::JOB_STATE_UNSPECIFIED;
+  std::string last_label_;
 };
 
 struct WatchArgs {

@@ -373,6 +373,7 @@ absl::StatusOr<Drawing> ConvertDrawing(const v1::IfsMatrixSystem& ms, const MapT
   if (!(d.floor >= 0 && d.floor <= 1))
     return Invalid(path + ".probability_floor", "must be in [0, 1]");
   if (d.floor == 0) d.floor = 0.01;
+  NIMBUS_RETURN_IF_ERROR(CheckProbabilityMode(ms.probability_mode(), path + ".probability_mode"));
   v1::ProbabilityMode mode = ms.probability_mode();
   if (mode == v1::PROBABILITY_MODE_UNSPECIFIED) {
     // As for a plain IFS: explicit when every map gives a probability.
@@ -391,6 +392,12 @@ absl::StatusOr<Drawing> ConvertDrawing(const v1::IfsMatrixSystem& ms, const MapT
   for (uint32_t t = 0; t < table.size(); ++t) {
     double w = 1;
     for (uint32_t letter : table.word(t)) w *= ms.maps(int(letter)).probability();
+    // Products of large weights can overflow; explicit weights are relative,
+    // so a finite product is all the chain needs.
+    if (!std::isfinite(w))
+      return Invalid(path + ".maps",
+                     StrCat("the product of the probabilities of composed map ", t,
+                            " overflows; use smaller explicit probabilities"));
     d.weights.push_back(w);
   }
   return d;

@@ -315,10 +315,16 @@ absl::Status ConvertSetIfs(const v1::SetIfs& s, const Limits& limits, JobPlan& j
       if (!s.has_random()) return Invalid("set_ifs.random", "required (or give book)");
       const v1::SetRandomIteration& ri = s.random();
       if (ri.iterations() == 0) return Invalid("set_ifs.random.iterations", "must be > 0");
-      if (ri.iterations() > std::min<uint64_t>(limits.max_iterations, uint64_t{1} << 24))
+      // Warm-up set iterations cost what counted ones cost: both count
+      // toward the limit.
+      const uint64_t limit = std::min<uint64_t>(limits.max_iterations, uint64_t{1} << 24);
+      if (ri.iterations() > limit)
+        return absl::ResourceExhaustedError(StrCat("set_ifs.random.iterations: ", ri.iterations(),
+                                                   " exceeds the limit of ", limit));
+      if (uint64_t(ri.warmup()) > limit - ri.iterations())
         return absl::ResourceExhaustedError(
-            StrCat("set_ifs.random.iterations: ", ri.iterations(), " exceeds the limit of ",
-                   std::min<uint64_t>(limits.max_iterations, uint64_t{1} << 24)));
+            StrCat("set_ifs.random.warmup: ", ri.warmup(), " warm-up plus ", ri.iterations(),
+                   " iterations exceed the limit of ", limit, " set iterations"));
       plan->iterations = ri.iterations();
       plan->warmup = ri.warmup() == 0 ? 16 : ri.warmup();
       plan->seed = ri.seed();

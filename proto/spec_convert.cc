@@ -158,6 +158,9 @@ absl::StatusOr<Affine3> ComposeSteps(const google::protobuf::RepeatedPtrField<v1
 namespace {
 
 absl::Status ConvertName(const v1::JobSpec& spec, JobPlan& job) {
+  // Names go into file names, logs and every listing: keep them short.
+  if (spec.name().size() > 128)
+    return Invalid("name", StrCat("must be at most 128 bytes, got ", spec.name().size()));
   job.name = spec.name().empty() ? "nimbus" : spec.name();
   for (char c : job.name)
     if (!(std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-' || c == '.'))

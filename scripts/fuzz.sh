@@ -19,13 +19,22 @@ cmake -S . -B "$BUILD_DIR" -G Ninja -DCMAKE_CXX_COMPILER=clang++ \
   -DNIMBUS_BUILD_TESTS=OFF -DNIMBUS_BUILD_BENCH=OFF >/dev/null
 cmake --build "$BUILD_DIR" --target nimbus_fuzzers
 
-# Per-target flags: the spec fuzzer gets the proto's names as a dictionary;
-# the VDB target runs under the memory caps OpenVDB's reader needs.
+# Per-target flags: the spec fuzzer gets the proto's names as a dictionary.
+# OpenVDB's reader is not hardened (docs/fuzzing.md): vdb_fuzzer makes an
+# allocation above 2 GiB a bad_alloc, as in the server's checker child, and
+# OpenVDB's leaks on its error paths are not reported. Our own parsers get
+# no such allowance.
 flags_for() {
   case "$1" in
     spec_fuzzer) echo "-dict=tests/fuzz/spec.dict -max_len=8192" ;;
-    vdb_fuzzer) echo "-max_len=65536 -rss_limit_mb=2048 -malloc_limit_mb=2048" ;;
+    vdb_fuzzer) echo "-max_len=65536 -rss_limit_mb=2048 -malloc_limit_mb=2048 -detect_leaks=0" ;;
     *) echo "-max_len=16384" ;;
+  esac
+}
+asan_for() {
+  case "$1" in
+    vdb_fuzzer) echo "detect_leaks=0" ;;
+    *) echo "${ASAN_OPTIONS:-}" ;;
   esac
 }
 
@@ -35,7 +44,7 @@ for t in $TARGETS; do
   cp -r "tests/fuzz/corpus/$t/." "$WORK/$t/corpus/"
   log="$WORK/$t/fuzz.log"
   # shellcheck disable=SC2046  # flags_for's words are separate flags
-  if "$BUILD_DIR/bin/$t" "$WORK/$t/corpus" $(flags_for "$t") -max_total_time="$SECONDS_EACH" \
+  if ASAN_OPTIONS="$(asan_for "$t")" "$BUILD_DIR/bin/$t" "$WORK/$t/corpus" $(flags_for "$t") -max_total_time="$SECONDS_EACH" \
       -timeout=30 -print_final_stats=1 -artifact_prefix="$WORK/$t/artifacts/" >"$log" 2>&1; then
     status=ok
   else

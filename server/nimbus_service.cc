@@ -366,6 +366,8 @@ grpc::Status CheckSubmittedText(const v1::SubmitJobRequest& req) {
 grpc::Status NimbusServiceImpl::Admit(const v1::SubmitJobRequest& req,
                                       v1::SubmitJobResponse& resp) {
   if (grpc::Status st = CheckSubmittedText(req); !st.ok()) return st;
+  // The free-space reserve: refuse new work before the disk fills.
+  if (auto st = results_->CheckFreeSpace(); !st.ok()) return ToGrpc(st);
   // Meshes and grids are read whole by a sandboxed child before the
   // converter parses any of them in this process (server/untrusted_file.h).
   if (auto st = CheckSpecAssets(req.spec(), limits_.asset_dir); !st.ok()) return ToGrpc(st);
@@ -423,6 +425,9 @@ grpc::ServerUnaryReactor* NimbusServiceImpl::ListJobs(grpc::CallbackServerContex
                                                       const v1::ListJobsRequest* req,
                                                       v1::ListJobsResponse* resp) {
   return OffThread(ctx, [this, req, resp] {
+    if (!v1::JobState_IsValid(req->state()))
+      return grpc::Status(grpc::StatusCode::INVALID_ARGUMENT,
+                          absl::StrCat("state: unknown value ", int(req->state())));
     ListOptions o;
     o.page_size = req->page_size() <= 0 ? 50 : std::min(req->page_size(), 500);
     o.page_token = req->page_token();

@@ -81,6 +81,9 @@ int main(int argc, char** argv) {
                  "plus one second, ms")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
+  app.add_option("--max-attempts", o.max_attempts,
+                 "attempts a job gets before it fails with its last error (0: no limit)")
+      ->capture_default_str();
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error")->capture_default_str();
   CLI11_PARSE(app, argc, argv);
   o.data_dir = data_dir;

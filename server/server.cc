@@ -77,6 +77,7 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
   wo.limits = limits;
   wo.lease_ms = options.lease_ms;
   wo.heartbeat_ms = options.heartbeat_ms;
+  wo.max_attempts = options.max_attempts;
   wo.instance_id = absl::StrCat("nimbusd-", ::getpid());
   impl->pool = std::make_unique<WorkerPool>(impl->store.get(), impl->results.get(), &impl->hub, wo);
   impl->service = std::make_unique<NimbusServiceImpl>(

@@ -35,6 +35,9 @@ struct ServerOptions {
   /// How long Shutdown() lets open RPCs finish before cancelling them.
   /// Running jobs are interrupted at once and given back to the queue.
   int64_t drain_ms = 2'000;
+  /// Claims a job gets before it fails with its last attempt's error
+  /// (0: no limit): a job that cannot record its end never loops.
+  uint32_t max_attempts = 3;
 };
 
 /// @brief A running server. Jobs left RUNNING by a previous process are

@@ -564,7 +564,16 @@ absl::StatusOr<JobRecord> SqliteJobStore::Create(const NewJob& job, TimeMs now) 
     s->Bind(1, job.request_id);
     absl::StatusOr<bool> row = s->Step();
     if (!row.ok()) return row.status();
-    if (*row) return RowToRecord(*s);  // Idempotent retry: the original job.
+    if (*row) {
+      // An idempotent retry gets the original job; the same key for
+      // another spec is a client bug that must not pass silently.
+      JobRecord existing = RowToRecord(*s);
+      if (existing.spec != job.spec)
+        return absl::AlreadyExistsError(
+            absl::StrCat("request_id ", EchoId(job.request_id), " was already used for another spec (job ",
+                         existing.id, ")"));
+      return existing;
+    }
   }
 
   {

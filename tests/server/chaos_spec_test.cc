@@ -188,9 +188,10 @@ TEST(ChaosSpec, ThinAttractorAt2048FitsTheDefaultLimit) {
 }
 
 TEST(ChaosSpec, NonFiniteMapsAreReportedNotFatal) {
-  // A map that overflows to infinity every time it is chosen.
-  const std::string map = R"({"steps": [{"scale": {"uniform": 1e300}}],
-      "post": [{"scale": {"uniform": 1e300}}], "probability": 0.2})";
+  // A map that overflows to infinity every time it is chosen (magnitudes
+  // beyond 1e12 are refused at submit; the exponential of 1e12 overflows).
+  const std::string map = R"({"steps": [{"scale": {"uniform": 1e12}}],
+      "variations": [{"name": "exponential"}], "probability": 0.2})";
   std::string json = SpecWith(map, "", "", 16, 300000);
   v1::JobSpec spec = Parse(json);
   spec.mutable_chaos_game()->mutable_ifs()->mutable_maps(0)->set_probability(0.8);

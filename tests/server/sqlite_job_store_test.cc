@@ -33,11 +33,13 @@ std::unique_ptr<JobStore> OpenOrDie(const std::filesystem::path& path) {
   return store.ok() ? std::move(*store) : nullptr;
 }
 
-NewJob MakeJob(const std::string& id, const std::string& request_id = "") {
+// A job whose spec bytes depend on `spec_key` (its id when empty).
+NewJob MakeJob(const std::string& id, const std::string& request_id = "",
+               const std::string& spec_key = "") {
   NewJob job;
   job.id = id;
   job.name = "name-" + id;
-  job.spec = std::string("spec\0of ", 8) + id;
+  job.spec = std::string("spec\0of ", 8) + (spec_key.empty() ? id : spec_key);
   job.request_id = request_id;
   return job;
 }
@@ -175,14 +177,20 @@ TEST_F(SqliteJobStoreTest, GetUnknownIsNotFoundNamingTheId) {
 }
 
 TEST_F(SqliteJobStoreTest, CreateIsIdempotentByRequestId) {
-  absl::StatusOr<JobRecord> first = store_->Create(MakeJob("a", "req"), kT0);
+  absl::StatusOr<JobRecord> first = store_->Create(MakeJob("a", "req", "s"), kT0);
   ASSERT_TRUE(first.ok()) << first.status();
-  // A retry carries a fresh id (the server mints one per call) but the same key.
-  absl::StatusOr<JobRecord> again = store_->Create(MakeJob("b", "req"), kT0 + 5);
+  // A retry carries a fresh id (the server mints one per call) but the same
+  // key and spec.
+  absl::StatusOr<JobRecord> again = store_->Create(MakeJob("b", "req", "s"), kT0 + 5);
   ASSERT_TRUE(again.ok()) << again.status();
   EXPECT_EQ(again->id, "a");
   EXPECT_EQ(again->create_time, kT0);
   EXPECT_EQ(store_->Get("b").status().code(), absl::StatusCode::kNotFound);
+  // The same key for another spec is refused, naming the first job.
+  absl::StatusOr<JobRecord> other = store_->Create(MakeJob("e", "req", "t"), kT0 + 6);
+  EXPECT_EQ(other.status().code(), absl::StatusCode::kAlreadyExists) << other.status();
+  EXPECT_NE(other.status().message().find("job a"), std::string::npos) << other.status();
+  EXPECT_EQ(store_->Get("e").status().code(), absl::StatusCode::kNotFound);
 
   // Jobs without a key never collide with each other.
   ASSERT_TRUE(store_->Create(MakeJob("c"), kT0 + 1).ok());
@@ -549,7 +557,7 @@ TEST_F(SqliteJobStoreTest, ReleaseRequeuesAndKeepsAttempts) {
 }
 
 TEST_F(SqliteJobStoreTest, PersistsAcrossReopen) {
-  NewJob job = MakeJob("keep", "req-keep");
+  NewJob job = MakeJob("keep", "req-keep", "keep");
   job.progress_total = 9;
   ASSERT_TRUE(store_->Create(job, kT0).ok());
   CreateOrDie(*store_, "run", kT0 + 1);
@@ -573,7 +581,7 @@ TEST_F(SqliteJobStoreTest, PersistsAcrossReopen) {
     ExpectSameRecord(*r, b);
   }
   // The idempotency index survives too.
-  absl::StatusOr<JobRecord> again = store_->Create(MakeJob("other", "req-keep"), kT0 + 9);
+  absl::StatusOr<JobRecord> again = store_->Create(MakeJob("other", "req-keep", "keep"), kT0 + 9);
   ASSERT_TRUE(again.ok());
   EXPECT_EQ(again->id, "keep");
 }
