@@ -97,6 +97,12 @@ absl::Status JobDriver::WriteResult(const CountGrid& counts, const nimbus::Metad
   NIMBUS_RETURN_IF_ERROR(BeginPhase(JobPhase::kWriting, 1, "files"));
   NIMBUS_RETURN_IF_ERROR(
       WriteDensityVdb(ctx_.ResultScratchPath(), counts, plan_.frame, plan_.density, meta));
+  if (plan_.density.raw_counts == RawCounts::kInteger) {
+    // Exact counts in a further file: readers that cannot open Int64 grids
+    // still open the result.
+    NIMBUS_ASSIGN_OR_RETURN(std::filesystem::path side, ExtraFilePath(plan_.name + ".counts.vdb"));
+    NIMBUS_RETURN_IF_ERROR(WriteIntegerCountsVdb(side, counts, plan_.frame, meta));
+  }
   return Progress(1, true);
 }
 

@@ -451,6 +451,55 @@ void ChaosGame::RunChunkFast(uint64_t chunk, Worker& w) {
   w.stats.iterations_done += count;
 }
 
+namespace {
+
+// Applies the final map and the arcs (phase `n`) to a plotted point; false
+// when the result is not finite.
+inline bool ApplyFinal(const PointMap* final_map, const ArcsTransform* arcs, uint64_t n, Rng& rng,
+                       Vec3& q) {
+  if (final_map) q = final_map->Apply(q, rng);
+  if (arcs) q = arcs->Apply(q, n);
+  return IsFinite(q);
+}
+
+// A walker's colour coordinate as the key bits of one visit.
+inline uint64_t ColorBits(double col) {
+  const double c = std::clamp(col, 0.0, 1.0);
+  return CountGrid::WithColor(0, uint32_t(c * CountGrid::kColorScale + 0.5));
+}
+
+// Trilinear splatting of one point at fractional voxel coordinates (fx, fy,
+// fz): voxel centres sit at i + 0.5, so the point lies between centres i0
+// and i0 + 1 on each axis, at quarter q (0..4) of the way. Corners outside
+// the grid fold onto the border voxel so every point adds exactly 64.
+// Writes at most 8 keys; returns how many.
+size_t AppendSplatKeys(const CountGrid& grid, Int3 res, double fx, double fy, double fz,
+                       uint64_t color_bits, uint64_t* keys) {
+  int i0[3], quarter[3];
+  const double f[3] = {fx - 0.5, fy - 0.5, fz - 0.5};
+  for (int a = 0; a < 3; ++a) {
+    const double fl = std::floor(f[a]);
+    i0[a] = int(fl);
+    quarter[a] = int(std::lround((f[a] - fl) * 4));
+  }
+  const int lim[3] = {res.x - 1, res.y - 1, res.z - 1};
+  size_t n = 0;
+  for (int c = 0; c < 8; ++c) {
+    uint32_t weight = 1;
+    int v[3];
+    for (int a = 0; a < 3; ++a) {
+      const int hi = (c >> a) & 1;
+      weight *= uint32_t(hi ? quarter[a] : 4 - quarter[a]);
+      v[a] = std::clamp(i0[a] + hi, 0, lim[a]);
+    }
+    if (weight == 0) continue;
+    keys[n++] = CountGrid::WithWeight(grid.Key(v[0], v[1], v[2]), weight) | color_bits;
+  }
+  return n;
+}
+
+}  // namespace
+
 void ChaosGame::RunChunk(uint64_t chunk, Worker& w) {
   const ChaosGameParams& p = params_;
   if (fast_) {
@@ -532,14 +581,10 @@ void ChaosGame::RunChunk(uint64_t chunk, Worker& w) {
     auto plot = [&](uint64_t n) {
       if (chain && !chain->states[state].plotted) return;
       Vec3 q = pos;
-      if (has_final) {
-        if (final_map) q = final_map->Apply(q, rng);
-        if (arcs) q = arcs->Apply(q, n);
-        if (!IsFinite(q)) {
-          ++final_nonfinite;
-          ++outside;
-          return;
-        }
+      if (has_final && !ApplyFinal(final_map, arcs, n, rng, q)) {
+        ++final_nonfinite;
+        ++outside;
+        return;
       }
       const double fx = (q.x - b.min.x) * ix, fy = (q.y - b.min.y) * iy, fz = (q.z - b.min.z) * iz;
       // Written so NaN fails the test and counts as outside.
@@ -547,37 +592,12 @@ void ChaosGame::RunChunk(uint64_t chunk, Worker& w) {
         ++outside;
         return;
       }
-      uint64_t color_bits = 0;
-      if (color_mode != ColorMode::kNone) {
-        const double c = std::clamp(col, 0.0, 1.0);
-        color_bits = CountGrid::WithColor(0, uint32_t(c * CountGrid::kColorScale + 0.5));
-      }
+      const uint64_t color_bits = color_mode == ColorMode::kNone ? 0 : ColorBits(col);
       if (!splat) {
         keys[n_keys++] = w.grid->Key(int(fx), int(fy), int(fz)) | color_bits;
         return;
       }
-      // Voxel centres sit at i + 0.5: the point lies between centres i0 and
-      // i0 + 1 on each axis, at quarter q (0..4) of the way. Corners outside
-      // the grid fold onto the border voxel so every point adds exactly 64.
-      int i0[3], quarter[3];
-      const double f[3] = {fx - 0.5, fy - 0.5, fz - 0.5};
-      for (int a = 0; a < 3; ++a) {
-        const double fl = std::floor(f[a]);
-        i0[a] = int(fl);
-        quarter[a] = int(std::lround((f[a] - fl) * 4));
-      }
-      const int lim[3] = {res.x - 1, res.y - 1, res.z - 1};
-      for (int c = 0; c < 8; ++c) {
-        uint32_t weight = 1;
-        int v[3];
-        for (int a = 0; a < 3; ++a) {
-          const int hi = (c >> a) & 1;
-          weight *= uint32_t(hi ? quarter[a] : 4 - quarter[a]);
-          v[a] = std::clamp(i0[a] + hi, 0, lim[a]);
-        }
-        if (weight == 0) continue;
-        keys[n_keys++] = CountGrid::WithWeight(w.grid->Key(v[0], v[1], v[2]), weight) | color_bits;
-      }
+      n_keys += AppendSplatKeys(*w.grid, res, fx, fy, fz, color_bits, keys + n_keys);
     };
 
     warm_up();

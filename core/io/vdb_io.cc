@@ -330,7 +330,8 @@ typename GridT::Ptr NewGrid(const std::string& name, const GridFrame& frame,
 // The density grid plus the optional Cd / address / counts grids, all with
 // the same active voxels. Built leaf by leaf straight from the count tiles.
 openvdb::GridPtrVec BuildGrids(const CountGrid& counts, const GridFrame& frame,
-                               const DensityOptions& options, const Metadata& metadata) {
+                               const DensityOptions& options, const Metadata& metadata,
+                               bool int64_counts = false) {
   auto grid = NewGrid<openvdb::FloatGrid>(options.grid_name, frame, openvdb::GRID_FOG_VOLUME);
   const bool color = options.color && counts.has_color();
   const bool address = options.address_grid && counts.has_color();
@@ -339,10 +340,11 @@ openvdb::GridPtrVec BuildGrids(const CountGrid& counts, const GridFrame& frame,
   openvdb::Int64Grid::Ptr raw_i;
   if (color) cd = NewGrid<openvdb::Vec3SGrid>("Cd", frame, openvdb::GRID_UNKNOWN);
   if (address) addr = NewGrid<openvdb::FloatGrid>("address", frame, openvdb::GRID_UNKNOWN);
-  if (options.raw_counts == RawCounts::kFloat)
+  // The result always carries float counts (every reader opens them); the
+  // exact integer counts go to a file of their own (WriteIntegerCountsVdb).
+  if (options.raw_counts != RawCounts::kNone && !int64_counts)
     raw_f = NewGrid<openvdb::FloatGrid>("counts", frame, openvdb::GRID_UNKNOWN);
-  if (options.raw_counts == RawCounts::kInteger)
-    raw_i = NewGrid<openvdb::Int64Grid>("counts", frame, openvdb::GRID_UNKNOWN);
+  if (int64_counts) raw_i = NewGrid<openvdb::Int64Grid>("counts", frame, openvdb::GRID_UNKNOWN);
   const uint32_t max_count = counts.Max();
   const Normaliser norm(options, max_count);
   auto& tree = grid->tree();
@@ -466,6 +468,49 @@ absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid&
         absl::StrCat("building the grids of ", path.string(), ": ", e.what()));
   }
   return vdb_internal::WriteGridsAtomically(path, grids);
+}
+
+absl::Status WriteIntegerCountsVdb(const std::filesystem::path& path, const CountGrid& counts,
+                                   const GridFrame& frame, const Metadata& metadata) {
+  InitOpenVdb();
+  openvdb::GridPtrVec grids;
+  try {
+    DensityOptions o;
+    o.raw_counts = RawCounts::kInteger;
+    grids = BuildGrids(counts, frame, o, metadata, true);
+    grids.erase(grids.begin());  // the density grid lives in the result
+    grids[0]->insertMeta("nimbus_max_count", openvdb::Int64Metadata(int64_t(counts.Max())));
+    grids[0]->insertMeta("nimbus_total_count", openvdb::Int64Metadata(int64_t(counts.Total())));
+    for (const auto& [k, v] : metadata) AddMeta(*grids[0], k, v);
+  } catch (const std::exception& e) {
+    return absl::InternalError(absl::StrCat("building the counts grid of ", path.string(), ": ",
+                                            e.what()));
+  }
+  return vdb_internal::WriteGridsAtomically(path, grids);
+}
+
+absl::StatusOr<std::vector<int64_t>> ReadIntegerCountsVdb(const std::filesystem::path& path,
+                                                          Int3 resolution) {
+  InitOpenVdb();
+  std::vector<int64_t> out(size_t(resolution.Volume()), 0);
+  try {
+    const openvdb::GridPtrVecPtr grids = vdb_internal::ReadAllGrids(path);
+    for (const auto& g : *grids) {
+      auto grid = openvdb::gridPtrCast<openvdb::Int64Grid>(g);
+      if (g->getName() != "counts" || !grid) continue;
+      for (auto it = grid->cbeginValueOn(); it; ++it) {
+        const openvdb::Coord c = it.getCoord();
+        if (c.x() < 0 || c.y() < 0 || c.z() < 0 || c.x() >= resolution.x ||
+            c.y() >= resolution.y || c.z() >= resolution.z)
+          return absl::DataLossError(absl::StrCat(path.string(), ": a count outside the grid"));
+        out[(size_t(c.x()) * resolution.y + c.y()) * resolution.z + c.z()] = *it;
+      }
+      return out;
+    }
+  } catch (const std::exception& e) {
+    return absl::DataLossError(absl::StrCat(path.string(), ": ", e.what()));
+  }
+  return absl::NotFoundError(absl::StrCat(path.string(), ": no Int64 grid named 'counts'"));
 }
 
 absl::StatusOr<std::string> DensityVdbBytes(const CountGrid& counts, const GridFrame& frame,

@@ -29,9 +29,9 @@ enum class DensityMapping {
 enum class RawCounts {
   kNone,
   kFloat,    // FloatGrid "counts" (exact up to 2^24 per voxel)
-  // Int64Grid "counts" (exact uint32 counts). Debian's pyopenvdb wraps only
-  // float, bool and Vec3f grids and then refuses the whole file, so prefer
-  // kFloat where files must open everywhere.
+  // The same float grid in the result, plus the exact counts as an
+  // Int64Grid "counts" in a file of its own (WriteIntegerCountsVdb): Debian's
+  // pyopenvdb and Blender cannot open a file that holds an Int64 grid.
   kInteger,
 };
 
@@ -64,6 +64,16 @@ using Metadata = std::vector<std::pair<std::string, MetaValue>>;
 absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid& counts,
                              const GridFrame& frame, const DensityOptions& options,
                              const Metadata& metadata);
+
+/// Writes the exact visit counts as an Int64Grid "counts" (same transform,
+/// frame and normalisation metadata as the density) to its own file, through
+/// a temporary file renamed into place: the side file of RawCounts::kInteger.
+absl::Status WriteIntegerCountsVdb(const std::filesystem::path& path, const CountGrid& counts,
+                                   const GridFrame& frame, const Metadata& metadata);
+
+/// Reads the exact counts of such a file densely (x slowest, z fastest).
+absl::StatusOr<std::vector<int64_t>> ReadIntegerCountsVdb(const std::filesystem::path& path,
+                                                          Int3 resolution);
 
 /// Same grid as WriteDensityVdb, serialised to bytes (a VDB stream).
 absl::StatusOr<std::string> DensityVdbBytes(const CountGrid& counts, const GridFrame& frame,

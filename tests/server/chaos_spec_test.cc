@@ -14,6 +14,7 @@
 #include "server/memory_admission.h"
 #include "proto/spec_io.h"
 #include "server/job_runner.h"
+#include "server/result_store.h"
 #include "tests/support/fake_job_context.h"
 #include "tests/support/test_util.h"
 
@@ -231,6 +232,30 @@ TEST(ChaosSpec, ConvergenceStopsEarlyAndSaysWhy) {
   auto vol2 = ReadVdbFile(ctx2.result());
   ASSERT_TRUE(vol2.ok());
   EXPECT_EQ(std::get<std::string>(*vol2->Find("nimbus_stop_reason")), "iterations");
+}
+
+// Exact counts go to a further file; the result keeps only float grids,
+// which every reader (pyopenvdb, Blender) opens.
+TEST(ChaosSpec, IntegerCountsGoToAFileOfTheirOwn) {
+  const std::string map = R"({"steps": [{"translate": {"y": 0.5}}, {"scale": {"uniform": 0.5}}]})";
+  v1::JobSpec spec = Parse(SpecWith(map, "", R"(, "raw_counts": "RAW_COUNTS_UINT32")", 16, 300000));
+  spec.set_name("exact");
+  auto job = spec::ConvertSpec(spec, {});
+  ASSERT_TRUE(job.ok()) << job.status();
+  testing::FakeJobContext ctx;
+  ASSERT_TRUE(server::RunJobPlan(*job, ctx).ok());
+  auto floats = ReadVdbFile(ctx.result(), "counts");
+  ASSERT_TRUE(floats.ok()) << floats.status();
+  const auto side = server::ExtraFilesDir(ctx.result()) / "exact.counts.vdb";
+  auto exact = ReadIntegerCountsVdb(side, job->frame.resolution);
+  ASSERT_TRUE(exact.ok()) << exact.status();
+  EXPECT_FALSE(ReadIntegerCountsVdb(ctx.result(), job->frame.resolution).ok());
+  int64_t total = 0;
+  for (size_t i = 0; i < exact->size(); ++i) {
+    EXPECT_EQ(double((*exact)[i]), double(floats->values[i])) << i;
+    total += (*exact)[i];
+  }
+  EXPECT_EQ(total, int64_t(300000 - ctx.stats["outside"]));
 }
 
 TEST(ChaosSpec, ColourJobWritesCdAddressAndCounts) {
