@@ -293,6 +293,19 @@ class SqliteJobStore final : public JobStore {
   absl::Status AbandonAttempt(const std::string& id, const std::string& worker_id,
                               const std::string& error, int error_code) override;
   absl::Status Release(const std::string& id, const std::string& worker_id) override;
+
+ private:
+  // How an attempt ended, kept when the job goes back to the queue.
+  struct AttemptEnd {
+    std::string error;
+    int code = 0;
+  };
+  // Release and AbandonAttempt: the claimed job back to QUEUED (or
+  // CANCELLED when a cancel is pending), with `attempt`'s error if given.
+  absl::Status GiveBack(const std::string& id, const std::string& worker_id,
+                        const std::optional<AttemptEnd>& attempt);
+
+ public:
   absl::StatusOr<JobRecord> RequestCancel(const std::string& id, TimeMs now) override;
   absl::StatusOr<int> RequeueRunning() override;
 
@@ -831,45 +844,35 @@ absl::Status SqliteJobStore::Complete(const std::string& id, const std::string& 
 
 absl::Status SqliteJobStore::AbandonAttempt(const std::string& id, const std::string& worker_id,
                                             const std::string& error, int error_code) {
-  std::lock_guard<std::mutex> lock(mu_);
-  Transaction txn(this);
-  if (absl::Status s = txn.Begin(); !s.ok()) return s;
-  if (absl::Status s = CheckClaimLocked(id, worker_id); !s.ok()) return s;
-  {
-    // Back to QUEUED with its attempts counted; a cancel already asked for
-    // ends it as CANCELLED, as Release does.
-    absl::StatusOr<Statement> s = Prepare(
-        "UPDATE jobs SET worker_id = '', lease_expiry = 0, "
-        "state = CASE WHEN cancel_requested <> 0 THEN ?1 ELSE ?2 END, "
-        "error = CASE WHEN cancel_requested <> 0 THEN ?3 ELSE ?4 END, "
-        "error_code = CASE WHEN cancel_requested <> 0 THEN ?5 ELSE ?6 END WHERE id = ?7");
-    if (!s.ok()) return s.status();
-    s->Bind(1, JobState::kCancelled).Bind(2, JobState::kQueued);
-    s->Bind(3, std::string(kCancelledByRequest)).Bind(4, BoundText(error, kMaxErrorBytes));
-    s->Bind(5, kCancelledCode).Bind(6, error_code).Bind(7, id);
-    if (absl::Status st = s->Run(); !st.ok()) return st;
-  }
-  return txn.Commit();
+  return GiveBack(id, worker_id, AttemptEnd{BoundText(error, kMaxErrorBytes), error_code});
 }
 
 absl::Status SqliteJobStore::Release(const std::string& id, const std::string& worker_id) {
+  return GiveBack(id, worker_id, std::nullopt);
+}
+
+absl::Status SqliteJobStore::GiveBack(const std::string& id, const std::string& worker_id,
+                                      const std::optional<AttemptEnd>& attempt) {
   std::lock_guard<std::mutex> lock(mu_);
   Transaction txn(this);
   if (absl::Status s = txn.Begin(); !s.ok()) return s;
   if (absl::Status s = CheckClaimLocked(id, worker_id); !s.ok()) return s;
-
   {
-    // A job whose cancel was already requested is not worth requeueing, and
-    // as QUEUED it would never be claimed (or finished) again.
+    // Back to QUEUED (keeping the attempt's error when one is given). A
+    // job whose cancel was already requested is not worth requeueing, and
+    // as QUEUED it would never be claimed (or finished) again: it ends
+    // CANCELLED.
     absl::StatusOr<Statement> s = Prepare(
         "UPDATE jobs SET worker_id = '', lease_expiry = 0, "
         "state = CASE WHEN cancel_requested <> 0 THEN ?1 ELSE ?2 END, "
-        "error = CASE WHEN cancel_requested <> 0 THEN ?3 ELSE error END, "
-        "error_code = CASE WHEN cancel_requested <> 0 THEN ?5 ELSE error_code END "
-        "WHERE id = ?4");
+        "error = CASE WHEN cancel_requested <> 0 THEN ?3 WHEN ?8 <> 0 THEN ?4 ELSE error END, "
+        "error_code = CASE WHEN cancel_requested <> 0 THEN ?5 WHEN ?8 <> 0 THEN ?6 "
+        "ELSE error_code END WHERE id = ?7");
     if (!s.ok()) return s.status();
     s->Bind(1, JobState::kCancelled).Bind(2, JobState::kQueued);
-    s->Bind(3, std::string(kCancelledByRequest)).Bind(4, id).Bind(5, kCancelledCode);
+    s->Bind(3, std::string(kCancelledByRequest)).Bind(4, attempt ? attempt->error : std::string());
+    s->Bind(5, kCancelledCode).Bind(6, attempt ? attempt->code : 0).Bind(7, id);
+    s->Bind(8, attempt ? 1 : 0);
     if (absl::Status st = s->Run(); !st.ok()) return st;
   }
   return txn.Commit();
