@@ -21,7 +21,7 @@ cmake --build "$BUILD_DIR" --target nimbus_fuzzers
 
 # Per-target flags: the spec fuzzer gets the proto's names as a dictionary.
 # OpenVDB's reader is not hardened (docs/fuzzing.md): vdb_fuzzer makes an
-# allocation above 2 GiB a bad_alloc, as in the server's checker child, and
+# allocation above 512 MiB a bad_alloc, as in the server's checker child, and
 # OpenVDB's leaks on its error paths are not reported. Our own parsers get
 # no such allowance.
 flags_for() {
@@ -43,16 +43,18 @@ for t in $TARGETS; do
   mkdir -p "$WORK/$t/corpus" "$WORK/$t/artifacts"
   cp -r "tests/fuzz/corpus/$t/." "$WORK/$t/corpus/"
   log="$WORK/$t/fuzz.log"
-  # shellcheck disable=SC2046  # flags_for's words are separate flags
-  if ASAN_OPTIONS="$(asan_for "$t")" "$BUILD_DIR/bin/$t" "$WORK/$t/corpus" $(flags_for "$t") -max_total_time="$SECONDS_EACH" \
-      -timeout=30 -print_final_stats=1 -artifact_prefix="$WORK/$t/artifacts/" >"$log" 2>&1; then
+  read -r -a flags <<<"$(flags_for "$t")"
+  if ASAN_OPTIONS="$(asan_for "$t")" "$BUILD_DIR/bin/$t" "$WORK/$t/corpus" "${flags[@]}" \
+      -max_total_time="$SECONDS_EACH" -timeout=30 -print_final_stats=1 \
+      -artifact_prefix="$WORK/$t/artifacts/" >"$log" 2>&1; then
     status=ok
   else
     status=FAILED
     failed+=("$t")
   fi
   runs=$(grep -o 'stat::number_of_executed_units: *[0-9]*' "$log" | grep -o '[0-9]*$' || echo "?")
-  cov=$(grep -E '^#[0-9]+' "$log" | tail -1 | grep -oE 'cov: [0-9]+ ft: [0-9]+' || echo "cov: ? ft: ?")
+  cov=$(grep -E '^#[0-9]+' "$log" | tail -1 | grep -oE 'cov: [0-9]+ ft: [0-9]+' ||
+    echo "cov: ? ft: ?")
   printf '%-12s %-6s runs: %-10s %s\n' "$t" "$status" "$runs" "$cov"
   if [[ $status == FAILED ]]; then
     grep -E 'ERROR: |SUMMARY: |runtime error:|Test unit written' "$log" | head -5 | sed 's/^/    /'

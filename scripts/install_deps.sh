@@ -14,6 +14,8 @@ PACKAGES=(
   # Debian's grpc and protobuf for /usr/bin/python3, and Blender 3.4, whose
   # Python is the system one.
   python3-grpcio python3-protobuf blender
+  # The libFuzzer targets (tests/fuzz, scripts/fuzz.sh) build with clang.
+  clang libclang-rt-14-dev ccache
 )
 
 missing=()

@@ -79,7 +79,8 @@ absl::Status RunChaosGameParams(const JobPlan& plan, ChaosGameParams params, Job
   NIMBUS_RETURN_IF_ERROR(d.BeginPhase(JobPhase::kIterating, plan.work.total, plan.work.unit));
   uint64_t peak_bytes = 0;
   JobDriver::Rounds rounds = ChaosRounds(*game, d, 0, {}, &peak_bytes);
-  ConvergenceCheck conv{game->params().convergence.tolerance};
+  ConvergenceCheck conv;
+  conv.tolerance = game->params().convergence.tolerance;
   if (conv.tolerance > 0) {
     rounds.checkpoint_every = game->params().convergence.check_every;
     rounds.at_checkpoint = [&](uint64_t) { return conv.AtCheckpoint(rounds.parts()); };

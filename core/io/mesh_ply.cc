@@ -188,6 +188,12 @@ absl::StatusOr<PlyHeader> ParseHeader(LineReader& reader, std::string_view name)
   }
   if (!ended) return LineError(name, reader.line_number(), "PLY header has no end_header");
   if (!format) return LineError(name, reader.line_number(), "PLY header has no format line");
+  // An element with instances but no properties reads no bytes per
+  // instance: a huge count would loop without ever reaching the file's end.
+  for (const PlyElement& e : header.elements)
+    if (e.count > 0 && e.properties.empty())
+      return LineError(name, reader.line_number(),
+                       Cat("element '", e.name, "' has ", e.count, " instances but no properties"));
   header.format = *format;
   return header;
 }
@@ -322,6 +328,12 @@ absl::Status ReadBinaryBody(std::string_view data, size_t start, const PlyHeader
   BinaryCursor cur(data, start, header.format == PlyFormat::kBinaryBig);
   PlyInstance inst;
   for (const PlyElement& e : header.elements) {
+    // Every instance takes at least one byte: more instances than bytes
+    // left is a truncated (or hostile) file, refused before reading.
+    if (e.count > data.size() - std::min(data.size(), cur.position()))
+      return OffsetError(name, cur.position(),
+                         Cat("truncated binary PLY: element ", e.name, " claims ", e.count,
+                             " instances but ", data.size() - cur.position(), " bytes are left"));
     for (uint64_t i = 0; i < e.count; ++i) {
       const size_t at = cur.position();
       auto truncated = [&]() {

@@ -250,5 +250,22 @@ TEST(MeshIo, ValidateMeshRejectsBadIndicesAndNonFinite) {
   EXPECT_THAT(Message(ValidateMesh(m, "m")), HasSubstr("vertex 2"));
 }
 
+// Found by the PLY fuzzer: an element with a huge count and no properties
+// read no bytes per instance and looped for ~10^18 instances.
+TEST(MeshIo, PlyElementCountsAreCheckedAgainstTheFile) {
+  std::ifstream in(testing::SourcePath(
+                       "tests/fuzz/corpus/ply_fuzzer/crash-binary-element-without-properties.ply"),
+                   std::ios::binary);
+  const std::string hostile((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  ASSERT_FALSE(hostile.empty());
+  EXPECT_THAT(Message(ParsePly(hostile, "h.ply").status()), HasSubstr("no properties"));
+  // A binary element claiming more instances than bytes left is truncated.
+  std::string big =
+      "ply\nformat binary_little_endian 1.0\nelement vertex 1000000000\n"
+      "property float x\nproperty float y\nproperty float z\nend_header\n";
+  big += std::string(12, '\0');
+  EXPECT_THAT(Message(ParsePly(big, "b.ply").status()), HasSubstr("truncated binary PLY"));
+}
+
 }  // namespace
 }  // namespace nimbus

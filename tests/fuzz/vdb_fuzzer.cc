@@ -7,7 +7,7 @@
 // lives under RLIMIT_AS, where such a request is a std::bad_alloc that the
 // reader's caller catches; ASan's operator new would abort instead and end
 // the run at the first such input, so this binary replaces operator new
-// with one that throws above the same 2 GiB (heap checks still apply: it
+// with one that throws above 512 MiB (heap checks still apply: it
 // allocates with ASan's malloc).
 #include <cstdlib>
 #include <new>
@@ -19,8 +19,10 @@ namespace {
 
 // Big enough for a small Nimbus grid with a few leaves.
 constexpr size_t kMaxInputBytes = 64 * 1024;
-// The checker child's address-space limit (SandboxLimits::memory_bytes).
-constexpr size_t kMaxAllocation = size_t{2} << 30;
+// A quarter of the checker child's 2 GiB address space, so that one
+// zero-filled allocation plus ASan's shadow and quarantine stays under
+// -rss_limit_mb=2048.
+constexpr size_t kMaxAllocation = size_t{512} << 20;
 
 void* Allocate(size_t n, size_t align) {
   if (n > kMaxAllocation) return nullptr;
@@ -61,9 +63,7 @@ void operator delete[](void* p, size_t, std::align_val_t) noexcept { std::free(p
 void operator delete(void* p, const std::nothrow_t&) noexcept { std::free(p); }
 void operator delete[](void* p, const std::nothrow_t&) noexcept { std::free(p); }
 void operator delete(void* p, std::align_val_t, const std::nothrow_t&) noexcept { std::free(p); }
-void operator delete[](void* p, std::align_val_t, const std::nothrow_t&) noexcept {
-  std::free(p);
-}
+void operator delete[](void* p, std::align_val_t, const std::nothrow_t&) noexcept { std::free(p); }
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   if (size > kMaxInputBytes) return -1;  // -1: keep out of the corpus

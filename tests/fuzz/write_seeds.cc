@@ -30,14 +30,20 @@ nimbus::TriangleMesh Tetrahedron() {
 bool WriteMeshes(const fs::path& dir) {
   using nimbus::MeshFormat;
   const nimbus::TriangleMesh mesh = Tetrahedron();
-  return WriteFile(dir / "obj_fuzzer/tetra.obj", SerializeMesh(mesh, MeshFormat::kObj)) &&
-         WriteFile(dir / "ply_fuzzer/tetra_ascii.ply", SerializeMesh(mesh, MeshFormat::kPlyAscii)) &&
-         WriteFile(dir / "ply_fuzzer/tetra_binary.ply", SerializeMesh(mesh, MeshFormat::kPlyBinary)) &&
-         WriteFile(dir / "stl_fuzzer/tetra_ascii.stl", SerializeMesh(mesh, MeshFormat::kStlAscii)) &&
-         WriteFile(dir / "stl_fuzzer/tetra_binary.stl", SerializeMesh(mesh, MeshFormat::kStlBinary));
+  const struct {
+    const char* file;
+    MeshFormat format;
+  } seeds[] = {{"obj_fuzzer/tetra.obj", MeshFormat::kObj},
+               {"ply_fuzzer/tetra_ascii.ply", MeshFormat::kPlyAscii},
+               {"ply_fuzzer/tetra_binary.ply", MeshFormat::kPlyBinary},
+               {"stl_fuzzer/tetra_ascii.stl", MeshFormat::kStlAscii},
+               {"stl_fuzzer/tetra_binary.stl", MeshFormat::kStlBinary}};
+  for (const auto& seed : seeds)
+    if (!WriteFile(dir / seed.file, SerializeMesh(mesh, seed.format))) return false;
+  return true;
 }
 
-// A 4^3 grid with a few visited voxels: one leaf, a few hundred bytes.
+// A 4^3 grid with a few visited voxels. No ".vdb": the repository ignores it.
 bool WriteVdb(const fs::path& dir) {
   nimbus::CountGrid counts({4, 4, 4});
   counts.AddKey(counts.Key(0, 0, 0), 3);
@@ -45,7 +51,7 @@ bool WriteVdb(const fs::path& dir) {
   counts.AddKey(counts.Key(3, 3, 3), 2);
   const nimbus::GridFrame frame{{4, 4, 4}, {{-1, -1, -1}, {1, 1, 1}}};
   auto bytes = nimbus::DensityVdbBytes(counts, frame, {}, {{"nimbus_seed", std::string("fuzz")}});
-  return bytes.ok() && WriteFile(dir / "vdb_fuzzer/tiny_density.vdb", *bytes);
+  return bytes.ok() && WriteFile(dir / "vdb_fuzzer/tiny_density", *bytes);
 }
 
 }  // namespace
