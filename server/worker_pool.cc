@@ -357,7 +357,10 @@ absl::Status WorkerPool::ConvertAndRun(const v1::JobSpec& spec, JobContext& ctx)
   // arena sized by --threads-per-job.
   tbb::task_arena arena(threads_per_job_);
   absl::Status status;
-  arena.execute([&] { status = RunJobPlan(*plan, ctx); });
+  arena.execute([&] {
+    ctx.SetStat("arena_threads", uint64_t(tbb::this_task_arena::max_concurrency()));
+    status = RunJobPlan(*plan, ctx);
+  });
   return status;
 }
 

@@ -56,6 +56,8 @@ TEST_F(MatrixE2e, TreeJobWritesDensityAndComponents) {
   ASSERT_TRUE(done.ok()) << done.status();
   ASSERT_EQ(done->state(), v1::JOB_STATE_SUCCEEDED) << done->DebugString();
   EXPECT_EQ(done->stats().at("matrix_size"), 2u);
+  // The job ran in its own task arena of --threads-per-job threads.
+  EXPECT_EQ(done->stats().at("arena_threads"), 2u);
   EXPECT_EQ(done->stats().at("matrix_components"), 3u);
   bool sized = false;
   for (const auto& w : done->warnings()) sized |= w.find("H_tree: 2x2") != std::string::npos;
