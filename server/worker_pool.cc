@@ -61,7 +61,11 @@ class WorkerPool::Context : public JobContext {
         spec_hash_(spec::SpecHash(spec)),
         view_(ToProto(record, false)),
         phase_start_(Clock::now()),
-        last_heartbeat_(phase_start_) {}
+        last_heartbeat_(phase_start_) {
+    // A claimed job prepares first (conversion, meshes) until its runner
+    // reports a phase of its own.
+    view_.mutable_progress()->set_phase(v1::PROGRESS_PHASE_PREPARING);
+  }
 
   const std::string& job_id() const override { return record_.id; }
   int threads() const override { return pool_->threads_per_job_; }
