@@ -16,6 +16,7 @@
 #include "proto/spec_io.h"
 #include "tests/support/nimbusd_process.h"
 #include "tests/support/test_util.h"
+#include "tests/support/vdb_fixtures.h"
 
 namespace nimbus {
 namespace {
@@ -24,22 +25,7 @@ using client::NimbusClient;
 using ::testing::HasSubstr;
 using ::testing::StartsWith;
 
-std::string ReadAll(const std::filesystem::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
 
-std::string SphereVdbBytes(const std::filesystem::path& scratch) {
-  openvdb::initialize();
-  auto grid = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(10.0f, {0, 0, 0}, 0.5f);
-  grid->setName("surface");
-  openvdb::io::File file(scratch.string());
-  file.write({grid});
-  file.close();
-  return ReadAll(scratch);
-}
 
 v1::JobSpec CowCloud() {
   auto spec = spec::LoadSpecFile(testing::SourcePath("examples/cow_cloud.json"));
@@ -66,7 +52,7 @@ class PoisonE2E : public ::testing::Test {
 
   // The server still does real work: a small job from a good mesh succeeds.
   void ExpectAGoodJobRuns() {
-    const std::string cow = ReadAll(testing::SourcePath("examples/meshes/cow.obj"));
+    const std::string cow = testing::ReadFileBytes(testing::SourcePath("examples/meshes/cow.obj"));
     ASSERT_TRUE(Upload("cow.obj", cow).ok());
     v1::JobSpec spec = CowCloud();
     spec::ForEachAsset(spec, [&](const std::string&, v1::Asset& a) {
@@ -91,7 +77,7 @@ class PoisonE2E : public ::testing::Test {
 };
 
 TEST_F(PoisonE2E, DamagedVdbIsRefusedAtUploadAndAtSubmit) {
-  const std::string vdb = SphereVdbBytes(dir_ / "sphere.vdb");
+  const std::string vdb = testing::SphereVdbBytes(dir_ / "sphere.vdb");
   const std::string cut = vdb.substr(0, vdb.size() / 2);
   const std::string sha = Sha256Hex(cut);
 

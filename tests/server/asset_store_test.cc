@@ -16,14 +16,11 @@
 #include "proto/asset_paths.h"
 #include "server/untrusted_file.h"
 #include "tests/support/test_util.h"
+#include "tests/support/vdb_fixtures.h"
 
 namespace nimbus::server {
 namespace {
 
-std::string ReadFile(const std::filesystem::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::string(std::istreambuf_iterator<char>(in), {});
-}
 
 size_t FilesIn(const std::filesystem::path& dir) {
   size_t n = 0;
@@ -31,16 +28,6 @@ size_t FilesIn(const std::filesystem::path& dir) {
   return n;
 }
 
-// A real level-set sphere written by OpenVDB, as bytes.
-std::string SphereVdbBytes(const std::filesystem::path& scratch) {
-  openvdb::initialize();
-  auto grid = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(10.0f, {0, 0, 0}, 0.5f);
-  grid->setName("surface");
-  openvdb::io::File file(scratch.string());
-  file.write({grid});
-  file.close();
-  return ReadFile(scratch);
-}
 
 absl::StatusOr<AssetInfo> UploadBytes(AssetStore& store, const std::string& bytes,
                                       const std::string& name) {
@@ -73,8 +60,8 @@ TEST_F(AssetStoreTest, StoresByContentAndRemembersTheName) {
   EXPECT_FALSE(info->already_present);
   // No format in the stored file's name; the upload's name sits beside it.
   EXPECT_EQ(info->path, dir_.path() / sha);
-  EXPECT_EQ(ReadFile(dir_.path() / sha), data_);
-  EXPECT_EQ(ReadFile(dir_.path() / (sha + ".names")), "Sketch.OBJ\n");
+  EXPECT_EQ(testing::ReadFileBytes(dir_.path() / sha), data_);
+  EXPECT_EQ(testing::ReadFileBytes(dir_.path() / (sha + ".names")), "Sketch.OBJ\n");
   EXPECT_EQ(info->names, std::vector<std::string>{"Sketch.OBJ"});
   EXPECT_EQ(info->format, ".obj");
   auto found = store_->Find(sha);
@@ -230,16 +217,16 @@ TEST(AssetNames, KnownFormatsAndCleanNames) {
 // ---- Poison uploads: read in a sandboxed child, refused, never stored ----
 
 TEST_F(AssetStoreTest, AReadableVdbIsStored) {
-  const std::string vdb = SphereVdbBytes(dir_.path() / "sphere-scratch.vdb");
+  const std::string vdb = testing::SphereVdbBytes(dir_.path() / "sphere-scratch.vdb");
   std::filesystem::remove(dir_.path() / "sphere-scratch.vdb");
   auto info = UploadBytes(*store_, vdb, "sphere.vdb");
   ASSERT_TRUE(info.ok()) << info.status();
   EXPECT_EQ(info->format, ".vdb");
-  EXPECT_EQ(ReadFile(info->path), vdb);
+  EXPECT_EQ(testing::ReadFileBytes(info->path), vdb);
 }
 
 TEST_F(AssetStoreTest, ATruncatedVdbIsRefusedAndNotStored) {
-  const std::string vdb = SphereVdbBytes(dir_.path() / "sphere-scratch.vdb");
+  const std::string vdb = testing::SphereVdbBytes(dir_.path() / "sphere-scratch.vdb");
   std::filesystem::remove(dir_.path() / "sphere-scratch.vdb");
   const size_t files_before = FilesIn(dir_.path());
   const std::string cut = vdb.substr(0, vdb.size() / 2);
@@ -258,7 +245,7 @@ TEST_F(AssetStoreTest, ATruncatedVdbIsRefusedAndNotStored) {
 }
 
 TEST_F(AssetStoreTest, BitFlippedVdbsAreRefusedOrHarmless) {
-  const std::string vdb = SphereVdbBytes(dir_.path() / "sphere-scratch.vdb");
+  const std::string vdb = testing::SphereVdbBytes(dir_.path() / "sphere-scratch.vdb");
   std::filesystem::remove(dir_.path() / "sphere-scratch.vdb");
   // Some flips make OpenVDB allocate without end: a small limit ends those
   // readers sooner than the default would.
@@ -306,7 +293,7 @@ TEST_F(AssetStoreTest, GarbageMeshesAreRefused) {
 
 TEST(UntrustedFile, LimitsStopAGreedyReader) {
   testing::TempDir dir;
-  const std::string vdb = SphereVdbBytes(dir / "sphere.vdb");
+  const std::string vdb = testing::SphereVdbBytes(dir / "sphere.vdb");
   UntrustedFile file{UntrustedKind::kVdbGrid, dir / "sphere.vdb", ".vdb", ""};
   EXPECT_TRUE(CheckUntrustedFile(file).ok());
   SandboxLimits tiny;
