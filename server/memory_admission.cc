@@ -72,26 +72,52 @@ uint64_t SetIfsBytes(const SetIfsPlan& plan, Int3 r) {
   return bytes;
 }
 
+
+absl::StatusOr<MemoryAdmission> AdmitSetIfs(const JobPlan& plan, const SetIfsPlan& s,
+                                            const spec::Limits& limits) {
+  const uint64_t bytes = SetIfsBytes(s, plan.frame.resolution);
+  if (bytes > limits.max_memory_bytes)
+    return absl::ResourceExhaustedError(StrCat("grid.resolution: the job needs up to ", GiB(bytes),
+                                               " of memory; the server limit is ",
+                                               GiB(limits.max_memory_bytes)));
+  return MemoryAdmission{bytes, 0};
+}
+
+// Point IFS kinds: one engine runs at a time, so the run bounds the job,
+// plus `extra` (a component grid's accumulator).
+absl::StatusOr<MemoryAdmission> AdmitPointRun(const JobPlan& plan, const ChaosGameParams& run,
+                                              uint64_t extra, const spec::Limits& limits,
+                                              int threads, Interrupter* interrupter) {
+  const ChaosEstimate e = EstimateChaosGame(run, threads, plan.density, limits, interrupter);
+  return CheckChaos(e, extra, threads, limits);
+}
+
+// Overload set for std::visit.
+template <class... Fs>
+struct Overloaded : Fs... {
+  using Fs::operator()...;
+};
+template <class... Fs>
+Overloaded(Fs...) -> Overloaded<Fs...>;
+
 }  // namespace
 
 absl::StatusOr<MemoryAdmission> AdmitMemory(const JobPlan& plan, const spec::Limits& limits,
                                             int threads, Interrupter* interrupter) {
-  if (const SetIfsPlan* s = plan.set_ifs()) {
-    const uint64_t bytes = SetIfsBytes(*s, plan.frame.resolution);
-    if (bytes > limits.max_memory_bytes)
-      return absl::ResourceExhaustedError(
-          StrCat("grid.resolution: the job needs up to ", GiB(bytes),
-                 " of memory; the server limit is ", GiB(limits.max_memory_bytes)));
-    return MemoryAdmission{bytes, 0};
-  }
-  // Point IFS kinds: one engine runs at a time, so the whole selection's
-  // run bounds the job, plus a component grid's accumulator.
-  const ChaosEstimate e =
-      EstimateChaosGame(*plan.point_run(), threads, plan.density, limits, interrupter);
-  uint64_t extra = 0;
-  if (const IfsMatrixPlan* m = plan.ifs_matrix(); m && m->component_grid != ComponentGridType::kNone)
-    extra = ComponentAccumulator::MaxMemoryBytes(plan.frame.resolution);
-  return CheckChaos(e, extra, threads, limits);
+  // One price per job kind: a new kind does not compile until it has one.
+  return std::visit(
+      Overloaded{
+          [&](const ChaosGamePlan& k) {
+            return AdmitPointRun(plan, k.params, 0, limits, threads, interrupter);
+          },
+          [&](const IfsMatrixPlan& k) {
+            const uint64_t extra = k.component_grid == ComponentGridType::kNone
+                                       ? 0
+                                       : ComponentAccumulator::MaxMemoryBytes(plan.frame.resolution);
+            return AdmitPointRun(plan, k.run, extra, limits, threads, interrupter);
+          },
+          [&](const SetIfsPlan& k) { return AdmitSetIfs(plan, k, limits); }},
+      plan.kind);
 }
 
 }  // namespace nimbus::server
