@@ -1,5 +1,6 @@
-// Chaos-game throughput on the tree IFS matrix (ALGORITHMS.md section 4)
-// against a plain IFS with the same four maps, on the same grid, one thread.
+// Chaos-game throughput on the tree IFS matrix
+// (docs/algorithms.md#worked-example-the-tree) against a plain IFS with the
+// same four maps, on the same grid, one thread.
 // The chain adds per-state alias tables and unplotted warm-up / restart
 // steps; the summary line states the overhead in plotted updates per second.
 #include <benchmark/benchmark.h>

@@ -1,5 +1,6 @@
 // IFS matrices (recurrent, graph-directed IFS) and the constructive
-// operations that combine them (ALGORITHMS.md section 4; docs/ifs_matrices.md).
+// operations that combine them (docs/algorithms.md#ifs-matrices-recurrent-ifs;
+// docs/ifs_matrices.md).
 // An umbrella over the parts, each in its own header:
 //  * map_table.h        the table of maps (and compositions) entries index;
 //  * ifs_matrix_core.h  IfsMatrix, BoolMatrix, aperiodicity, selections;

@@ -1,10 +1,11 @@
 // IFS matrices (recurrent, graph-directed IFS): the matrix of map sets, the
 // boolean pattern of its non-empty entries, and the checks every use needs
-// (aperiodicity, component selection). ALGORITHMS.md section 4;
+// (aperiodicity, component selection). docs/algorithms.md#components-and-the-matrix-equation;
 // docs/ifs_matrices.md.
 //
 // Conventions used throughout:
-//  * indices are 0-based (the seed counts from 1: its A_12 is our (0, 1));
+//  * indices are 0-based (the reference description counts from 1: its A_12 is our
+//    (0, 1));
 //  * an entry H_ij is a sorted set of indices into a shared map table;
 //  * "f after g" is written f o g and means f(g(p)), as in Affine3;
 //  * component (i, j) of the attractor matrix is

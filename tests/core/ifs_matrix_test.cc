@@ -124,7 +124,7 @@ std::set<std::vector<uint32_t>> Words(const MapTable& table, const Entry& e) {
 }
 
 // ---------------------------------------------------------------------------
-// The tree of ALGORITHMS.md section 4.
+// The tree of docs/algorithms.md#worked-example-the-tree.
 
 TEST(TreeExample, TrunkComponentIsTheSegment) {
   const IfsMatrixExample tree = TreeMatrixExample();

@@ -1,7 +1,8 @@
 // Test oracles for IFS matrices: plain, unoptimised reference algorithms the
 // tests and the benchmark check the matrix engine against, and the worked
-// example of ALGORITHMS.md section 4. They use the matrix types as data only:
-// none of the engine's expansion, chain or sampling code runs in here.
+// example of docs/algorithms.md#worked-example-the-tree. They use the matrix
+// types as data only: none of the engine's expansion, chain or sampling code
+// runs in here.
 #pragma once
 
 #include <cstdint>
@@ -62,8 +63,8 @@ struct IfsMatrixExample {
   IfsMatrix matrix;
 };
 
-/// @brief The 3D tree of ALGORITHMS.md section 4: maps T1..T4 (indices
-/// 0..3) and H = [[{T3, T4}, {T1, T2}], [{}, {T1, T2}]]. Component (1, 1)
+/// @brief The 3D tree of docs/algorithms.md#worked-example-the-tree: maps
+/// T1..T4 (indices 0..3) and H = [[{T3, T4}, {T1, T2}], [{}, {T1, T2}]]. Component (1, 1)
 /// is the trunk from (0,0,0) to (0,1,0), (0, 0) the canopy A(T3, T4), and
 /// (0, 1) the branching tree.
 IfsMatrixExample TreeMatrixExample();
