@@ -5,6 +5,7 @@
 #include <variant>
 
 #include "absl/strings/str_cat.h"
+#include "core/base/overloaded.h"
 #include "core/base/status_macros.h"
 
 namespace nimbus::server {
@@ -91,14 +92,6 @@ absl::StatusOr<MemoryAdmission> AdmitPointRun(const JobPlan& plan, const ChaosGa
   const ChaosEstimate e = EstimateChaosGame(run, threads, plan.density, limits, interrupter);
   return CheckChaos(e, extra, threads, limits);
 }
-
-// Overload set for std::visit.
-template <class... Fs>
-struct Overloaded : Fs... {
-  using Fs::operator()...;
-};
-template <class... Fs>
-Overloaded(Fs...) -> Overloaded<Fs...>;
 
 }  // namespace
 

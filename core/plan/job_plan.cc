@@ -1,16 +1,8 @@
 #include "core/plan/job_plan.h"
 
-namespace nimbus {
+#include "core/base/overloaded.h"
 
-namespace {
-// Overload set for std::visit.
-template <class... Fs>
-struct Overloaded : Fs... {
-  using Fs::operator()...;
-};
-template <class... Fs>
-Overloaded(Fs...) -> Overloaded<Fs...>;
-}  // namespace
+namespace nimbus {
 
 const ChaosGameParams* JobPlan::point_run() const {
   return std::visit(Overloaded{[](const ChaosGamePlan& p) { return &p.params; },
