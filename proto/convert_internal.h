@@ -34,8 +34,6 @@ absl::Status CheckProbabilityMode(v1::ProbabilityMode mode, const std::string& p
 /// Most warm-up steps per walker (chaos_game.warmup).
 inline constexpr uint32_t kMaxWarmup = 1'000'000;
 Vec3 ToVec3(const v1::Vec3& v);
-/// "1.50 GiB".
-std::string GiB(uint64_t bytes);
 /// A Map message as a core PointMap (pre steps, variations, post, colour).
 absl::StatusOr<PointMap> ConvertMap(const v1::Map& m, const std::string& path);
 

@@ -38,12 +38,6 @@ absl::Status CheckProbabilityMode(v1::ProbabilityMode mode, const std::string& p
 }
 Vec3 ToVec3(const v1::Vec3& v) { return {v.x(), v.y(), v.z()}; }
 
-std::string GiB(uint64_t bytes) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.2f GiB", double(bytes) / double(uint64_t{1} << 30));
-  return buf;
-}
-
 }  // namespace internal
 
 namespace {
