@@ -10,6 +10,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "core/base/sha256.h"
+#include "core/base/status_macros.h"
 #include "nimbus/v1/nimbus_service.grpc.pb.h"
 #include "proto/asset_paths.h"
 
@@ -38,6 +39,12 @@ bool Retryable(const grpc::Status& s) {
 struct NimbusClient::Impl {
   std::shared_ptr<grpc::Channel> channel;
   std::unique_ptr<v1::NimbusService::Stub> stub;
+  std::string token;
+  // Metadata rather than call credentials: those gRPC sends only over TLS,
+  // and a token to a loopback server without TLS is legitimate.
+  void Authorize(grpc::ClientContext& ctx) const {
+    if (!token.empty()) ctx.AddMetadata("authorization", "Bearer " + token);
+  }
 };
 
 NimbusClient::NimbusClient(std::shared_ptr<grpc::Channel> channel)
@@ -48,15 +55,60 @@ NimbusClient::NimbusClient(std::shared_ptr<grpc::Channel> channel)
 
 NimbusClient::~NimbusClient() = default;
 
-std::unique_ptr<NimbusClient> NimbusClient::Connect(const std::string& target) {
+namespace {
+
+grpc::ChannelArguments ChannelArgs() {
   grpc::ChannelArguments args;
   args.SetMaxReceiveMessageSize(64 << 20);
   // Reconnect quickly after a server restart.
   args.SetInt(GRPC_ARG_INITIAL_RECONNECT_BACKOFF_MS, 100);
   args.SetInt(GRPC_ARG_MAX_RECONNECT_BACKOFF_MS, 1000);
-  return std::make_unique<NimbusClient>(
-      grpc::CreateCustomChannel(target, grpc::InsecureChannelCredentials(), args));
+  return args;
 }
+
+absl::StatusOr<std::string> ReadPem(const char* flag, const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  if (!in.is_open() || text.empty())
+    return absl::InvalidArgumentError(absl::StrCat(flag, " ", path, ": cannot read the file"));
+  return text;
+}
+
+absl::StatusOr<std::shared_ptr<grpc::ChannelCredentials>> MakeChannelCredentials(
+    const ConnectOptions& o) {
+  if (o.tls_cert_file.empty() != o.tls_key_file.empty())
+    return absl::InvalidArgumentError("--tls-cert and --tls-key go together");
+  if (o.tls_ca_file.empty()) {
+    if (!o.tls_cert_file.empty())
+      return absl::InvalidArgumentError("--tls-cert needs --tls-ca (the server's CA)");
+    return grpc::InsecureChannelCredentials();
+  }
+  grpc::SslCredentialsOptions ssl;
+  NIMBUS_ASSIGN_OR_RETURN(ssl.pem_root_certs, ReadPem("--tls-ca", o.tls_ca_file));
+  if (!o.tls_cert_file.empty()) {
+    NIMBUS_ASSIGN_OR_RETURN(ssl.pem_cert_chain, ReadPem("--tls-cert", o.tls_cert_file));
+    NIMBUS_ASSIGN_OR_RETURN(ssl.pem_private_key, ReadPem("--tls-key", o.tls_key_file));
+  }
+  return grpc::SslCredentials(ssl);
+}
+
+}  // namespace
+
+std::unique_ptr<NimbusClient> NimbusClient::Connect(const std::string& target) {
+  return std::make_unique<NimbusClient>(
+      grpc::CreateCustomChannel(target, grpc::InsecureChannelCredentials(), ChannelArgs()));
+}
+
+absl::StatusOr<std::unique_ptr<NimbusClient>> NimbusClient::Connect(const std::string& target,
+                                                                    const ConnectOptions& options) {
+  NIMBUS_ASSIGN_OR_RETURN(auto credentials, MakeChannelCredentials(options));
+  auto client =
+      std::make_unique<NimbusClient>(grpc::CreateCustomChannel(target, credentials, ChannelArgs()));
+  client->set_token(options.token);
+  return client;
+}
+
+void NimbusClient::set_token(const std::string& token) { impl_->token = token; }
 
 absl::Status NimbusClient::WaitForReady(double seconds) {
   const auto deadline =
@@ -69,6 +121,7 @@ absl::Status NimbusClient::WaitForReady(double seconds) {
 absl::StatusOr<v1::Job> NimbusClient::Submit(const v1::JobSpec& spec,
                                              const std::string& request_id) {
   grpc::ClientContext ctx;
+  impl_->Authorize(ctx);
   v1::SubmitJobRequest req;
   *req.mutable_spec() = spec;
   req.set_request_id(request_id);
@@ -79,6 +132,7 @@ absl::StatusOr<v1::Job> NimbusClient::Submit(const v1::JobSpec& spec,
 
 absl::StatusOr<v1::Job> NimbusClient::Get(const std::string& job_id) {
   grpc::ClientContext ctx;
+  impl_->Authorize(ctx);
   v1::GetJobRequest req;
   req.set_job_id(job_id);
   v1::GetJobResponse resp;
@@ -88,6 +142,7 @@ absl::StatusOr<v1::Job> NimbusClient::Get(const std::string& job_id) {
 
 absl::StatusOr<v1::ListJobsResponse> NimbusClient::List(const v1::ListJobsRequest& request) {
   grpc::ClientContext ctx;
+  impl_->Authorize(ctx);
   v1::ListJobsResponse resp;
   if (auto s = impl_->stub->ListJobs(&ctx, request, &resp); !s.ok()) return FromGrpc(s);
   return resp;
@@ -95,11 +150,33 @@ absl::StatusOr<v1::ListJobsResponse> NimbusClient::List(const v1::ListJobsReques
 
 absl::StatusOr<v1::Job> NimbusClient::Cancel(const std::string& job_id) {
   grpc::ClientContext ctx;
+  impl_->Authorize(ctx);
   v1::CancelJobRequest req;
   req.set_job_id(job_id);
   v1::CancelJobResponse resp;
   if (auto s = impl_->stub->CancelJob(&ctx, req, &resp); !s.ok()) return FromGrpc(s);
   return resp.job();
+}
+
+absl::StatusOr<v1::Job> NimbusClient::Pin(const std::string& job_id, bool pinned) {
+  grpc::ClientContext ctx;
+  impl_->Authorize(ctx);
+  v1::PinJobRequest req;
+  req.set_job_id(job_id);
+  req.set_pinned(pinned);
+  v1::PinJobResponse resp;
+  if (auto s = impl_->stub->PinJob(&ctx, req, &resp); !s.ok()) return FromGrpc(s);
+  return resp.job();
+}
+
+absl::StatusOr<uint64_t> NimbusClient::Delete(const std::string& job_id) {
+  grpc::ClientContext ctx;
+  impl_->Authorize(ctx);
+  v1::DeleteJobRequest req;
+  req.set_job_id(job_id);
+  v1::DeleteJobResponse resp;
+  if (auto s = impl_->stub->DeleteJob(&ctx, req, &resp); !s.ok()) return FromGrpc(s);
+  return resp.freed_bytes();
 }
 
 absl::StatusOr<v1::Job> NimbusClient::Watch(
@@ -114,6 +191,7 @@ absl::StatusOr<v1::Job> NimbusClient::Watch(
                     std::chrono::milliseconds(int64_t(options.reconnect_timeout_seconds * 1000));
   while (true) {
     grpc::ClientContext ctx;
+    impl_->Authorize(ctx);
     ctx.set_wait_for_ready(true);  // ride out a restarting server
     auto reader = impl_->stub->WatchJob(&ctx, req);
     v1::WatchJobResponse resp;
@@ -147,6 +225,7 @@ absl::Status NimbusClient::Fetch(const std::string& job_id, const std::filesyste
     std::ofstream out(part, std::ios::binary | std::ios::app);
     if (!out) return absl::PermissionDeniedError(absl::StrCat("cannot write ", part.string()));
     grpc::ClientContext ctx;
+    impl_->Authorize(ctx);
     ctx.set_wait_for_ready(true);
     v1::FetchResultRequest req;
     req.set_job_id(job_id);
@@ -198,6 +277,7 @@ absl::StatusOr<v1::UploadAssetResponse> NimbusClient::UploadBytes(const std::str
                                                                   uint64_t size) {
   constexpr size_t kChunk = size_t{1} << 20;
   grpc::ClientContext ctx;
+  impl_->Authorize(ctx);
   ctx.set_wait_for_ready(true);
   v1::UploadAssetResponse resp;
   auto writer = impl_->stub->UploadAsset(&ctx, &resp);

@@ -25,18 +25,39 @@ struct WatchOptions {
   double reconnect_timeout_seconds = 120.0;
 };
 
+/// How to reach a server that wants TLS or a token (docs/operator_guide.md
+/// "Security"). All empty: plaintext, no token.
+struct ConnectOptions {
+  /// PEM CA bundle that signed the server's certificate: connect over TLS.
+  std::string tls_ca_file;
+  /// PEM client certificate and key, for servers that require mutual TLS.
+  std::string tls_cert_file, tls_key_file;
+  /// Sent as `authorization: Bearer TOKEN` with every call.
+  std::string token;
+};
+
 /// @brief Blocking client. Thread-compatible; one call at a time per object.
 class NimbusClient {
  public:
   explicit NimbusClient(std::shared_ptr<grpc::Channel> channel);
   /// Connects to host:port over plaintext.
   static std::unique_ptr<NimbusClient> Connect(const std::string& target);
+  /// Connects with TLS and/or a token. INVALID_ARGUMENT names an unreadable
+  /// PEM file or a client certificate without its key.
+  static absl::StatusOr<std::unique_ptr<NimbusClient>> Connect(const std::string& target,
+                                                               const ConnectOptions& options);
+  /// The token sent with every later call (empty: none).
+  void set_token(const std::string& token);
   ~NimbusClient();
 
   absl::StatusOr<v1::Job> Submit(const v1::JobSpec& spec, const std::string& request_id = "");
   absl::StatusOr<v1::Job> Get(const std::string& job_id);
   absl::StatusOr<v1::ListJobsResponse> List(const v1::ListJobsRequest& request);
   absl::StatusOr<v1::Job> Cancel(const std::string& job_id);
+  /// Pins (or, with `pinned` false, unpins) a job's result against expiry.
+  absl::StatusOr<v1::Job> Pin(const std::string& job_id, bool pinned);
+  /// Deletes a finished job and its result files; returns the bytes freed.
+  absl::StatusOr<uint64_t> Delete(const std::string& job_id);
 
   /// Streams updates to `on_update` until the job ends, reconnecting after
   /// transport failures (a server restart) and resuming the watch. Returns

@@ -49,6 +49,8 @@ int ExitFor(const absl::Status& s) {
     case absl::StatusCode::kFailedPrecondition:
     case absl::StatusCode::kResourceExhausted:
     case absl::StatusCode::kOutOfRange:
+    case absl::StatusCode::kUnauthenticated:
+    case absl::StatusCode::kPermissionDenied:
     case absl::StatusCode::kDataLoss: return kBadInput;
     default: return kServerError;
   }
@@ -68,6 +70,7 @@ struct Connection {
 
 struct GlobalOptions {
   std::string server;
+  nimbus::client::ConnectOptions connect;
   std::string data_dir;
   int threads = 0;
   bool verbose = false;
@@ -76,7 +79,7 @@ struct GlobalOptions {
 absl::StatusOr<Connection> Connect(const GlobalOptions& g) {
   Connection c;
   if (!g.server.empty()) {
-    c.client = NimbusClient::Connect(g.server);
+    NIMBUS_ASSIGN_OR_RETURN(c.client, NimbusClient::Connect(g.server, g.connect));
     if (auto s = c.client->WaitForReady(10); !s.ok())
       return absl::UnavailableError(absl::StrCat("cannot reach nimbusd at ", g.server));
     return c;
@@ -468,6 +471,24 @@ int RunJobs(const Options& o) {
   return 0;
 }
 
+int RunPin(const Options& o, bool pinned) {
+  auto conn = Connect(o.global);
+  if (!conn.ok()) return ExitFor(conn.status());
+  auto job = conn->client->Pin(o.job_id, pinned);
+  if (!job.ok()) return ExitFor(job.status());
+  std::cout << job->id() << (job->pinned() ? " pinned" : " unpinned") << "\n";
+  return 0;
+}
+
+int RunDelete(const Options& o) {
+  auto conn = Connect(o.global);
+  if (!conn.ok()) return ExitFor(conn.status());
+  auto freed = conn->client->Delete(o.job_id);
+  if (!freed.ok()) return ExitFor(freed.status());
+  std::cout << o.job_id << " deleted (" << *freed << " bytes of results freed)\n";
+  return 0;
+}
+
 int RunCancel(const Options& o) {
   auto conn = Connect(o.global);
   if (!conn.ok()) return ExitFor(conn.status());
@@ -489,6 +510,14 @@ void AddGlobalFlags(CLI::App& app, GlobalOptions& g) {
                  "embedded server's data folder (default $NIMBUS_DATA_DIR or ~/.cache/nimbus)");
   app.add_option("--threads", g.threads, "embedded server: engine threads per job (0: all cores)");
   app.add_flag("-v,--verbose", g.verbose, "show server logs");
+  app.add_option("--tls-ca", g.connect.tls_ca_file,
+                 "PEM CA of the server's certificate: connect to --server over TLS");
+  app.add_option("--tls-cert", g.connect.tls_cert_file,
+                 "PEM client certificate, for servers that require mutual TLS");
+  app.add_option("--tls-key", g.connect.tls_key_file, "PEM private key of --tls-cert");
+  // The environment keeps the token out of shell history and `ps`.
+  app.add_option("--token", g.connect.token, "access token (default $NIMBUS_TOKEN)")
+      ->envname("NIMBUS_TOKEN");
 }
 
 void AddWatchFlags(CLI::App* c, WatchArgs& w) {
@@ -524,10 +553,25 @@ std::vector<Command> AddCommands(CLI::App& app, Options& o) {
   jobs->add_option("--limit", o.limit, "how many")->capture_default_str();
   auto* cancel = app.add_subcommand("cancel", "cancel a queued or running job");
   cancel->add_option("job", o.job_id)->required();
+  auto* pin = app.add_subcommand("pin", "keep a job's result (and assets) past the retention age");
+  pin->add_option("job", o.job_id)->required();
+  auto* unpin = app.add_subcommand("unpin", "let a pinned job's result expire again");
+  unpin->add_option("job", o.job_id)->required();
+  auto* del = app.add_subcommand("delete", "delete a finished job and its result files");
+  del->add_option("job", o.job_id)->required();
   auto* validate = app.add_subcommand("validate", "check a spec locally and summarise it");
   validate->add_option("spec", o.spec_path, "spec file")->required();
-  return {{validate, RunValidate}, {render, RunRender}, {submit, RunSubmit}, {watch, RunWatch},
-          {fetch, RunFetch},       {get, RunGet},       {jobs, RunJobs},     {cancel, RunCancel}};
+  return {{validate, RunValidate},
+          {render, RunRender},
+          {submit, RunSubmit},
+          {watch, RunWatch},
+          {fetch, RunFetch},
+          {get, RunGet},
+          {jobs, RunJobs},
+          {cancel, RunCancel},
+          {pin, [](const Options& o) { return RunPin(o, true); }},
+          {unpin, [](const Options& o) { return RunPin(o, false); }},
+          {del, RunDelete}};
 }
 
 }  // namespace

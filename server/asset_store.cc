@@ -61,39 +61,97 @@ absl::StatusOr<AssetInfo> AssetStore::Find(const std::string& sha256) const {
   return info;
 }
 
-absl::Status AssetStore::RememberName(const std::string& sha256, const std::string& name) {
-  if (name.empty()) return absl::OkStatus();
+absl::Status AssetStore::RememberLine(const std::filesystem::path& path, const std::string& sha256,
+                                      const std::string& line) {
+  if (line.empty()) return absl::OkStatus();
   std::lock_guard<std::mutex> lock(names_mu_);
-  const std::filesystem::path names_path = spec::StoredAssetNamesPath(dir_, sha256);
   std::string text;
   size_t count = 0;
   {
-    std::ifstream in(names_path);
-    for (std::string line; std::getline(in, line);) {
-      if (line == name) return absl::OkStatus();
-      text += line + "\n";
+    std::ifstream in(path);
+    for (std::string old; std::getline(in, old);) {
+      if (old == line) return absl::OkStatus();
+      text += old + "\n";
       ++count;
     }
   }
   if (count >= kMaxNames) return absl::OkStatus();
-  text += name + "\n";
-  // Rewritten whole and renamed, so a reader never sees half a name.
+  text += line + "\n";
+  // Rewritten whole and renamed, so a reader never sees half a line.
   const std::filesystem::path tmp =
-      dir_ / "incoming" / absl::StrCat(sha256, ".names.", g_upload_counter++, ".partial");
+      dir_ / "incoming" / absl::StrCat(sha256, ".sidecar.", g_upload_counter++, ".partial");
   std::ofstream out(tmp, std::ios::trunc);
   out << text;
   out.close();
   std::error_code ec;
-  if (out) std::filesystem::rename(tmp, names_path, ec);
+  if (out) std::filesystem::rename(tmp, path, ec);
   if (!out || ec) {
     std::filesystem::remove(tmp, ec);
-    return absl::InternalError(absl::StrCat("cannot record the name of asset ", sha256));
+    return absl::InternalError(absl::StrCat("cannot record ", path.filename().string()));
   }
   return absl::OkStatus();
 }
 
-absl::StatusOr<std::unique_ptr<AssetStore::Upload>> AssetStore::Begin(
-    const std::string& sha256, uint64_t size, const std::string& file_name) {
+absl::Status AssetStore::AddOwner(const std::string& sha256, const std::string& principal) {
+  auto info = Find(sha256);
+  if (!info.ok()) return info.status();
+  std::error_code ec;
+  std::filesystem::last_write_time(info->path, std::filesystem::file_time_type::clock::now(), ec);
+  return RememberLine(OwnersPath(sha256), sha256, principal);
+}
+
+bool AssetStore::IsOwner(const std::string& sha256, const std::string& principal) const {
+  if (!IsHexSha256(sha256)) return false;
+  std::ifstream in(OwnersPath(sha256));
+  for (std::string line; std::getline(in, line);)
+    if (line == principal) return true;
+  return false;
+}
+
+uint64_t AssetStore::OwnedBytes(const std::string& principal) const {
+  uint64_t total = 0;
+  std::error_code ec;
+  for (std::filesystem::directory_iterator it(dir_, ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string file = it->path().filename().string();
+    if (!file.ends_with(".owners")) continue;
+    const std::string sha256 = file.substr(0, file.size() - 7);
+    if (!IsOwner(sha256, principal)) continue;
+    if (auto info = Find(sha256); info.ok()) total += info->size;
+  }
+  return total;
+}
+
+int AssetStore::ExpireUnreferenced(std::filesystem::file_time_type cutoff,
+                                   const std::set<std::string>& keep) {
+  int removed = 0;
+  std::error_code ec;
+  std::vector<std::filesystem::path> doomed;
+  for (std::filesystem::directory_iterator it(dir_, ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string file = it->path().filename().string();
+    const std::string sha256 = file.substr(0, 64);
+    // The bytes: <sha256>, or <sha256><ext> in data dirs of the older layout.
+    const bool bytes =
+        IsHexSha256(sha256) &&
+        (file.size() == 64 || !spec::KnownAssetFormat(file).empty() || file.ends_with(".bin"));
+    if (!bytes || keep.count(sha256) || !it->is_regular_file(ec)) continue;
+    if (it->last_write_time(ec) >= cutoff || ec) continue;
+    doomed.push_back(it->path());
+  }
+  for (const std::filesystem::path& path : doomed) {
+    const std::string sha256 = path.filename().string().substr(0, 64);
+    std::lock_guard<std::mutex> lock(names_mu_);
+    if (!std::filesystem::remove(path, ec)) continue;
+    std::filesystem::remove(spec::StoredAssetNamesPath(dir_, sha256), ec);
+    std::filesystem::remove(OwnersPath(sha256), ec);
+    ++removed;
+  }
+  return removed;
+}
+
+absl::StatusOr<std::unique_ptr<AssetStore::Upload>> AssetStore::Begin(const std::string& sha256,
+                                                                      uint64_t size,
+                                                                      const std::string& file_name,
+                                                                      const std::string& owner) {
   if (!IsHexSha256(sha256))
     return absl::InvalidArgumentError("sha256: must be 64 lower-case hex digits");
   if (size == 0) return absl::InvalidArgumentError("size_bytes: must be > 0");
@@ -104,6 +162,7 @@ absl::StatusOr<std::unique_ptr<AssetStore::Upload>> AssetStore::Begin(
   u->store_ = this;
   u->sha256_ = sha256;
   u->name_ = CleanAssetName(file_name);
+  u->owner_ = owner;
   u->expected_ = size;
   u->tmp_ = dir_ / "incoming" / absl::StrCat(sha256, ".", g_upload_counter++, ".partial");
   u->out_.open(u->tmp_, std::ios::binary | std::ios::trunc);
@@ -164,7 +223,12 @@ absl::StatusOr<AssetInfo> AssetStore::Upload::Finish() {
     done_ = true;
     fresh = true;
   }
-  if (auto st = store_->RememberName(sha256_, name_); !st.ok()) return st;
+  if (auto st =
+          store_->RememberLine(spec::StoredAssetNamesPath(store_->dir_, sha256_), sha256_, name_);
+      !st.ok())
+    return st;
+  if (!owner_.empty())
+    if (auto st = store_->AddOwner(sha256_, owner_); !st.ok()) return st;
   auto info = store_->Find(sha256_);
   if (!info.ok()) return info.status();
   info->already_present = !fresh;

@@ -9,6 +9,7 @@
 #include <fstream>
 #include <memory>
 #include <mutex>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -68,7 +69,7 @@ class AssetStore {
     // The sandboxed read of a file whose name gives its format.
     absl::Status CheckContent() const;
     AssetStore* store_ = nullptr;
-    std::string sha256_, name_;
+    std::string sha256_, name_, owner_;
     uint64_t expected_ = 0, received_ = 0;
     std::filesystem::path tmp_;
     std::ofstream out_;
@@ -78,18 +79,36 @@ class AssetStore {
 
   /// Starts an upload of `size` bytes announced to hash to `sha256`
   /// (lower-case hex). `file_name` (its last component) is remembered as a
-  /// name of the asset.
+  /// name of the asset, and `owner` (when not empty) as one of its owners.
   absl::StatusOr<std::unique_ptr<Upload>> Begin(const std::string& sha256, uint64_t size,
-                                                const std::string& file_name);
+                                                const std::string& file_name,
+                                                const std::string& owner = "");
 
   /// The stored file for a hash, or NOT_FOUND.
   absl::StatusOr<AssetInfo> Find(const std::string& sha256) const;
 
+  /// Ownership: the same bytes uploaded by two principals belong to both.
+  /// Owners sit in `dir`/<sha256>.owners, one per line. Recording an owner
+  /// also restarts the asset's retention clock.
+  absl::Status AddOwner(const std::string& sha256, const std::string& principal);
+  bool IsOwner(const std::string& sha256, const std::string& principal) const;
+  /// Bytes of the stored assets `principal` owns (for the asset quota).
+  uint64_t OwnedBytes(const std::string& principal) const;
+  /// Deletes the assets last uploaded before `cutoff` whose hash is not in
+  /// `keep` (the assets of queued, running and pinned jobs), with their
+  /// names and owners. Returns how many went.
+  int ExpireUnreferenced(std::filesystem::file_time_type cutoff, const std::set<std::string>& keep);
+
  private:
   AssetStore(std::filesystem::path dir, SandboxLimits sandbox)
       : dir_(std::move(dir)), sandbox_(sandbox) {}
-  /// Adds `name` to the hash's names file unless it is there already.
-  absl::Status RememberName(const std::string& sha256, const std::string& name);
+  /// Adds `line` to the sidecar file `path` unless it is there already or
+  /// the file holds kMaxNames lines.
+  absl::Status RememberLine(const std::filesystem::path& path, const std::string& sha256,
+                            const std::string& line);
+  std::filesystem::path OwnersPath(const std::string& sha256) const {
+    return dir_ / (sha256 + ".owners");
+  }
 
   /// Most names kept per asset; further ones are not recorded.
   static constexpr size_t kMaxNames = 64;

@@ -51,6 +51,21 @@ struct JobRecord {
   /// Newline-separated warnings.
   std::string warnings;
   uint64_t estimated_memory_bytes = 0;
+  /// The principal the job (and its result) belongs to; empty for jobs
+  /// stored before owners were kept (only admins see those).
+  std::string owner;
+  /// Pinned results never expire.
+  bool pinned = false;
+  /// When the retention sweep deleted the result files (0: not expired).
+  TimeMs result_expire_time = 0;
+};
+
+/// What a principal holds, for quotas.
+struct OwnerUsage {
+  /// QUEUED and RUNNING jobs.
+  uint64_t active_jobs = 0;
+  /// Bytes of unexpired results of SUCCEEDED jobs.
+  uint64_t result_bytes = 0;
 };
 
 struct NewJob {
@@ -61,6 +76,7 @@ struct NewJob {
   uint64_t progress_total = 0;
   std::string warnings;
   uint64_t estimated_memory_bytes = 0;
+  std::string owner;
 };
 
 struct ListOptions {
@@ -68,6 +84,8 @@ struct ListOptions {
   /// Opaque token from a previous page; empty for the first page.
   std::string page_token;
   std::optional<JobState> state;
+  /// Only this principal's jobs, when set.
+  std::optional<std::string> owner;
   /// A page ends before its jobs' text (names, errors, warnings, ids) would
   /// pass this many bytes, so a response stays far below gRPC's message
   /// limit; a page always holds at least one job.
@@ -141,6 +159,23 @@ class JobStore {
   /// Single-node recovery after a crash: every RUNNING job becomes QUEUED
   /// again (its lease holder is gone). Returns how many were requeued.
   virtual absl::StatusOr<int> RequeueRunning() = 0;
+
+  /// Quota accounting for one principal.
+  virtual absl::StatusOr<OwnerUsage> Usage(const std::string& owner) = 0;
+  /// Pins or unpins a job's result; returns the job. NOT_FOUND for an
+  /// unknown id.
+  virtual absl::StatusOr<JobRecord> SetPinned(const std::string& id, bool pinned) = 0;
+  /// Removes a finished job's record. FAILED_PRECONDITION for a job that
+  /// is still QUEUED or RUNNING, NOT_FOUND for an unknown id.
+  virtual absl::Status Delete(const std::string& id) = 0;
+  /// Up to `limit` SUCCEEDED, unpinned jobs that ended before `cutoff` and
+  /// whose result has not expired yet, oldest first.
+  virtual absl::StatusOr<std::vector<JobRecord>> ListExpiring(TimeMs cutoff, int limit) = 0;
+  /// Records that the result files of `id` were deleted at `now`.
+  virtual absl::Status MarkResultExpired(const std::string& id, TimeMs now) = 0;
+  /// Serialised specs of the jobs whose assets must be kept: QUEUED,
+  /// RUNNING and pinned ones.
+  virtual absl::StatusOr<std::vector<std::string>> SpecsInUse() = 0;
 };
 
 /// Opens (creating if needed) the SQLite store at `path`, in WAL mode.

@@ -76,6 +76,9 @@ v1::Job ToProto(const JobRecord& r, bool with_spec) {
   const std::string warnings = BoundText(r.warnings, kMaxWarningsBytes);
   for (auto w : absl::StrSplit(warnings, '\n', absl::SkipEmpty())) j.add_warnings(std::string(w));
   j.set_estimated_memory_bytes(r.estimated_memory_bytes);
+  j.set_owner(r.owner);
+  j.set_pinned(r.pinned);
+  if (r.result_expire_time) SetTime(r.result_expire_time, j.mutable_result_expire_time());
   return j;
 }
 

@@ -7,6 +7,8 @@
 #include <random>
 
 #include "absl/strings/str_cat.h"
+#include "absl/time/time.h"
+#include "server/access.h"
 #include "server/bounded_text.h"
 #include "server/job_view.h"
 #include "server/memory_admission.h"
@@ -32,6 +34,37 @@ grpc::Status Busy(const BlockingExecutor& blocking) {
   return grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
                       absl::StrCat("server busy: ", blocking.max_pending(),
                                    " store and file operations are waiting; retry shortly"));
+}
+
+// A streaming call answered with an error before it starts (an unknown
+// caller, no asset store).
+template <class Reactor>
+class Refused : public Reactor {
+ public:
+  explicit Refused(const grpc::Status& s) { this->Finish(s); }
+  void OnDone() override { delete this; }
+};
+
+// Who calls; an unknown caller is logged by peer (never by token).
+absl::StatusOr<Principal> Authenticate(const TokenTable& tokens,
+                                       const grpc::CallbackServerContext& ctx) {
+  auto p = tokens.Authenticate(AuthorizationOf(ctx));
+  if (!p.ok()) spdlog::warn("event=unauthenticated peer={}", ctx.peer());
+  return p;
+}
+
+// FetchResult's answer for a result the retention sweep deleted.
+grpc::Status ResultExpired(const JobRecord& rec, int64_t retention_ms) {
+  return grpc::Status(
+      grpc::StatusCode::FAILED_PRECONDITION,
+      absl::StrCat(
+          "the result of job ", rec.id, " expired: it was deleted at ",
+          absl::FormatTime("%Y-%m-%dT%H:%M:%SZ", absl::FromUnixMillis(rec.result_expire_time),
+                           absl::UTCTimeZone()),
+          retention_ms > 0 ? absl::StrCat(", as this server keeps results ", retention_ms / 1000,
+                                          " s after their job ends")
+                           : std::string(),
+          "; pin jobs (nimbus pin) to keep their results"));
 }
 
 bool IsTerminal(v1::JobState s) {
@@ -66,8 +99,9 @@ void AddResultFiles(ResultStore* results, v1::Job& job) {
 class WatchReactor : public grpc::ServerWriteReactor<v1::WatchJobResponse> {
  public:
   WatchReactor(JobHub* hub, JobStore* store, ResultStore* results, BlockingExecutor* blocking,
-               const v1::WatchJobRequest& req)
-      : hub_(hub),
+               const v1::WatchJobRequest& req, Principal caller)
+      : caller_(std::move(caller)),
+        hub_(hub),
         store_(store),
         results_(results),
         blocking_(blocking),
@@ -101,7 +135,7 @@ class WatchReactor : public grpc::ServerWriteReactor<v1::WatchJobResponse> {
  private:
   // Executor: the store's record first, then the hub's live snapshots.
   void Start() {
-    auto rec = store_->Get(job_id_);
+    auto rec = LoadVisibleJob(*store_, caller_, job_id_);
     if (!rec.ok()) {
       std::lock_guard<std::mutex> lock(mu_);
       return FinishLocked(ToGrpc(rec.status()));
@@ -198,6 +232,7 @@ class WatchReactor : public grpc::ServerWriteReactor<v1::WatchJobResponse> {
     Finish(s);
   }
 
+  Principal caller_;
   JobHub* hub_;
   JobStore* store_;
   ResultStore* results_;
@@ -229,8 +264,10 @@ class WatchReactor : public grpc::ServerWriteReactor<v1::WatchJobResponse> {
 class FetchReactor : public grpc::ServerWriteReactor<v1::FetchResultResponse> {
  public:
   FetchReactor(JobStore* store, ResultStore* results, BlockingExecutor* blocking,
-               const v1::FetchResultRequest& req)
-      : store_(store),
+               const v1::FetchResultRequest& req, Principal caller, int64_t retention_ms)
+      : caller_(std::move(caller)),
+        retention_ms_(retention_ms),
+        store_(store),
         results_(results),
         blocking_(blocking),
         job_id_(req.job_id()),
@@ -252,8 +289,9 @@ class FetchReactor : public grpc::ServerWriteReactor<v1::FetchResultResponse> {
 
   // Finds the file and checks the request against it.
   grpc::Status Open() {
-    auto rec = store_->Get(job_id_);
+    auto rec = LoadVisibleJob(*store_, caller_, job_id_);
     if (!rec.ok()) return ToGrpc(rec.status());
+    if (rec->result_expire_time != 0) return ResultExpired(*rec, retention_ms_);
     // Further files (book pages) of a running job can be fetched as soon as
     // they are listed; everything else waits for success.
     running_ = rec->state == JobState::kRunning;
@@ -302,6 +340,8 @@ class FetchReactor : public grpc::ServerWriteReactor<v1::FetchResultResponse> {
     StartWrite(&resp_);
   }
 
+  Principal caller_;
+  int64_t retention_ms_;
   JobStore* store_;
   ResultStore* results_;
   BlockingExecutor* blocking_;
@@ -337,7 +377,13 @@ grpc::ServerUnaryReactor* NimbusServiceImpl::SubmitJob(grpc::CallbackServerConte
   // The reactor is answered from the admission thread; gRPC keeps `req`
   // and `resp` alive until then.
   grpc::ServerUnaryReactor* reactor = ctx->DefaultReactor();
-  if (!admission_.Post([this, req, resp, reactor] { reactor->Finish(Admit(*req, *resp)); }))
+  auto caller = Authenticate(tokens_, *ctx);
+  if (!caller.ok()) {
+    reactor->Finish(ToGrpc(caller.status()));
+    return reactor;
+  }
+  if (!admission_.Post(
+          [this, req, resp, reactor, p = *caller] { reactor->Finish(Admit(p, *req, *resp)); }))
     reactor->Finish(
         grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
                      absl::StrCat("server busy: ", admission_.max_pending(),
@@ -363,9 +409,12 @@ grpc::Status CheckSubmittedText(const v1::SubmitJobRequest& req) {
 
 }  // namespace
 
-grpc::Status NimbusServiceImpl::Admit(const v1::SubmitJobRequest& req,
+grpc::Status NimbusServiceImpl::Admit(const Principal& caller, const v1::SubmitJobRequest& req,
                                       v1::SubmitJobResponse& resp) {
   if (grpc::Status st = CheckSubmittedText(req); !st.ok()) return st;
+  if (auto st = CheckJobQuotas(*store_, caller, quotas_); !st.ok()) return ToGrpc(st);
+  if (assets_ != nullptr)
+    if (auto st = CheckAssetOwnership(req.spec(), caller, *assets_); !st.ok()) return ToGrpc(st);
   // The free-space reserve: refuse new work before the disk fills.
   if (auto st = results_->CheckFreeSpace(); !st.ok()) return ToGrpc(st);
   // Meshes and grids are read whole by a sandboxed child before the
@@ -385,21 +434,27 @@ grpc::Status NimbusServiceImpl::Admit(const v1::SubmitJobRequest& req,
   nj.progress_total = job->work.total;
   for (const auto& w : job->warnings) nj.warnings += w + "\n";
   nj.estimated_memory_bytes = memory->estimated_bytes;
+  nj.owner = caller.name;
   auto rec = store_->Create(nj, NowMs());
   if (!rec.ok()) return ToGrpc(rec.status());
-  spdlog::info("job={} event=submitted name={} work={}", rec->id, rec->name, rec->progress_total);
+  spdlog::info("job={} event=submitted name={} owner={} work={}", rec->id, rec->name, rec->owner,
+               rec->progress_total);
   *resp.mutable_job() = ToProto(*rec, true);
   if (rec->state == JobState::kQueued) hub_->PublishJob(resp.job());
   pool_->Wake();
   return grpc::Status::OK;
 }
 
-
-grpc::ServerUnaryReactor* NimbusServiceImpl::OffThread(grpc::CallbackServerContext* ctx,
-                                                       std::function<grpc::Status()> work) {
+grpc::ServerUnaryReactor* NimbusServiceImpl::OffThread(
+    grpc::CallbackServerContext* ctx, std::function<grpc::Status(const Principal&)> work) {
   // gRPC keeps the request and response alive until the reactor finishes.
   grpc::ServerUnaryReactor* reactor = ctx->DefaultReactor();
-  if (!blocking_.Post([reactor, work = std::move(work)] { reactor->Finish(work()); }))
+  auto caller = Authenticate(tokens_, *ctx);
+  if (!caller.ok()) {
+    reactor->Finish(ToGrpc(caller.status()));
+    return reactor;
+  }
+  if (!blocking_.Post([reactor, work = std::move(work), p = *caller] { reactor->Finish(work(p)); }))
     reactor->Finish(Busy(blocking_));
   return reactor;
 }
@@ -407,8 +462,8 @@ grpc::ServerUnaryReactor* NimbusServiceImpl::OffThread(grpc::CallbackServerConte
 grpc::ServerUnaryReactor* NimbusServiceImpl::GetJob(grpc::CallbackServerContext* ctx,
                                                     const v1::GetJobRequest* req,
                                                     v1::GetJobResponse* resp) {
-  return OffThread(ctx, [this, req, resp] {
-    auto rec = store_->Get(req->job_id());
+  return OffThread(ctx, [this, req, resp](const Principal& caller) {
+    auto rec = LoadVisibleJob(*store_, caller, req->job_id());
     if (!rec.ok()) return ToGrpc(rec.status());
     *resp->mutable_job() = ToProto(*rec, true);
     // The hub has fresher progress than the store's last heartbeat.
@@ -424,7 +479,7 @@ grpc::ServerUnaryReactor* NimbusServiceImpl::GetJob(grpc::CallbackServerContext*
 grpc::ServerUnaryReactor* NimbusServiceImpl::ListJobs(grpc::CallbackServerContext* ctx,
                                                       const v1::ListJobsRequest* req,
                                                       v1::ListJobsResponse* resp) {
-  return OffThread(ctx, [this, req, resp] {
+  return OffThread(ctx, [this, req, resp](const Principal& caller) {
     if (!v1::JobState_IsValid(req->state()))
       return grpc::Status(grpc::StatusCode::INVALID_ARGUMENT,
                           absl::StrCat("state: unknown value ", int(req->state())));
@@ -434,6 +489,7 @@ grpc::ServerUnaryReactor* NimbusServiceImpl::ListJobs(grpc::CallbackServerContex
     // Well below gRPC's 4 MiB default, whatever the jobs hold.
     o.max_bytes = uint64_t{1} << 20;
     if (req->state() != v1::JOB_STATE_UNSPECIFIED) o.state = FromProto(req->state());
+    if (!caller.admin) o.owner = caller.name;
     auto page = store_->List(o);
     if (!page.ok()) return ToGrpc(page.status());
     for (const JobRecord& r : page->jobs) *resp->add_jobs() = ToProto(r, false);
@@ -445,10 +501,16 @@ grpc::ServerUnaryReactor* NimbusServiceImpl::ListJobs(grpc::CallbackServerContex
 grpc::ServerUnaryReactor* NimbusServiceImpl::CancelJob(grpc::CallbackServerContext* ctx,
                                                        const v1::CancelJobRequest* req,
                                                        v1::CancelJobResponse* resp) {
-  return OffThread(ctx, [this, req, resp] { return Cancel(req->job_id(), *resp->mutable_job()); });
+  return OffThread(ctx, [this, req, resp](const Principal& caller) {
+    return Cancel(caller, req->job_id(), *resp->mutable_job());
+  });
 }
 
-grpc::Status NimbusServiceImpl::Cancel(const std::string& job_id, v1::Job& out) {
+grpc::Status NimbusServiceImpl::Cancel(const Principal& caller, const std::string& job_id,
+                                       v1::Job& out) {
+  // Owners never change, so the check holds for the cancel that follows.
+  if (auto visible = LoadVisibleJob(*store_, caller, job_id); !visible.ok())
+    return ToGrpc(visible.status());
   auto rec = store_->RequestCancel(job_id, NowMs());
   if (!rec.ok()) return ToGrpc(rec.status());
   pool_->Cancel(job_id);
@@ -510,12 +572,18 @@ std::shared_ptr<const v1::Job> NimbusServiceImpl::AwaitStop(const std::string& j
 
 grpc::ServerWriteReactor<v1::WatchJobResponse>* NimbusServiceImpl::WatchJob(
     grpc::CallbackServerContext* ctx, const v1::WatchJobRequest* req) {
-  return new WatchReactor(hub_, store_, results_, &blocking_, *req);
+  auto caller = Authenticate(tokens_, *ctx);
+  if (!caller.ok())
+    return new Refused<grpc::ServerWriteReactor<v1::WatchJobResponse>>(ToGrpc(caller.status()));
+  return new WatchReactor(hub_, store_, results_, &blocking_, *req, *caller);
 }
 
 grpc::ServerWriteReactor<v1::FetchResultResponse>* NimbusServiceImpl::FetchResult(
     grpc::CallbackServerContext* ctx, const v1::FetchResultRequest* req) {
-  return new FetchReactor(store_, results_, &blocking_, *req);
+  auto caller = Authenticate(tokens_, *ctx);
+  if (!caller.ok())
+    return new Refused<grpc::ServerWriteReactor<v1::FetchResultResponse>>(ToGrpc(caller.status()));
+  return new FetchReactor(store_, results_, &blocking_, *req, *caller, retention_ms_);
 }
 
 namespace {
@@ -526,8 +594,13 @@ namespace {
 // the blocking executor; the next read starts from there.
 class UploadReactor : public grpc::ServerReadReactor<v1::UploadAssetRequest> {
  public:
-  UploadReactor(AssetStore* assets, BlockingExecutor* blocking, v1::UploadAssetResponse* resp)
-      : assets_(assets), blocking_(blocking), resp_(resp) {
+  UploadReactor(AssetStore* assets, BlockingExecutor* blocking, v1::UploadAssetResponse* resp,
+                Principal caller, Quotas quotas)
+      : caller_(std::move(caller)),
+        quotas_(quotas),
+        assets_(assets),
+        blocking_(blocking),
+        resp_(resp) {
     StartRead(&req_);
   }
 
@@ -561,7 +634,10 @@ class UploadReactor : public grpc::ServerReadReactor<v1::UploadAssetRequest> {
     }
     if (!upload_) {
       sha256_ = req_.sha256();
-      auto u = assets_->Begin(req_.sha256(), req_.size_bytes(), req_.file_name());
+      if (auto st = CheckAssetQuota(*assets_, caller_, quotas_, sha256_, req_.size_bytes());
+          !st.ok())
+        return Finish(ToGrpc(st));
+      auto u = assets_->Begin(req_.sha256(), req_.size_bytes(), req_.file_name(), caller_.name);
       if (!u.ok()) return Finish(ToGrpc(u.status()));
       upload_ = std::move(*u);
     } else if (!req_.sha256().empty() && req_.sha256() != sha256_) {
@@ -573,6 +649,8 @@ class UploadReactor : public grpc::ServerReadReactor<v1::UploadAssetRequest> {
     StartRead(&req_);
   }
 
+  Principal caller_;
+  Quotas quotas_;
   AssetStore* assets_;
   BlockingExecutor* blocking_;
   v1::UploadAssetResponse* resp_;
@@ -585,14 +663,56 @@ class UploadReactor : public grpc::ServerReadReactor<v1::UploadAssetRequest> {
 
 grpc::ServerReadReactor<v1::UploadAssetRequest>* NimbusServiceImpl::UploadAsset(
     grpc::CallbackServerContext* ctx, v1::UploadAssetResponse* resp) {
-  if (!assets_) {
-    struct Fail : grpc::ServerReadReactor<v1::UploadAssetRequest> {
-      Fail() { Finish(grpc::Status(grpc::StatusCode::UNIMPLEMENTED, "no asset store")); }
-      void OnDone() override { delete this; }
-    };
-    return new Fail();
+  using Reader = grpc::ServerReadReactor<v1::UploadAssetRequest>;
+  if (!assets_)
+    return new Refused<Reader>(grpc::Status(grpc::StatusCode::UNIMPLEMENTED, "no asset store"));
+  auto caller = Authenticate(tokens_, *ctx);
+  if (!caller.ok()) return new Refused<Reader>(ToGrpc(caller.status()));
+  return new UploadReactor(assets_, &blocking_, resp, *caller, quotas_);
+}
+
+grpc::ServerUnaryReactor* NimbusServiceImpl::PinJob(grpc::CallbackServerContext* ctx,
+                                                    const v1::PinJobRequest* req,
+                                                    v1::PinJobResponse* resp) {
+  return OffThread(ctx, [this, req, resp](const Principal& caller) {
+    if (auto visible = LoadVisibleJob(*store_, caller, req->job_id()); !visible.ok())
+      return ToGrpc(visible.status());
+    auto rec = store_->SetPinned(req->job_id(), req->pinned());
+    if (!rec.ok()) return ToGrpc(rec.status());
+    spdlog::info("job={} event={}", rec->id, req->pinned() ? "pinned" : "unpinned");
+    *resp->mutable_job() = ToProto(*rec, false);
+    return grpc::Status::OK;
+  });
+}
+
+grpc::ServerUnaryReactor* NimbusServiceImpl::DeleteJob(grpc::CallbackServerContext* ctx,
+                                                       const v1::DeleteJobRequest* req,
+                                                       v1::DeleteJobResponse* resp) {
+  return OffThread(ctx, [this, req, resp](const Principal& caller) {
+    return Delete(caller, req->job_id(), *resp);
+  });
+}
+
+grpc::Status NimbusServiceImpl::Delete(const Principal& caller, const std::string& job_id,
+                                       v1::DeleteJobResponse& resp) {
+  auto rec = LoadVisibleJob(*store_, caller, job_id);
+  if (!rec.ok()) return ToGrpc(rec.status());
+  if (!IsTerminal(rec->state))
+    return grpc::Status(
+        grpc::StatusCode::FAILED_PRECONDITION,
+        absl::StrCat("job ", rec->id, " is ", v1::JobState_Name(ToProto(rec->state)),
+                     "; cancel it before deleting it"));
+  // Files first: should the record outlive them, fetching says they are
+  // missing; files outliving their record would never be found again.
+  if (!rec->result_key.empty()) {
+    auto freed = results_->Delete(rec->result_key);
+    if (!freed.ok()) return ToGrpc(freed.status());
+    resp.set_freed_bytes(*freed);
   }
-  return new UploadReactor(assets_, &blocking_, resp);
+  if (auto st = store_->Delete(job_id); !st.ok()) return ToGrpc(st);
+  hub_->Forget(job_id);
+  spdlog::info("job={} event=deleted freed_bytes={}", job_id, resp.freed_bytes());
+  return grpc::Status::OK;
 }
 
 }  // namespace nimbus::server

@@ -12,6 +12,7 @@
 #include "proto/spec_convert.h"
 #include "server/admission.h"
 #include "server/asset_store.h"
+#include "server/auth.h"
 #include "server/blocking_executor.h"
 #include "server/job_hub.h"
 #include "server/job_store.h"
@@ -27,6 +28,14 @@ class NimbusServiceImpl final : public v1::NimbusService::CallbackService {
   /// How long CancelJob waits for a job running in this process to stop
   /// before answering it RUNNING with cancel_requested (default 5 s).
   void set_cancel_wait_ms(int64_t ms) { cancel_wait_ms_ = ms; }
+  /// Who may call (no tokens: everyone, as the anonymous admin), what each
+  /// principal may store, and how long results are kept (0: for ever; only
+  /// named in FetchResult's answer for an expired result).
+  void set_security(TokenTable tokens, Quotas quotas, int64_t retention_ms) {
+    tokens_ = std::move(tokens);
+    quotas_ = quotas;
+    retention_ms_ = retention_ms;
+  }
 
   grpc::ServerUnaryReactor* SubmitJob(grpc::CallbackServerContext* ctx,
                                       const v1::SubmitJobRequest* req,
@@ -45,15 +54,26 @@ class NimbusServiceImpl final : public v1::NimbusService::CallbackService {
       grpc::CallbackServerContext* ctx, const v1::FetchResultRequest* req) override;
   grpc::ServerReadReactor<v1::UploadAssetRequest>* UploadAsset(
       grpc::CallbackServerContext* ctx, v1::UploadAssetResponse* resp) override;
+  grpc::ServerUnaryReactor* PinJob(grpc::CallbackServerContext* ctx, const v1::PinJobRequest* req,
+                                   v1::PinJobResponse* resp) override;
+  grpc::ServerUnaryReactor* DeleteJob(grpc::CallbackServerContext* ctx,
+                                      const v1::DeleteJobRequest* req,
+                                      v1::DeleteJobResponse* resp) override;
 
  private:
   // Validates and stores one submission (runs on the admission thread).
-  grpc::Status Admit(const v1::SubmitJobRequest& req, v1::SubmitJobResponse& resp);
+  grpc::Status Admit(const Principal& caller, const v1::SubmitJobRequest& req,
+                     v1::SubmitJobResponse& resp);
+  // DeleteJob's body (runs on the executor).
+  grpc::Status Delete(const Principal& caller, const std::string& job_id,
+                      v1::DeleteJobResponse& resp);
   // Answers a unary call with `work`'s status, run on the blocking executor.
+  // Only after the caller is authenticated; an unknown caller is answered
+  // UNAUTHENTICATED at once.
   grpc::ServerUnaryReactor* OffThread(grpc::CallbackServerContext* ctx,
-                                      std::function<grpc::Status()> work);
+                                      std::function<grpc::Status(const Principal&)> work);
   // CancelJob's body (runs on the executor).
-  grpc::Status Cancel(const std::string& job_id, v1::Job& out);
+  grpc::Status Cancel(const Principal& caller, const std::string& job_id, v1::Job& out);
   // Waits up to cancel_wait_ms_ for `job_id` to leave RUNNING; its view then.
   std::shared_ptr<const v1::Job> AwaitStop(const std::string& job_id);
 
@@ -64,6 +84,9 @@ class NimbusServiceImpl final : public v1::NimbusService::CallbackService {
   WorkerPool* pool_;
   spec::Limits limits_;
   int64_t cancel_wait_ms_ = 5000;
+  TokenTable tokens_;
+  Quotas quotas_;
+  int64_t retention_ms_ = 0;
   // Cancels waiting for their job to stop; bounded so they can never hold
   // every executor thread and starve reads.
   std::atomic<int> cancel_waits_{0};

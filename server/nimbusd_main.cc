@@ -31,6 +31,35 @@ bool WritePortFile(const std::string& path, int port) {
   return !ec;
 }
 
+// TLS, tokens, quotas and retention (docs/operator_guide.md "Security").
+void AddSecurityFlags(CLI::App& app, nimbus::server::ServerOptions& o, double& retention_hours,
+                      double& retention_seconds) {
+  app.add_option("--tls-cert", o.tls_cert_file, "PEM certificate chain: serve TLS");
+  app.add_option("--tls-key", o.tls_key_file, "PEM private key of --tls-cert");
+  app.add_option("--tls-client-ca", o.tls_client_ca_file,
+                 "PEM CA bundle: require client certificates it signed (mutual TLS)");
+  app.add_option("--auth-tokens", o.auth_tokens_file,
+                 "file of 'TOKEN PRINCIPAL [admin]' lines (mode 600); also $NIMBUS_AUTH_TOKENS");
+  app.add_flag("--insecure", o.insecure,
+               "allow listening beyond loopback without tokens (anyone reaching the port may "
+               "read and cancel every job)");
+  app.add_option("--quota-jobs", o.quota_jobs, "queued plus running jobs per principal (0: none)")
+      ->capture_default_str();
+  app.add_option("--quota-asset-bytes", o.quota_asset_bytes,
+                 "bytes of uploaded assets per principal (0: none)")
+      ->capture_default_str();
+  app.add_option("--quota-result-bytes", o.quota_result_bytes,
+                 "bytes of kept results per principal; over it new jobs are refused (0: none)")
+      ->capture_default_str();
+  app.add_option("--retention-hours", retention_hours,
+                 "delete results and unused assets this long after the job ended (0: keep)")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
+  app.add_option("--retention-seconds", retention_seconds,
+                 "the same in seconds, for tests; wins over --retention-hours")
+      ->check(CLI::NonNegativeNumber);
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -40,6 +69,7 @@ int main(int argc, char** argv) {
   double max_memory_gib = double(o.limits.max_memory_bytes) / double(1ull << 30);
   std::string log_level = "info";
   std::string port_file;
+  double retention_hours = 0, retention_seconds = 0;
   app.add_option("--listen", o.listen, "host:port to serve on (port 0: any free port)")
       ->capture_default_str();
   app.add_option("--port-file", port_file,
@@ -84,9 +114,15 @@ int main(int argc, char** argv) {
   app.add_option("--max-attempts", o.max_attempts,
                  "attempts a job gets before it fails with its last error (0: no limit)")
       ->capture_default_str();
+  AddSecurityFlags(app, o, retention_hours, retention_seconds);
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error")->capture_default_str();
   CLI11_PARSE(app, argc, argv);
   o.data_dir = data_dir;
+  o.retention_ms =
+      int64_t(retention_seconds > 0 ? retention_seconds * 1000 : retention_hours * 3600 * 1000);
+  // Tokens as text in the environment, for containers whose secrets arrive
+  // that way; never logged.
+  if (const char* env = std::getenv("NIMBUS_AUTH_TOKENS")) o.auth_tokens_text = env;
   o.limits.max_memory_bytes = uint64_t(max_memory_gib * double(1ull << 30));
   spdlog::set_level(spdlog::level::from_str(log_level));
   spdlog::set_pattern("%Y-%m-%dT%H:%M:%S.%e %^%l%$ nimbusd %v");

@@ -138,6 +138,21 @@ class LocalResultStore : public ResultStore {
     return size;
   }
 
+  absl::StatusOr<uint64_t> Delete(const std::string& key) override {
+    if (!IsPlainName(key)) return absl::InvalidArgumentError("bad result key");
+    uint64_t freed = 0;
+    std::error_code ec;
+    for (const std::filesystem::path& p : {Path(key), FilesDir(key)}) {
+      for (std::filesystem::recursive_directory_iterator it(p, ec), end; !ec && it != end;
+           it.increment(ec))
+        if (it->is_regular_file(ec)) freed += it->file_size(ec);
+      if (std::filesystem::is_regular_file(p, ec)) freed += std::filesystem::file_size(p, ec);
+      std::filesystem::remove_all(p, ec);
+      if (ec) return absl::InternalError(absl::StrCat("delete ", p.string(), ": ", ec.message()));
+    }
+    return freed;
+  }
+
   std::vector<StoredFile> ListFiles(const std::string& key, bool running) override {
     if (running) return Scan(ExtraFilesDir(ScratchPath(key)));
     std::vector<StoredFile> files;

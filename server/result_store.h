@@ -50,6 +50,9 @@ class ResultStore {
   virtual absl::StatusOr<std::string> Read(const std::string& key, uint64_t offset,
                                            uint64_t max_bytes) = 0;
   virtual absl::StatusOr<uint64_t> Size(const std::string& key) = 0;
+  /// Removes a committed result and its further files (retention, or a
+  /// deleted job); returns the bytes freed. A missing result frees 0.
+  virtual absl::StatusOr<uint64_t> Delete(const std::string& key) = 0;
 
   /// Further files of a committed result, in name order; or, when
   /// `running`, the finished files the job has written so far.

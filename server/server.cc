@@ -6,12 +6,17 @@
 #include <spdlog/spdlog.h>
 #include <unistd.h>
 
+#include <fstream>
+#include <sstream>
+
 #include "absl/strings/str_cat.h"
 #include "server/asset_store.h"
+#include "server/auth.h"
 #include "server/job_hub.h"
 #include "server/job_store.h"
 #include "server/nimbus_service.h"
 #include "server/result_store.h"
+#include "server/retention.h"
 #include "server/worker_pool.h"
 
 namespace nimbus::server {
@@ -23,6 +28,7 @@ struct NimbusServer::Impl {
   JobHub hub;
   std::unique_ptr<WorkerPool> pool;
   std::unique_ptr<NimbusServiceImpl> service;
+  std::unique_ptr<RetentionSweeper> sweeper;
   std::unique_ptr<grpc::Server> server;
   int port = 0;
   std::string address;
@@ -33,9 +39,82 @@ struct NimbusServer::Impl {
 
 NimbusServer::NimbusServer(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 
+namespace {
+
+absl::StatusOr<std::string> ReadPem(const std::string& flag, const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream text;
+  text << in.rdbuf();
+  if (!in || text.str().empty())
+    return absl::InvalidArgumentError(absl::StrCat(flag, " ", path, ": cannot read the file"));
+  return text.str();
+}
+
+// TLS when a certificate is given (mutual with a client CA), else plaintext.
+absl::StatusOr<std::shared_ptr<grpc::ServerCredentials>> ListenCredentials(const ServerOptions& o) {
+  if (o.tls_cert_file.empty() != o.tls_key_file.empty())
+    return absl::InvalidArgumentError("--tls-cert and --tls-key go together");
+  if (o.tls_cert_file.empty()) {
+    if (!o.tls_client_ca_file.empty())
+      return absl::InvalidArgumentError("--tls-client-ca needs --tls-cert and --tls-key");
+    return grpc::InsecureServerCredentials();
+  }
+  grpc::SslServerCredentialsOptions ssl;
+  grpc::SslServerCredentialsOptions::PemKeyCertPair pair;
+  auto cert = ReadPem("--tls-cert", o.tls_cert_file);
+  if (!cert.ok()) return cert.status();
+  auto key = ReadPem("--tls-key", o.tls_key_file);
+  if (!key.ok()) return key.status();
+  pair.cert_chain = std::move(*cert);
+  pair.private_key = std::move(*key);
+  ssl.pem_key_cert_pairs.push_back(std::move(pair));
+  if (!o.tls_client_ca_file.empty()) {
+    auto ca = ReadPem("--tls-client-ca", o.tls_client_ca_file);
+    if (!ca.ok()) return ca.status();
+    ssl.pem_root_certs = std::move(*ca);
+    ssl.client_certificate_request = GRPC_SSL_REQUEST_AND_REQUIRE_CLIENT_CERTIFICATE_AND_VERIFY;
+  }
+  return grpc::SslServerCredentials(ssl);
+}
+
+// The tokens of --auth-tokens and NIMBUS_AUTH_TOKENS; empty when neither.
+absl::StatusOr<TokenTable> LoadTokens(const ServerOptions& o) {
+  if (o.auth_tokens_file.empty() && o.auth_tokens_text.empty()) return TokenTable();
+  std::string text;
+  if (!o.auth_tokens_file.empty()) {
+    auto file = ReadTokensFile(o.auth_tokens_file);
+    if (!file.ok()) return file.status();
+    text = *file + "\n";
+  }
+  text += o.auth_tokens_text;
+  std::string source;
+  if (!o.auth_tokens_file.empty()) source = absl::StrCat("--auth-tokens ", o.auth_tokens_file);
+  if (!o.auth_tokens_text.empty())
+    source = source.empty() ? "NIMBUS_AUTH_TOKENS" : source + " with NIMBUS_AUTH_TOKENS";
+  return TokenTable::Parse(text, source);
+}
+
+// Beyond loopback, a server without tokens would hand every job to anyone
+// who can reach the port.
+absl::Status CheckExposure(const ServerOptions& o, const TokenTable& tokens) {
+  if (o.listen.empty() || !tokens.empty() || o.insecure || IsLoopbackListen(o.listen))
+    return absl::OkStatus();
+  return absl::FailedPreconditionError(absl::StrCat(
+      "refusing to listen on ", o.listen,
+      " without authentication: anyone who reaches it could read and cancel every job. Give "
+      "--auth-tokens FILE (with --tls-cert/--tls-key), listen on 127.0.0.1, or pass --insecure"));
+}
+
+}  // namespace
+
 NimbusServer::~NimbusServer() { Shutdown(); }
 
 absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOptions& options) {
+  auto tokens = LoadTokens(options);
+  if (!tokens.ok()) return tokens.status();
+  if (auto st = CheckExposure(options, *tokens); !st.ok()) return st;
+  auto credentials = ListenCredentials(options);
+  if (!credentials.ok()) return credentials.status();
   auto impl = std::make_unique<Impl>();
   impl->drain_ms = options.drain_ms;
   std::error_code ec;
@@ -84,12 +163,20 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
       impl->store.get(), impl->results.get(), impl->assets.get(), &impl->hub, impl->pool.get(),
       limits);
   impl->service->set_cancel_wait_ms(options.cancel_wait_ms);
+  const bool auth = !tokens->empty();
+  const size_t principals = tokens->size();
+  impl->service->set_security(
+      std::move(*tokens),
+      Quotas{options.quota_jobs, options.quota_asset_bytes, options.quota_result_bytes},
+      options.retention_ms);
+  impl->sweeper = std::make_unique<RetentionSweeper>(impl->store.get(), impl->results.get(),
+                                                     impl->assets.get(), options.retention_ms,
+                                                     SweepIntervalMs(options.retention_ms));
 
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
   grpc::ServerBuilder builder;
-  if (!options.listen.empty())
-    builder.AddListeningPort(options.listen, grpc::InsecureServerCredentials(), &impl->port);
+  if (!options.listen.empty()) builder.AddListeningPort(options.listen, *credentials, &impl->port);
   builder.RegisterService(impl->service.get());
   // Previews and result chunks are a few MiB at most.
   builder.SetMaxSendMessageSize(64 << 20);
@@ -107,9 +194,13 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
     impl->address = absl::StrCat(options.listen.substr(0, colon), ":", impl->port);
   }
   impl->pool->Start();
-  spdlog::info("event=started listen={} port={} data_dir={} workers={} threads_per_job={}",
-               options.listen, impl->port, options.data_dir.string(), options.workers,
-               impl->pool->threads_per_job());
+  impl->sweeper->Start();
+  spdlog::info(
+      "event=started listen={} port={} data_dir={} workers={} threads_per_job={} tls={} "
+      "mtls={} auth_tokens={} retention_s={}",
+      options.listen, impl->port, options.data_dir.string(), options.workers,
+      impl->pool->threads_per_job(), !options.tls_cert_file.empty(),
+      !options.tls_client_ca_file.empty(), auth ? principals : 0, options.retention_ms / 1000);
   return std::unique_ptr<NimbusServer>(new NimbusServer(std::move(impl)));
 }
 
@@ -135,6 +226,7 @@ void NimbusServer::Shutdown() {
   // Stop workers first so watchers see jobs go back to the queue, then
   // close the streams.
   impl_->pool->Stop();
+  impl_->sweeper->Stop();
   impl_->server->Shutdown(std::chrono::system_clock::now() +
                           std::chrono::milliseconds(impl_->drain_ms));
   spdlog::info("event=stopped");

@@ -38,6 +38,27 @@ struct ServerOptions {
   /// Claims a job gets before it fails with its last attempt's error
   /// (0: no limit): a job that cannot record its end never loops.
   uint32_t max_attempts = 3;
+
+  // Security (docs/operator_guide.md "Security").
+  /// PEM certificate chain and private key: serve TLS instead of plaintext.
+  std::string tls_cert_file, tls_key_file;
+  /// PEM CA bundle: require and verify client certificates (mutual TLS).
+  std::string tls_client_ca_file;
+  /// Tokens and principals, one `TOKEN PRINCIPAL [admin]` a line: a file
+  /// (mode 600 or stricter) and/or the same lines as text (the
+  /// NIMBUS_AUTH_TOKENS environment variable; ';' also separates entries).
+  /// Neither: every caller is the anonymous admin.
+  std::string auth_tokens_file;
+  std::string auth_tokens_text;
+  /// Allows listening beyond loopback without tokens.
+  bool insecure = false;
+  /// Per-principal limits; 0 = none.
+  uint64_t quota_jobs = 0;
+  uint64_t quota_asset_bytes = 0;
+  uint64_t quota_result_bytes = 0;
+  /// Results (and assets no queued, running or pinned job names) are
+  /// deleted this long after their job ended (were uploaded); 0 = kept.
+  int64_t retention_ms = 0;
 };
 
 /// @brief A running server. Jobs left RUNNING by a previous process are

@@ -31,8 +31,9 @@
 namespace nimbus::server {
 namespace {
 
-// 1: the first schema. 2: adds jobs.error_code.
-constexpr int kSchemaVersion = 2;
+// 1: the first schema. 2: adds jobs.error_code. 3: adds owner, pinned and
+// result_expire_time (security: ownership and retention).
+constexpr int kSchemaVersion = 3;
 // Long enough to ride out another process's short write transactions, short
 // enough that a wedged peer surfaces as UNAVAILABLE instead of a hang.
 constexpr int kBusyTimeoutMs = 10000;
@@ -63,8 +64,13 @@ CREATE TABLE IF NOT EXISTS jobs (
   result_sha256 TEXT NOT NULL DEFAULT '',
   warnings TEXT NOT NULL DEFAULT '',
   estimated_memory_bytes INTEGER NOT NULL DEFAULT 0,
-  error_code INTEGER NOT NULL DEFAULT 0
+  error_code INTEGER NOT NULL DEFAULT 0,
+  owner TEXT NOT NULL DEFAULT '',
+  pinned INTEGER NOT NULL DEFAULT 0,
+  result_expire_time INTEGER NOT NULL DEFAULT 0
 );
+-- A principal's own listing, newest first.
+CREATE INDEX IF NOT EXISTS jobs_owner_create ON jobs (owner, create_time, id);
 -- Claiming (oldest QUEUED) and filtered listing both walk this index.
 CREATE INDEX IF NOT EXISTS jobs_state_create ON jobs (state, create_time, id);
 -- Unfiltered listing, newest first.
@@ -81,15 +87,25 @@ UPDATE jobs SET error_code = 1 WHERE state = 5;
 UPDATE jobs SET error_code = 2 WHERE state = 4;
 )sql";
 
+// Version 2 files gain owners (older jobs get none: only admins see them),
+// pins and the time a result expired.
+constexpr char kMigrateToV3Sql[] = R"sql(
+ALTER TABLE jobs ADD COLUMN owner TEXT NOT NULL DEFAULT '';
+ALTER TABLE jobs ADD COLUMN pinned INTEGER NOT NULL DEFAULT 0;
+ALTER TABLE jobs ADD COLUMN result_expire_time INTEGER NOT NULL DEFAULT 0;
+CREATE INDEX IF NOT EXISTS jobs_owner_create ON jobs (owner, create_time, id);
+)sql";
+
 // Column order shared by every SELECT that feeds RowToRecord. Text a client
 // or a reader could make huge is cut in SQL already (stores written before
 // the bounds may hold a gigabyte of error text), and again by BoundText
 // wherever it is shown.
-#define NIMBUS_JOB_COLUMNS                                                                   \
-  "id, substr(name, 1, 256), state, spec, request_id, create_time, start_time, end_time, "  \
-  "attempts, cancel_requested, worker_id, lease_expiry, progress_done, progress_total, "    \
-  "substr(error, 1, 4200), result_key, result_size, result_sha256, "                        \
-  "substr(warnings, 1, 16500), estimated_memory_bytes, error_code"
+#define NIMBUS_JOB_COLUMNS                                                                 \
+  "id, substr(name, 1, 256), state, spec, request_id, create_time, start_time, end_time, " \
+  "attempts, cancel_requested, worker_id, lease_expiry, progress_done, progress_total, "   \
+  "substr(error, 1, 4200), result_key, result_size, result_sha256, "                       \
+  "substr(warnings, 1, 16500), estimated_memory_bytes, error_code, owner, pinned, "        \
+  "result_expire_time"
 
 absl::StatusCode CodeFor(int rc) {
   switch (rc & 0xff) {
@@ -228,6 +244,9 @@ JobRecord RowToRecord(const Statement& s) {
   r.warnings = s.Text(18);
   r.estimated_memory_bytes = s.Uint(19);
   r.error_code = static_cast<int>(s.Int(20));
+  r.owner = s.Text(21);
+  r.pinned = s.Int(22) != 0;
+  r.result_expire_time = s.Int(23);
   return r;
 }
 
@@ -308,6 +327,12 @@ class SqliteJobStore final : public JobStore {
  public:
   absl::StatusOr<JobRecord> RequestCancel(const std::string& id, TimeMs now) override;
   absl::StatusOr<int> RequeueRunning() override;
+  absl::StatusOr<OwnerUsage> Usage(const std::string& owner) override;
+  absl::StatusOr<JobRecord> SetPinned(const std::string& id, bool pinned) override;
+  absl::Status Delete(const std::string& id) override;
+  absl::StatusOr<std::vector<JobRecord>> ListExpiring(TimeMs cutoff, int limit) override;
+  absl::Status MarkResultExpired(const std::string& id, TimeMs now) override;
+  absl::StatusOr<std::vector<std::string>> SpecsInUse() override;
 
  private:
   // Rolls back unless committed, so every early return leaves no open
@@ -486,9 +511,15 @@ absl::Status SqliteJobStore::Migrate() {
   if (absl::Status s = txn.Begin(); !s.ok()) return s;
   version = read_version();
   if (!version.ok() || *version == kSchemaVersion) return version.status();
-  // A fresh file gets the newest schema; older ones step up.
-  const char* sql = *version == 0 ? kSchemaSql : kMigrateToV2Sql;
-  if (absl::Status s = Exec(sql); !s.ok()) return s;
+  // A fresh file gets the newest schema; older ones step up one version
+  // at a time.
+  if (*version == 0) {
+    if (absl::Status s = Exec(kSchemaSql); !s.ok()) return s;
+  } else {
+    if (*version < 2)
+      if (absl::Status s = Exec(kMigrateToV2Sql); !s.ok()) return s;
+    if (absl::Status s = Exec(kMigrateToV3Sql); !s.ok()) return s;
+  }
   if (absl::Status s = Exec(absl::StrCat("PRAGMA user_version=", kSchemaVersion).c_str());
       !s.ok()) {
     return s;
@@ -581,6 +612,10 @@ absl::StatusOr<JobRecord> SqliteJobStore::Create(const NewJob& job, TimeMs now) 
       // An idempotent retry gets the original job; the same key for
       // another spec is a client bug that must not pass silently.
       JobRecord existing = RowToRecord(*s);
+      // Keys are global; another principal's job is never named.
+      if (existing.owner != job.owner)
+        return absl::AlreadyExistsError(absl::StrCat("request_id ", EchoId(job.request_id),
+                                                     " was already used by another principal"));
       if (existing.spec != job.spec)
         return absl::AlreadyExistsError(
             absl::StrCat("request_id ", EchoId(job.request_id), " was already used for another spec (job ",
@@ -592,12 +627,13 @@ absl::StatusOr<JobRecord> SqliteJobStore::Create(const NewJob& job, TimeMs now) 
   {
     absl::StatusOr<Statement> s = Prepare(
         "INSERT INTO jobs (id, name, state, spec, request_id, create_time, progress_total, "
-        "warnings, estimated_memory_bytes) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)");
+        "warnings, estimated_memory_bytes, owner) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, "
+        "?10)");
     if (!s.ok()) return s.status();
     s->Bind(1, job.id).Bind(2, job.name).Bind(3, JobState::kQueued).BindBlob(4, job.spec);
     s->Bind(5, job.request_id).Bind(6, now).Bind(7, job.progress_total);
     s->Bind(8, BoundText(job.warnings, kMaxWarningsBytes));
-    s->Bind(9, job.estimated_memory_bytes);
+    s->Bind(9, job.estimated_memory_bytes).Bind(10, job.owner);
     if (absl::Status st = s->Run(); !st.ok()) {
       if (st.code() == absl::StatusCode::kAlreadyExists) {
         return absl::AlreadyExistsError(absl::StrCat("job \"", job.id, "\" already exists"));
@@ -630,27 +666,32 @@ absl::StatusOr<ListPage> SqliteJobStore::List(const ListOptions& options) {
   }
 
   // Four fixed shapes rather than "?1 IS NULL OR ..." so each one can use an
-  // index for both the filter and the order.
+  // index for both the filter and the order; the owner (?5, NULL for all)
+  // only filters the rows the index walk yields.
+#define NIMBUS_OWNER_FILTER "(?5 IS NULL OR owner = ?5)"
   const char* sql;
   if (options.state.has_value()) {
     sql = has_cursor ? "SELECT " NIMBUS_JOB_COLUMNS
-                       " FROM jobs WHERE state = ?1 AND (create_time, id) < (?2, ?3)"
-                       " ORDER BY create_time DESC, id DESC LIMIT ?4"
+                       " FROM jobs WHERE state = ?1 AND (create_time, id) < (?2, ?3) "
+                       "AND " NIMBUS_OWNER_FILTER " ORDER BY create_time DESC, id DESC LIMIT ?4"
                      : "SELECT " NIMBUS_JOB_COLUMNS
-                       " FROM jobs WHERE state = ?1 ORDER BY create_time DESC, id DESC LIMIT ?4";
+                       " FROM jobs WHERE state = ?1 AND " NIMBUS_OWNER_FILTER
+                       " ORDER BY create_time DESC, id DESC LIMIT ?4";
   } else {
     sql = has_cursor ? "SELECT " NIMBUS_JOB_COLUMNS
-                       " FROM jobs WHERE (create_time, id) < (?2, ?3)"
+                       " FROM jobs WHERE (create_time, id) < (?2, ?3) AND " NIMBUS_OWNER_FILTER
                        " ORDER BY create_time DESC, id DESC LIMIT ?4"
-                     : "SELECT " NIMBUS_JOB_COLUMNS
-                       " FROM jobs ORDER BY create_time DESC, id DESC LIMIT ?4";
+                     : "SELECT " NIMBUS_JOB_COLUMNS " FROM jobs WHERE " NIMBUS_OWNER_FILTER
+                       " ORDER BY create_time DESC, id DESC LIMIT ?4";
   }
+#undef NIMBUS_OWNER_FILTER
 
   std::lock_guard<std::mutex> lock(*read_mu_);
   absl::StatusOr<Statement> s = r_->Prepare(sql);
   if (!s.ok()) return s.status();
   if (options.state.has_value()) s->Bind(1, *options.state);
   if (has_cursor) s->Bind(2, cursor_time).Bind(3, cursor_id);
+  if (options.owner.has_value()) s->Bind(5, *options.owner);
   // One extra row tells whether another page exists, so the last page never
   // hands out a token that leads to an empty page.
   s->Bind(4, page_size + 1);
@@ -933,6 +974,100 @@ absl::StatusOr<int> SqliteJobStore::RequeueRunning() {
   }
   if (absl::Status s = txn.Commit(); !s.ok()) return s;
   return requeued;
+}
+
+absl::StatusOr<OwnerUsage> SqliteJobStore::Usage(const std::string& owner) {
+  std::lock_guard<std::mutex> lock(*read_mu_);
+  absl::StatusOr<Statement> s = r_->Prepare(
+      "SELECT count(*) FILTER (WHERE state IN (1, 2)), "
+      "coalesce(sum(result_size) FILTER (WHERE state = 3 AND result_expire_time = 0), 0) "
+      "FROM jobs WHERE owner = ?1");
+  if (!s.ok()) return s.status();
+  s->Bind(1, owner);
+  absl::StatusOr<bool> row = s->Step();
+  if (!row.ok()) return row.status();
+  OwnerUsage u;
+  if (*row) {
+    u.active_jobs = s->Uint(0);
+    u.result_bytes = s->Uint(1);
+  }
+  return u;
+}
+
+absl::StatusOr<JobRecord> SqliteJobStore::SetPinned(const std::string& id, bool pinned) {
+  std::lock_guard<std::mutex> lock(mu_);
+  Transaction txn(this);
+  if (absl::Status s = txn.Begin(); !s.ok()) return s;
+  {
+    absl::StatusOr<Statement> s = Prepare("UPDATE jobs SET pinned = ?1 WHERE id = ?2");
+    if (!s.ok()) return s.status();
+    s->Bind(1, pinned ? 1 : 0).Bind(2, id);
+    if (absl::Status st = s->Run(); !st.ok()) return st;
+  }
+  absl::StatusOr<JobRecord> job = LoadExistingLocked(id);
+  if (!job.ok()) return job.status();
+  if (absl::Status s = txn.Commit(); !s.ok()) return s;
+  return job;
+}
+
+absl::Status SqliteJobStore::Delete(const std::string& id) {
+  std::lock_guard<std::mutex> lock(mu_);
+  Transaction txn(this);
+  if (absl::Status s = txn.Begin(); !s.ok()) return s;
+  absl::StatusOr<JobRecord> job = LoadExistingLocked(id);
+  if (!job.ok()) return job.status();
+  if (!IsTerminal(job->state))
+    return absl::FailedPreconditionError(
+        absl::StrCat("job ", id, " is ", StateName(job->state), "; cancel it before deleting it"));
+  {
+    absl::StatusOr<Statement> s = Prepare("DELETE FROM jobs WHERE id = ?1");
+    if (!s.ok()) return s.status();
+    s->Bind(1, id);
+    if (absl::Status st = s->Run(); !st.ok()) return st;
+  }
+  return txn.Commit();
+}
+
+absl::StatusOr<std::vector<JobRecord>> SqliteJobStore::ListExpiring(TimeMs cutoff, int limit) {
+  std::lock_guard<std::mutex> lock(*read_mu_);
+  absl::StatusOr<Statement> s =
+      r_->Prepare("SELECT " NIMBUS_JOB_COLUMNS
+                  " FROM jobs WHERE state = 3 AND pinned = 0 AND "
+                  "result_expire_time = 0 AND end_time < ?1 ORDER BY end_time LIMIT ?2");
+  if (!s.ok()) return s.status();
+  s->Bind(1, cutoff).Bind(2, limit);
+  std::vector<JobRecord> jobs;
+  while (true) {
+    absl::StatusOr<bool> row = s->Step();
+    if (!row.ok()) return row.status();
+    if (!*row) break;
+    jobs.push_back(RowToRecord(*s));
+  }
+  return jobs;
+}
+
+absl::Status SqliteJobStore::MarkResultExpired(const std::string& id, TimeMs now) {
+  std::lock_guard<std::mutex> lock(mu_);
+  absl::StatusOr<Statement> s =
+      Prepare("UPDATE jobs SET result_expire_time = ?1 WHERE id = ?2 AND state = 3");
+  if (!s.ok()) return s.status();
+  s->Bind(1, now).Bind(2, id);
+  return s->Run();
+}
+
+absl::StatusOr<std::vector<std::string>> SqliteJobStore::SpecsInUse() {
+  std::lock_guard<std::mutex> lock(*read_mu_);
+  absl::StatusOr<Statement> s =
+      r_->Prepare("SELECT spec FROM jobs WHERE state IN (1, 2) OR pinned <> 0");
+  if (!s.ok()) return s.status();
+  std::vector<std::string> specs;
+  while (true) {
+    absl::StatusOr<bool> row = s->Step();
+    if (!row.ok()) return row.status();
+    if (!*row) break;
+    specs.push_back(s->Blob(0));
+  }
+  return specs;
 }
 
 absl::StatusOr<std::unique_ptr<JobStore>> OpenSqliteJobStore(const std::string& path) {

@@ -164,16 +164,47 @@ class RenderResult:
     previews: List[PreviewFile]
 
 
-class Client:
-    """A connection to one nimbusd, e.g. Client("127.0.0.1:50051")."""
+def _read_pem(what, path):
+    try:
+        return Path(path).read_bytes()
+    except OSError as e:
+        raise NimbusError(grpc.StatusCode.INVALID_ARGUMENT,
+                          f"{what} {path}: cannot read the file: {e.strerror}", field="") from None
 
-    def __init__(self, address, reconnect_timeout=30.0, timeout=60.0):
+
+class Client:
+    """A connection to one nimbusd, e.g. Client("127.0.0.1:50051").
+
+    For a server with TLS give `tls_ca` (the PEM file of the CA that signed
+    its certificate), and `tls_cert` and `tls_key` when it requires client
+    certificates. `token` (default $NIMBUS_TOKEN) is sent with every call as
+    `authorization: Bearer TOKEN`."""
+
+    def __init__(self, address, reconnect_timeout=30.0, timeout=60.0, tls_ca=None,
+                 tls_cert=None, tls_key=None, token=None):
         self.address = address
         self.reconnect_timeout = reconnect_timeout
         self.timeout = timeout  # per unary call, seconds
-        self._channel = grpc.insecure_channel(address, options=[
-            ("grpc.max_receive_message_length", MAX_MESSAGE_BYTES),
-            ("grpc.max_send_message_length", MAX_MESSAGE_BYTES)])
+        token = token if token is not None else os.environ.get("NIMBUS_TOKEN", "")
+        # Metadata rather than call credentials: gRPC sends those only over
+        # TLS, and a token to a loopback server without TLS is legitimate.
+        self._metadata = (("authorization", f"Bearer {token}"),) if token else ()
+        options = [("grpc.max_receive_message_length", MAX_MESSAGE_BYTES),
+                   ("grpc.max_send_message_length", MAX_MESSAGE_BYTES)]
+        if (tls_cert is None) != (tls_key is None):
+            raise NimbusError(grpc.StatusCode.INVALID_ARGUMENT,
+                              "tls_cert and tls_key go together", field="")
+        if tls_ca is not None:
+            creds = grpc.ssl_channel_credentials(
+                root_certificates=_read_pem("tls_ca", tls_ca),
+                private_key=_read_pem("tls_key", tls_key) if tls_key else None,
+                certificate_chain=_read_pem("tls_cert", tls_cert) if tls_cert else None)
+            self._channel = grpc.secure_channel(address, creds, options=options)
+        elif tls_cert is not None:
+            raise NimbusError(grpc.StatusCode.INVALID_ARGUMENT,
+                              "tls_cert needs tls_ca (the server's CA)", field="")
+        else:
+            self._channel = grpc.insecure_channel(address, options=options)
         self._stub = pb2_grpc.NimbusServiceStub(self._channel)
 
     def close(self):
@@ -187,7 +218,8 @@ class Client:
 
     def _unary(self, name, request):
         try:
-            return getattr(self._stub, name)(request, timeout=self.timeout, wait_for_ready=True)
+            return getattr(self._stub, name)(request, timeout=self.timeout, wait_for_ready=True,
+                                             metadata=self._metadata)
         except grpc.RpcError as e:
             raise NimbusError.from_rpc(e, name) from None
 
@@ -214,7 +246,7 @@ class Client:
 
         try:
             resp = self._stub.UploadAsset(requests(), timeout=max(self.timeout, 600),
-                                          wait_for_ready=True)
+                                          wait_for_ready=True, metadata=self._metadata)
         except grpc.RpcError as e:
             err = NimbusError.from_rpc(e, "UploadAsset")
             raise NimbusError(err.code, f"upload of {path}: {err.details}", field="") from None
@@ -260,6 +292,18 @@ class Client:
     def cancel(self, job):
         return self._unary("CancelJob", pb2.CancelJobRequest(job_id=_job_id(job))).job
 
+    def pin(self, job, pinned=True):
+        """Keeps the job's result past the server's retention age (or, with
+        pinned=False, lets it expire again); returns the job."""
+        return self._unary("PinJob", pb2.PinJobRequest(job_id=_job_id(job), pinned=pinned)).job
+
+    def unpin(self, job):
+        return self.pin(job, pinned=False)
+
+    def delete(self, job):
+        """Deletes a finished job and its result files; returns the bytes freed."""
+        return self._unary("DeleteJob", pb2.DeleteJobRequest(job_id=_job_id(job))).freed_bytes
+
     def list(self, state=None, limit=None, page_size=100):
         """Jobs newest first, all pages (or the first `limit`). `state` is a
         JobState value or a name such as "RUNNING"."""
@@ -301,7 +345,7 @@ class Client:
         give_up_at = time.monotonic() + self.reconnect_timeout
         while True:
             got_any = False
-            call = self._stub.WatchJob(req, wait_for_ready=True)
+            call = self._stub.WatchJob(req, wait_for_ready=True, metadata=self._metadata)
             try:
                 for resp in call:
                     got_any = True
@@ -394,7 +438,8 @@ class Client:
             req = pb2.FetchResultRequest(job_id=job_id, offset=offset, file_name=file_name)
             try:
                 with open(part, "ab") as out:
-                    for chunk in self._stub.FetchResult(req, wait_for_ready=True):
+                    for chunk in self._stub.FetchResult(req, wait_for_ready=True,
+                                                        metadata=self._metadata):
                         if chunk.sha256:
                             expected = chunk.sha256
                         if chunk.total_size:

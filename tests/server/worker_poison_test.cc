@@ -55,6 +55,20 @@ class CompleteFailsStore final : public JobStore {
     return inner_->RequestCancel(id, now);
   }
   absl::StatusOr<int> RequeueRunning() override { return inner_->RequeueRunning(); }
+  absl::StatusOr<OwnerUsage> Usage(const std::string& owner) override {
+    return inner_->Usage(owner);
+  }
+  absl::StatusOr<JobRecord> SetPinned(const std::string& id, bool pinned) override {
+    return inner_->SetPinned(id, pinned);
+  }
+  absl::Status Delete(const std::string& id) override { return inner_->Delete(id); }
+  absl::StatusOr<std::vector<JobRecord>> ListExpiring(TimeMs cutoff, int limit) override {
+    return inner_->ListExpiring(cutoff, limit);
+  }
+  absl::Status MarkResultExpired(const std::string& id, TimeMs now) override {
+    return inner_->MarkResultExpired(id, now);
+  }
+  absl::StatusOr<std::vector<std::string>> SpecsInUse() override { return inner_->SpecsInUse(); }
 
   std::atomic<int> completes{0};
 

@@ -1,5 +1,6 @@
 #include "tests/support/nimbusd_process.h"
 
+#include <fcntl.h>
 #include <poll.h>
 #include <signal.h>
 #include <sys/inotify.h>
@@ -47,7 +48,7 @@ absl::Status NimbusdProcess::Start(int port) {
 
   std::vector<std::string> argv = {std::string(NIMBUS_BIN_DIR) + "/nimbusd",
                                    "--listen",
-                                   absl::StrCat("127.0.0.1:", port),
+                                   absl::StrCat(listen_host_, ":", port),
                                    "--port-file",
                                    port_file.string(),
                                    "--data-dir",
@@ -57,10 +58,17 @@ absl::Status NimbusdProcess::Start(int port) {
   for (std::string& a : argv) c_argv.push_back(a.data());
   c_argv.push_back(nullptr);
 
+  const std::string log = log_file_.string();
   pid_ = ::fork();
   if (pid_ < 0) return absl::InternalError("fork failed");
   if (pid_ == 0) {
     ::prctl(PR_SET_PDEATHSIG, SIGKILL);  // never outlive a crashed test
+    if (const int fd =
+            log.empty() ? -1 : ::open(log.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+        fd >= 0) {
+      ::dup2(fd, 1);
+      ::dup2(fd, 2);
+    }
     ::execv(c_argv[0], c_argv.data());
     ::_exit(127);
   }

@@ -42,12 +42,20 @@ class NimbusdProcess {
   std::string target() const;
   /// Replaces the extra arguments for the next Start.
   void set_args(std::vector<std::string> args) { args_ = std::move(args); }
+  /// The host of --listen for the next Start (default "127.0.0.1"), e.g.
+  /// "0.0.0.0" to try the non-loopback rule; target() stays on 127.0.0.1.
+  void set_listen_host(std::string host) { listen_host_ = std::move(host); }
+  /// Sends nimbusd's stdout and stderr to `path` from the next Start on
+  /// (default: the test's own), so a test can read what it logged.
+  void set_log_file(std::filesystem::path path) { log_file_ = std::move(path); }
 
  private:
   absl::Status AwaitPortFile(const std::filesystem::path& port_file);
 
   std::filesystem::path data_dir_;
   std::vector<std::string> args_;
+  std::string listen_host_ = "127.0.0.1";
+  std::filesystem::path log_file_;
   pid_t pid_ = -1;
   int port_ = 0;
 };
