@@ -24,6 +24,7 @@
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_format.h"
 #include "client/nimbus_client.h"
+#include "client/preview_files.h"
 #include "core/base/status_macros.h"
 #include "proto/asset_paths.h"
 #include "proto/spec_convert.h"
@@ -192,19 +193,18 @@ absl::StatusOr<v1::Job> WatchJob(
     o.preview_interval_seconds = w.preview_interval;
   }
   ProgressView view;
-  int saved = 0;
+  nimbus::client::PreviewSaver saver(w.previews);
+  absl::Status save_error;
   auto job = client.Watch(id, o, [&](const v1::WatchJobResponse& r) {
     if (!quiet) view.Update(r.job());
     if (on_job) on_job(r.job());
-    if (r.has_preview() && !w.previews.empty()) {
-      const auto path = std::filesystem::path(w.previews) /
-                        absl::StrFormat("%s.preview.%04d.vdb", r.job().name(), ++saved);
-      std::ofstream(path, std::ios::binary) << r.preview().vdb();
-    }
+    if (r.has_preview() && !w.previews.empty() && save_error.ok())
+      save_error = saver.Save(r.job().name(), r.preview()).status();
   });
   if (!quiet) view.Done();
-  if (job.ok() && saved > 0)
-    std::cerr << "saved " << saved << " previews in " << w.previews << "\n";
+  if (job.ok() && !save_error.ok()) return save_error;
+  if (job.ok() && saver.saved() > 0)
+    std::cerr << "saved " << saver.saved() << " previews in " << w.previews << "\n";
   return job;
 }
 

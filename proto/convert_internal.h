@@ -31,6 +31,11 @@ bool Finite(const v1::Vec3& v);
 /// INVALID_ARGUMENT naming `path` for a ProbabilityMode this server does
 /// not know (a newer client's, or a bad number).
 absl::Status CheckProbabilityMode(v1::ProbabilityMode mode, const std::string& path);
+/// Bounds of output.max_voxels and output.target_file_bytes when set.
+inline constexpr int64_t kMinOutputVoxels = 512;
+inline constexpr int64_t kMaxOutputVoxels = int64_t{1} << 40;
+inline constexpr int64_t kMinTargetFileBytes = int64_t{1} << 16;
+inline constexpr int64_t kMaxTargetFileBytes = int64_t{1} << 50;
 /// Most warm-up steps per walker (chaos_game.warmup).
 inline constexpr uint32_t kMaxWarmup = 1'000'000;
 Vec3 ToVec3(const v1::Vec3& v);

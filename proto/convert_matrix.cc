@@ -513,8 +513,14 @@ absl::Status ConvertMatrixChaosGame(const v1::ChaosGame& cg, const Limits& limit
   for (const PointMap& m : params.ifs.maps)
     job.contraction_factors.push_back(m.pre.ContractionFactor());
   NIMBUS_RETURN_IF_ERROR(ConvertComponentGrid(cg, plan));
-  if (plan.component_grid != ComponentGridType::kNone)
+  if (plan.component_grid != ComponentGridType::kNone) {
+    // Labels have no meaningful box filter.
+    const OutputConventions& c = job.density.conventions;
+    const char* why = "not supported together with chaos_game.matrices.component_grid";
+    if (c.max_voxels > 0) return Invalid("output.max_voxels", why);
+    if (c.target_file_bytes > 0) return Invalid("output.target_file_bytes", why);
     NIMBUS_RETURN_IF_ERROR(BuildComponentRuns(cg, rendered, table, drawing, plan));
+  }
   plan.maps = table.maps();
   plan.matrix = std::move(rendered.matrix);
   job.work = {cg.iterations(), "points"};

@@ -162,6 +162,33 @@ absl::Status ConvertName(const v1::JobSpec& spec, JobPlan& job) {
   return absl::OkStatus();
 }
 
+// 0 (off) or within [lo, hi]: a limit below lo leaves nothing worth
+// writing, one above hi is a typo, not a wish.
+absl::Status CheckLimit(int64_t v, int64_t lo, int64_t hi, const std::string& path) {
+  if (v == 0 || (v >= lo && v <= hi)) return absl::OkStatus();
+  return Invalid(path, StrCat("must be 0 (no limit) or in [", lo, ", ", hi, "], got ", v));
+}
+
+// Up axis, half floats and the downsampling limits (docs/dcc.md).
+absl::Status ConvertConventions(const v1::Output& o, OutputConventions& c) {
+  switch (o.up_axis()) {
+    case v1::UP_AXIS_UNSPECIFIED:
+    case v1::UP_AXIS_Y: c.up_axis = UpAxis::kY; break;
+    case v1::UP_AXIS_Z: c.up_axis = UpAxis::kZ; break;
+    default:
+      return Invalid("output.up_axis",
+                     StrCat("unknown value ", int(o.up_axis()), " (known: UP_AXIS_Y, UP_AXIS_Z)"));
+  }
+  c.half_float = o.half_float();
+  NIMBUS_RETURN_IF_ERROR(
+      CheckLimit(o.max_voxels(), kMinOutputVoxels, kMaxOutputVoxels, "output.max_voxels"));
+  NIMBUS_RETURN_IF_ERROR(CheckLimit(o.target_file_bytes(), kMinTargetFileBytes,
+                                    kMaxTargetFileBytes, "output.target_file_bytes"));
+  c.max_voxels = o.max_voxels();
+  c.target_file_bytes = o.target_file_bytes();
+  return absl::OkStatus();
+}
+
 absl::Status ConvertOutput(const v1::Output& o, DensityOptions& density) {
   density.grid_name = o.grid_name().empty() ? "density" : o.grid_name();
   switch (o.density_mapping()) {
@@ -178,7 +205,7 @@ absl::Status ConvertOutput(const v1::Output& o, DensityOptions& density) {
   if (!(o.gamma() >= 0 && o.gamma() <= 1000))
     return Invalid("output.gamma", StrCat("must be in (0, 1000], got ", o.gamma()));
   density.gamma = o.gamma() == 0 ? 2.2 : o.gamma();
-  return absl::OkStatus();
+  return ConvertConventions(o, density.conventions);
 }
 
 }  // namespace

@@ -101,7 +101,7 @@ absl::Status JobDriver::WriteResult(const CountGrid& counts, const nimbus::Metad
     // Exact counts in a further file: readers that cannot open Int64 grids
     // still open the result.
     NIMBUS_ASSIGN_OR_RETURN(std::filesystem::path side, ExtraFilePath(plan_.name + ".counts.vdb"));
-    NIMBUS_RETURN_IF_ERROR(WriteIntegerCountsVdb(side, counts, plan_.frame, meta));
+    NIMBUS_RETURN_IF_ERROR(WriteIntegerCountsVdb(side, counts, plan_.frame, plan_.density, meta));
   }
   return Progress(1, true);
 }

@@ -9,6 +9,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
+#include "core/io/metadata_keys.h"
 #include "server/bounded_text.h"
 #include "server/job_runner.h"
 #include "server/job_view.h"
@@ -112,10 +113,15 @@ class WorkerPool::Context : public JobContext {
       const int factor = DownsampleFactor(frame.resolution, int(want.resolution));
       const CountGrid coarse = DownsampleCounts(parts, factor);
       const GridFrame coarse_frame = DownsampleFrame(frame, factor);
-      auto bytes = DensityVdbBytes(coarse, coarse_frame, density, {});
+      // The file says which preview and how far the run was, so a client
+      // that names its files densely loses neither.
+      const uint64_t sequence = ++preview_sequence_;
+      auto bytes = DensityVdbBytes(coarse, coarse_frame, density,
+                                   {{meta_key::kPreviewSequence, int64_t(sequence)},
+                                    {meta_key::kPreviewDone, int64_t(done)}});
       if (!bytes.ok()) continue;
       v1::Preview preview;
-      preview.set_sequence(++preview_sequence_);
+      preview.set_sequence(sequence);
       preview.set_vdb(std::move(*bytes));
       preview.add_resolution(coarse_frame.resolution.x);
       preview.add_resolution(coarse_frame.resolution.y);

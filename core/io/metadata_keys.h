@@ -10,6 +10,14 @@ inline constexpr char kSpecHash[] = "nimbus_spec_hash";
 inline constexpr char kVersion[] = "nimbus_version";
 inline constexpr char kSeed[] = "nimbus_seed";
 inline constexpr char kIterations[] = "nimbus_iterations";
+// Every grid: output conventions (docs/dcc.md).
+inline constexpr char kUpAxis[] = "nimbus_up_axis";
+inline constexpr char kDownsampleFactor[] = "nimbus_downsample_factor";
+// The density grid: a shader density multiplier for DCC importers.
+inline constexpr char kSuggestedDensity[] = "nimbus_suggested_density";
+// Previews: the server's sequence number and the work done it shows.
+inline constexpr char kPreviewSequence[] = "nimbus_preview_sequence";
+inline constexpr char kPreviewDone[] = "nimbus_preview_done";
 // Chaos games.
 inline constexpr char kOutside[] = "nimbus_outside";
 inline constexpr char kReseeded[] = "nimbus_reseeded";

@@ -9,13 +9,17 @@
 
 #include "absl/status/status.h"
 #include "core/base/geometry.h"
+#include "core/io/vdb_io.h"
 
 namespace nimbus::vdb_internal {
 
 /// openvdb::initialize(), once per process.
 void InitOpenVdb();
-/// The transform of a GridFrame: voxel centres at integer index coordinates.
-openvdb::math::Transform::Ptr FrameTransform(const GridFrame& frame);
+/// The transform of a GridFrame: voxel centres at integer index coordinates,
+/// then world space rotated so the spec's +Y is +Z for UpAxis::kZ.
+openvdb::math::Transform::Ptr FrameTransform(const GridFrame& frame, UpAxis up = UpAxis::kY);
+/// Metadata nimbus_up_axis: "Y" or "Z".
+const char* UpAxisName(UpAxis up);
 /// Records the frame (nimbus_resolution, nimbus_bounds_min/max) on a grid,
 /// so readers can rebuild the dense lattice.
 void SetFrameMetadata(openvdb::GridBase& grid, const GridFrame& frame);

@@ -19,6 +19,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "core/base/sha256.h"
+#include "core/io/metadata_keys.h"
 #include "core/io/vdb_internal.h"
 
 namespace nimbus {
@@ -30,15 +31,25 @@ void InitOpenVdb() {
   std::call_once(once, [] { openvdb::initialize(); });
 }
 
-openvdb::math::Transform::Ptr FrameTransform(const GridFrame& frame) {
+openvdb::math::Transform::Ptr FrameTransform(const GridFrame& frame, UpAxis up) {
   const Vec3 h = frame.VoxelSize();
   openvdb::math::Mat4d m = openvdb::math::Mat4d::identity();
   m.setToScale(openvdb::Vec3d(h.x, h.y, h.z));
   // Index-space voxel centres sit at integer coordinates in OpenVDB.
   m.setTranslation(openvdb::Vec3d(frame.bounds.min.x + 0.5 * h.x, frame.bounds.min.y + 0.5 * h.y,
                                   frame.bounds.min.z + 0.5 * h.z));
+  if (up == UpAxis::kZ) {
+    // OpenVDB maps row vectors (p * M): these rows send (x, y, z) to
+    // (x, -z, y), a right-handed quarter turn about +X taking +Y to +Z.
+    openvdb::math::Mat4d r = openvdb::math::Mat4d::identity();
+    r.setRow(1, openvdb::Vec4d(0, 0, 1, 0));
+    r.setRow(2, openvdb::Vec4d(0, -1, 0, 0));
+    m = m * r;
+  }
   return openvdb::math::Transform::createLinearTransform(m);
 }
+
+const char* UpAxisName(UpAxis up) { return up == UpAxis::kZ ? "Z" : "Y"; }
 
 void SetFrameMetadata(openvdb::GridBase& grid, const GridFrame& frame) {
   const Int3 r = frame.resolution;
@@ -327,27 +338,30 @@ typename GridT::Ptr NewGrid(const std::string& name, const GridFrame& frame,
   return grid;
 }
 
-// The density grid plus the optional Cd / address / counts grids, all with
-// the same active voxels. Built leaf by leaf straight from the count tiles.
-openvdb::GridPtrVec BuildGrids(const CountGrid& counts, const GridFrame& frame,
-                               const DensityOptions& options, const Metadata& metadata,
-                               bool int64_counts = false) {
-  auto grid = NewGrid<openvdb::FloatGrid>(options.grid_name, frame, openvdb::GRID_FOG_VOLUME);
+// The grids of one result before the conventions: the density plus the
+// optional Cd / address / counts grids, all on the same active voxels.
+struct ResultGrids {
+  openvdb::FloatGrid::Ptr density, addr, raw_f;
+  openvdb::Vec3SGrid::Ptr cd;
+  openvdb::Int64Grid::Ptr raw_i;
+};
+
+// Built leaf by leaf straight from the count tiles, in the spec's frame.
+ResultGrids BuildFineGrids(const CountGrid& counts, const GridFrame& frame,
+                           const DensityOptions& options, bool int64_counts) {
+  ResultGrids g;
+  g.density = NewGrid<openvdb::FloatGrid>(options.grid_name, frame, openvdb::GRID_FOG_VOLUME);
   const bool color = options.color && counts.has_color();
   const bool address = options.address_grid && counts.has_color();
-  openvdb::Vec3SGrid::Ptr cd;
-  openvdb::FloatGrid::Ptr addr, raw_f;
-  openvdb::Int64Grid::Ptr raw_i;
-  if (color) cd = NewGrid<openvdb::Vec3SGrid>("Cd", frame, openvdb::GRID_UNKNOWN);
-  if (address) addr = NewGrid<openvdb::FloatGrid>("address", frame, openvdb::GRID_UNKNOWN);
+  if (color) g.cd = NewGrid<openvdb::Vec3SGrid>("Cd", frame, openvdb::GRID_UNKNOWN);
+  if (address) g.addr = NewGrid<openvdb::FloatGrid>("address", frame, openvdb::GRID_UNKNOWN);
   // The result always carries float counts (every reader opens them); the
   // exact integer counts go to a file of their own (WriteIntegerCountsVdb).
   if (options.raw_counts != RawCounts::kNone && !int64_counts)
-    raw_f = NewGrid<openvdb::FloatGrid>("counts", frame, openvdb::GRID_UNKNOWN);
-  if (int64_counts) raw_i = NewGrid<openvdb::Int64Grid>("counts", frame, openvdb::GRID_UNKNOWN);
-  const uint32_t max_count = counts.Max();
-  const Normaliser norm(options, max_count);
-  auto& tree = grid->tree();
+    g.raw_f = NewGrid<openvdb::FloatGrid>("counts", frame, openvdb::GRID_UNKNOWN);
+  if (int64_counts) g.raw_i = NewGrid<openvdb::Int64Grid>("counts", frame, openvdb::GRID_UNKNOWN);
+  const Normaliser norm(options, counts.Max());
+  auto& tree = g.density->tree();
   const double inv_scale = 1.0 / CountGrid::kColorScale;
   counts.ForEachTileWithColor([&](Int3 origin, const uint32_t* tile, const uint64_t* csum) {
     for (int leaf = 0; leaf < 64; ++leaf) {
@@ -362,8 +376,8 @@ openvdb::GridPtrVec BuildGrids(const CountGrid& counts, const GridFrame& frame,
         if (v[i]) node->setValueOn(i, norm(v[i]));
       if (color || address) {
         const uint64_t* cs = csum + leaf * 512;
-        auto* cd_node = color ? cd->tree().touchLeaf(c) : nullptr;
-        auto* a_node = address ? addr->tree().touchLeaf(c) : nullptr;
+        auto* cd_node = color ? g.cd->tree().touchLeaf(c) : nullptr;
+        auto* a_node = address ? g.addr->tree().touchLeaf(c) : nullptr;
         for (int i = 0; i < 512; ++i) {
           if (!v[i]) continue;
           const double t = double(cs[i]) * inv_scale / double(v[i]);
@@ -374,37 +388,156 @@ openvdb::GridPtrVec BuildGrids(const CountGrid& counts, const GridFrame& frame,
           if (a_node) a_node->setValueOn(i, float(t));
         }
       }
-      if (raw_f) {
-        auto* n = raw_f->tree().touchLeaf(c);
+      if (g.raw_f) {
+        auto* n = g.raw_f->tree().touchLeaf(c);
         for (int i = 0; i < 512; ++i)
           if (v[i]) n->setValueOn(i, float(v[i]));
       }
-      if (raw_i) {
-        auto* n = raw_i->tree().touchLeaf(c);
+      if (g.raw_i) {
+        auto* n = g.raw_i->tree().touchLeaf(c);
         for (int i = 0; i < 512; ++i)
           if (v[i]) n->setValueOn(i, int64_t(v[i]));
       }
     }
   });
-  vdb_internal::SetFrameMetadata(*grid, frame);
-  grid->insertMeta("nimbus_max_count", openvdb::Int64Metadata(int64_t(max_count)));
-  grid->insertMeta("nimbus_total_count", openvdb::Int64Metadata(int64_t(counts.Total())));
-  grid->insertMeta("nimbus_density_mapping", openvdb::StringMetadata(MappingName(options.mapping)));
+  return g;
+}
+
+openvdb::Coord CoarseCoord(const openvdb::Coord& c, int f) {
+  // Voxels have non-negative coordinates, so division floors.
+  return openvdb::Coord(c.x() / f, c.y() / f, c.z() / f);
+}
+
+// Box filter: each coarse voxel gets the sum of its f^3 block times `scale`.
+template <typename GridT>
+typename GridT::Ptr CoarsenSum(const GridT& fine, int f, double scale) {
+  using V = typename GridT::ValueType;
+  auto out = GridT::create();
+  out->setName(fine.getName());
+  out->setGridClass(fine.getGridClass());
+  auto acc = out->getAccessor();
+  for (auto it = fine.cbeginValueOn(); it; ++it) {
+    const openvdb::Coord cc = CoarseCoord(it.getCoord(), f);
+    acc.setValueOn(cc, V(acc.getValue(cc) + *it));
+  }
+  if (scale != 1.0)
+    for (auto it = out->beginValueOn(); it; ++it) it.setValue(V(*it * scale));
+  return out;
+}
+
+// Density-weighted mean over each block: colours and addresses of the
+// voxels that carry the mass.
+template <typename GridT>
+typename GridT::Ptr CoarsenWeighted(const GridT& fine, const openvdb::FloatGrid& weight, int f) {
+  using V = typename GridT::ValueType;
+  auto out = GridT::create();
+  out->setName(fine.getName());
+  out->setGridClass(fine.getGridClass());
+  auto wsum = openvdb::FloatGrid::create();
+  auto acc = out->getAccessor();
+  auto wacc = wsum->getAccessor();
+  auto win = weight.getConstAccessor();
+  for (auto it = fine.cbeginValueOn(); it; ++it) {
+    const float w = win.getValue(it.getCoord());
+    const openvdb::Coord cc = CoarseCoord(it.getCoord(), f);
+    acc.setValueOn(cc, V(acc.getValue(cc) + *it * w));
+    wacc.setValueOn(cc, wacc.getValue(cc) + w);
+  }
+  for (auto it = out->beginValueOn(); it; ++it) {
+    const float w = wacc.getValue(it.getCoord());
+    it.setValue(w > 0 ? V(*it * (1.0f / w)) : V(*it));
+  }
+  return out;
+}
+
+ResultGrids Coarsen(const ResultGrids& g, int f) {
+  ResultGrids out;
+  // Mean density: density times voxel volume keeps its sum.
+  out.density = CoarsenSum(*g.density, f, 1.0 / (double(f) * f * f));
+  if (g.cd) out.cd = CoarsenWeighted(*g.cd, *g.density, f);
+  if (g.addr) out.addr = CoarsenWeighted(*g.addr, *g.density, f);
+  if (g.raw_f) out.raw_f = CoarsenSum(*g.raw_f, f, 1.0);
+  if (g.raw_i) out.raw_i = CoarsenSum(*g.raw_i, f, 1.0);
+  return out;
+}
+
+// Active voxels and leaves left by a box filter of factor f.
+GridSupport SupportAtFactor(const CountGrid& counts, int f) {
+  GridSupport s;
+  if (f == 1) {
+    // Count tiles hold 64 leaves of 512 voxels in OpenVDB's order.
+    counts.ForEachTile([&](Int3, const uint32_t* tile) {
+      for (int leaf = 0; leaf < 64; ++leaf) {
+        uint64_t n = 0;
+        for (int i = 0; i < 512; ++i) n += tile[leaf * 512 + i] != 0;
+        s.voxels += n;
+        s.leaves += n > 0;
+      }
+    });
+    return s;
+  }
+  openvdb::MaskGrid mask;
+  auto acc = mask.getAccessor();
+  counts.ForEachTile([&](Int3 o, const uint32_t* tile) {
+    for (uint32_t i = 0; i < uint32_t(CountGrid::kTileVoxels); ++i) {
+      if (!tile[i]) continue;
+      const Int3 l = CountGrid::LocalCoord(i);
+      acc.setValueOn(openvdb::Coord((o.x + l.x) / f, (o.y + l.y) / f, (o.z + l.z) / f));
+    }
+  });
+  s.voxels = mask.activeVoxelCount();
+  s.leaves = mask.tree().leafCount();
+  return s;
+}
+
+// nimbus_suggested_density from the written density grid.
+double SuggestedDensityOf(const openvdb::FloatGrid& grid) {
+  const uint64_t n = grid.activeVoxelCount();
+  double sum = 0;
+  for (auto it = grid.cbeginValueOn(); it; ++it) sum += *it;
+  const openvdb::Vec3d h = grid.voxelSize();
+  return SuggestedDensity(n, n ? sum / double(n) : 0.0, std::cbrt(h.x() * h.y() * h.z()));
+}
+
+// The conventions every grid shares: transform, frame and convention
+// metadata, half floats.
+void FinishGrid(openvdb::GridBase& grid, const GridFrame& frame, const OutputConventions& c,
+                int factor) {
+  grid.setTransform(vdb_internal::FrameTransform(frame, c.up_axis));
+  vdb_internal::SetFrameMetadata(grid, frame);
+  grid.insertMeta(meta_key::kUpAxis, openvdb::StringMetadata(vdb_internal::UpAxisName(c.up_axis)));
+  grid.insertMeta(meta_key::kDownsampleFactor, openvdb::Int64Metadata(factor));
+  grid.setSaveFloatAsHalf(c.half_float);
+}
+
+openvdb::GridPtrVec BuildGrids(const CountGrid& counts, const GridFrame& fine_frame,
+                               const DensityOptions& options, const Metadata& metadata,
+                               bool int64_counts = false) {
+  ResultGrids g = BuildFineGrids(counts, fine_frame, options, int64_counts);
+  const int factor = OutputDownsampleFactor(counts, options);
+  GridFrame frame = fine_frame;
+  if (factor > 1) {
+    g = Coarsen(g, factor);
+    frame = DownsampleFrame(fine_frame, factor);
+  }
+  openvdb::GridPtrVec out{g.density};
+  if (g.cd) out.push_back(g.cd);
+  if (g.addr) out.push_back(g.addr);
+  if (g.raw_f) out.push_back(g.raw_f);
+  if (g.raw_i) out.push_back(g.raw_i);
+  // Every grid carries the frame and conventions, so each reads back alone.
+  for (auto& grid : out) FinishGrid(*grid, frame, options.conventions, factor);
+  auto& grid = *g.density;
+  grid.insertMeta("nimbus_max_count", openvdb::Int64Metadata(int64_t(counts.Max())));
+  grid.insertMeta("nimbus_total_count", openvdb::Int64Metadata(int64_t(counts.Total())));
+  grid.insertMeta("nimbus_density_mapping", openvdb::StringMetadata(MappingName(options.mapping)));
   if (options.mapping == DensityMapping::kGamma)
-    grid->insertMeta("nimbus_density_gamma", openvdb::DoubleMetadata(options.gamma));
-  if (color)
-    grid->insertMeta("nimbus_palette",
-                     openvdb::StringMetadata(options.palette.is_sine() ? "sine" : "stops"));
-  for (const auto& [k, v] : metadata) AddMeta(*grid, k, v);
-  openvdb::GridPtrVec out{grid};
-  if (cd) out.push_back(cd);
-  if (addr) out.push_back(addr);
-  if (raw_f) out.push_back(raw_f);
-  if (raw_i) out.push_back(raw_i);
-  // Every grid carries the frame, so each reads back on its own.
-  for (size_t i = 1; i < out.size(); ++i)
-    for (const char* key : {"nimbus_resolution", "nimbus_bounds_min", "nimbus_bounds_max"})
-      out[i]->insertMeta(key, *grid->operator[](key));
+    grid.insertMeta("nimbus_density_gamma", openvdb::DoubleMetadata(options.gamma));
+  if (g.cd)
+    grid.insertMeta("nimbus_palette",
+                    openvdb::StringMetadata(options.palette.is_sine() ? "sine" : "stops"));
+  grid.insertMeta(meta_key::kSuggestedDensity, openvdb::DoubleMetadata(SuggestedDensityOf(grid)));
+  for (const auto& [k, v] : metadata) AddMeta(grid, k, v);
   return out;
 }
 
@@ -429,6 +562,13 @@ absl::StatusOr<DenseVolume> ToDense(const openvdb::GridPtrVecPtr& grids, const s
   const openvdb::Vec3d vs = grid->voxelSize();
   out.origin_center = {o.x(), o.y(), o.z()};
   out.voxel_size = {vs.x(), vs.y(), vs.z()};
+  for (int col = 0; col < 3; ++col) {
+    openvdb::Vec3d e(0, 0, 0);
+    e[col] = 1;
+    const openvdb::Vec3d w = grid->indexToWorld(e) - o;
+    for (int row = 0; row < 3; ++row) out.index_to_world.m[row][col] = w[row];
+  }
+  for (int row = 0; row < 3; ++row) out.index_to_world.m[row][3] = o[row];
   out.values.assign(size_t(r.x()) * r.y() * r.z(), 0.f);
   for (auto it = grid->cbeginValueOn(); it; ++it) {
     const openvdb::Coord c = it.getCoord();
@@ -471,11 +611,14 @@ absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid&
 }
 
 absl::Status WriteIntegerCountsVdb(const std::filesystem::path& path, const CountGrid& counts,
-                                   const GridFrame& frame, const Metadata& metadata) {
+                                   const GridFrame& frame, const DensityOptions& options,
+                                   const Metadata& metadata) {
   InitOpenVdb();
   openvdb::GridPtrVec grids;
   try {
-    DensityOptions o;
+    // The result's options (its downsampling factor), without its grids.
+    DensityOptions o = options;
+    o.color = o.address_grid = false;
     o.raw_counts = RawCounts::kInteger;
     grids = BuildGrids(counts, frame, o, metadata, true);
     grids.erase(grids.begin());  // the density grid lives in the result
@@ -593,6 +736,50 @@ absl::StatusOr<DenseVec3Volume> ReadVec3VdbFile(const std::filesystem::path& pat
   } catch (const std::exception& e) {
     return absl::InvalidArgumentError(absl::StrCat("reading ", path.string(), ": ", e.what()));
   }
+}
+
+uint64_t EstimatedFileBytes(GridSupport support, const DensityOptions& o) {
+  const uint64_t f = o.conventions.half_float ? 2 : 4;
+  uint64_t grids = 1, per_voxel = f;  // density
+  if (o.color) grids += 1, per_voxel += 3 * f;
+  if (o.address_grid) grids += 1, per_voxel += f;
+  if (o.raw_counts != RawCounts::kNone) grids += 1, per_voxel += f;  // float counts
+  return kFileOverheadBytes + support.voxels * per_voxel + support.leaves * grids * kLeafFileBytes;
+}
+
+int OutputDownsampleFactor(const CountGrid& counts, const DensityOptions& options) {
+  const OutputConventions& c = options.conventions;
+  if (!c.Downsamples()) return 1;
+  auto fits = [&](GridSupport s) {
+    return (c.max_voxels <= 0 || s.voxels <= uint64_t(c.max_voxels)) &&
+           (c.target_file_bytes <= 0 ||
+            EstimatedFileBytes(s, options) <= uint64_t(c.target_file_bytes));
+  };
+  const GridSupport fine = SupportAtFactor(counts, 1);
+  if (fits(fine)) return 1;
+  // A block holds at most f^3 voxels, so no factor below the cube root of
+  // the excess can fit: start there instead of counting every factor.
+  uint64_t limit = fine.voxels;
+  if (c.max_voxels > 0) limit = std::min<uint64_t>(limit, uint64_t(c.max_voxels));
+  if (c.target_file_bytes > 0) {
+    // Voxel bytes alone, without leaves or overhead: still a lower bound.
+    const uint64_t empty = EstimatedFileBytes({0, 0}, options);
+    const uint64_t per_voxel = EstimatedFileBytes({1, 0}, options) - empty;
+    const uint64_t room = uint64_t(c.target_file_bytes) > empty ? c.target_file_bytes - empty : 0;
+    limit = std::min<uint64_t>(limit, room / per_voxel);
+  }
+  const Int3 r = counts.resolution();
+  const int largest = std::max({r.x, r.y, r.z});
+  int f = std::max(2, int(std::cbrt(double(fine.voxels) / double(std::max<uint64_t>(1, limit)))));
+  for (; f < largest; ++f)
+    if (fits(SupportAtFactor(counts, f))) return f;
+  return std::max(1, largest);
+}
+
+double SuggestedDensity(uint64_t active_voxels, double mean_value, double voxel_size) {
+  if (active_voxels == 0 || !(mean_value > 0) || !(voxel_size > 0)) return 1.0;
+  const double crossed = std::cbrt(double(active_voxels));
+  return std::clamp(kSuggestedDepth / (mean_value * voxel_size * crossed), 1.0, 1000.0);
 }
 
 int DownsampleFactor(Int3 r, int max_resolution) {

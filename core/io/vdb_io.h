@@ -35,6 +35,24 @@ enum class RawCounts {
   kInteger,
 };
 
+/// The world's up axis of a written file. Nimbus computes in the spec's
+/// frame, Y up; kZ rotates world space by (x, y, z) -> (x, -z, y) in every
+/// grid's transform, so the voxels are the same and +Y lands on +Z.
+enum class UpAxis { kY, kZ };
+
+/// @brief File conventions every writer applies (docs/dcc.md): up axis,
+/// half floats and automatic downsampling.
+struct OutputConventions {
+  UpAxis up_axis = UpAxis::kY;
+  /// Save float and Vec3f grids as 16-bit halves.
+  bool half_float = false;
+  /// Most active voxels per grid (0: no limit).
+  int64_t max_voxels = 0;
+  /// Largest estimated file size, EstimatedFileBytes (0: no limit).
+  int64_t target_file_bytes = 0;
+  bool Downsamples() const { return max_voxels > 0 || target_file_bytes > 0; }
+};
+
 struct DensityOptions {
   DensityMapping mapping = DensityMapping::kLinear;
   double gamma = 2.2;
@@ -46,10 +64,41 @@ struct DensityOptions {
   /// Write a float grid "address" with the mean colour coordinate in [0, 1].
   bool address_grid = false;
   RawCounts raw_counts = RawCounts::kNone;
+  OutputConventions conventions;
 };
 
 /// Bytes per active voxel the output grids of `options` take in memory.
 uint64_t OutputBytesPerVoxel(const DensityOptions& options);
+
+/// What a grid's file size depends on: its active voxels and its 8^3 leaves.
+struct GridSupport {
+  uint64_t voxels = 0;
+  uint64_t leaves = 0;
+};
+
+/// Estimated bytes of a result file whose grids have `support`: per grid,
+/// the stored bytes of its active voxels (4 per float component, 2 with
+/// half_float) plus kLeafFileBytes per leaf (masks and block headers), plus
+/// kFileOverheadBytes (header, transforms, metadata). Blosc is not counted,
+/// so real files come out at or below it.
+uint64_t EstimatedFileBytes(GridSupport support, const DensityOptions& options);
+inline constexpr uint64_t kLeafFileBytes = 200;
+inline constexpr uint64_t kFileOverheadBytes = 4096;
+
+/// @brief The downsampling factor the writers use for `counts`: 1 unless
+/// options.conventions limits voxels or file size, else the smallest
+/// integer factor f whose f^3 box filter leaves at most max_voxels active
+/// voxels and an estimated file of at most target_file_bytes (at worst a
+/// factor that leaves one voxel). Depends on the counts' support only.
+int OutputDownsampleFactor(const CountGrid& counts, const DensityOptions& options);
+
+/// The suggested shader density multiplier (metadata
+/// nimbus_suggested_density, docs/dcc.md): optical depth kSuggestedDepth
+/// along a ray that crosses cbrt(active) voxels of the mean active value,
+/// tau / (mean * voxel_size * cbrt(active)), clamped to [1, 1000]; 1 for an
+/// empty grid. `voxel_size` is the geometric mean edge in world units.
+double SuggestedDensity(uint64_t active_voxels, double mean_value, double voxel_size);
+inline constexpr double kSuggestedDepth = 2.0;
 
 using MetaValue = std::variant<std::string, int64_t, double>;
 using Metadata = std::vector<std::pair<std::string, MetaValue>>;
@@ -61,6 +110,15 @@ using Metadata = std::vector<std::pair<std::string, MetaValue>>;
 /// the normalisation (nimbus_max_count, nimbus_total_count,
 /// nimbus_density_mapping, nimbus_density_gamma). Optional grids: "Cd",
 /// "address" and "counts" (see DensityOptions), on the same voxels.
+///
+/// options.conventions apply to every grid: a downsampling factor f > 1
+/// (OutputDownsampleFactor) box-filters each grid over f^3 blocks (density
+/// averaged, so density times voxel volume keeps its sum; counts summed;
+/// Cd and address density-weighted means) and the frame metadata names the
+/// coarse lattice (DownsampleFrame); nimbus_downsample_factor records f.
+/// nimbus_up_axis ("Y"/"Z") names the transform's up axis; the frame
+/// metadata stays in the spec's Y-up frame. nimbus_suggested_density is
+/// SuggestedDensity of the written density grid.
 absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid& counts,
                              const GridFrame& frame, const DensityOptions& options,
                              const Metadata& metadata);
@@ -68,8 +126,11 @@ absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid&
 /// Writes the exact visit counts as an Int64Grid "counts" (same transform,
 /// frame and normalisation metadata as the density) to its own file, through
 /// a temporary file renamed into place: the side file of RawCounts::kInteger.
+/// The result's `options` give the conventions, so both files share the
+/// downsampling factor and transform.
 absl::Status WriteIntegerCountsVdb(const std::filesystem::path& path, const CountGrid& counts,
-                                   const GridFrame& frame, const Metadata& metadata);
+                                   const GridFrame& frame, const DensityOptions& options,
+                                   const Metadata& metadata);
 
 /// Reads the exact counts of such a file densely (x slowest, z fastest).
 absl::StatusOr<std::vector<int64_t>> ReadIntegerCountsVdb(const std::filesystem::path& path,
@@ -91,6 +152,8 @@ struct DenseVolume {
   /// grid's transform (independent of the metadata).
   Vec3 origin_center;
   Vec3 voxel_size;
+  /// The grid's whole index-to-world map (rotated for UpAxis::kZ).
+  Affine3 index_to_world;
 
   float At(int x, int y, int z) const {
     return values[(size_t(x) * frame.resolution.y + y) * frame.resolution.z + z];

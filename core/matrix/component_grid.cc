@@ -5,6 +5,7 @@
 #include <mutex>
 
 #include "absl/strings/str_cat.h"
+#include "core/io/metadata_keys.h"
 #include "core/io/vdb_internal.h"
 
 namespace nimbus {
@@ -52,12 +53,17 @@ uint64_t ComponentAccumulator::MaxMemoryBytes(Int3 resolution) {
 namespace {
 
 template <typename GridT>
-typename GridT::Ptr BuildComponentGrid(const ComponentAccumulator& acc, const GridFrame& frame) {
+typename GridT::Ptr BuildComponentGrid(const ComponentAccumulator& acc, const GridFrame& frame,
+                                       const OutputConventions& conventions) {
   using ValueT = typename GridT::ValueType;
   auto grid = GridT::create(ValueT(-1));
   grid->setName("component");
   grid->setGridClass(openvdb::GRID_UNKNOWN);
-  grid->setTransform(vdb_internal::FrameTransform(frame));
+  // The density's transform and conventions (labels are exact in halves).
+  grid->setTransform(vdb_internal::FrameTransform(frame, conventions.up_axis));
+  grid->insertMeta(meta_key::kUpAxis,
+                   openvdb::StringMetadata(vdb_internal::UpAxisName(conventions.up_axis)));
+  grid->setSaveFloatAsHalf(conventions.half_float);
   auto accessor = grid->getAccessor();
   acc.ForEachLabel([&](int x, int y, int z, int32_t label) {
     accessor.setValueOn(openvdb::Coord(x, y, z), ValueT(label));
@@ -77,13 +83,16 @@ absl::Status WriteDensityAndComponentVdb(const std::filesystem::path& path,
                                          const std::filesystem::path& int32_path) {
   if (type == ComponentGridType::kNone)
     return WriteDensityVdb(path, acc.density(), frame, options, metadata);
+  // Labels have no box filter; the spec converter refuses this by name.
+  if (options.conventions.Downsamples())
+    return absl::InvalidArgumentError("a component grid cannot be downsampled");
   vdb_internal::InitOpenVdb();
   const bool side_file = type == ComponentGridType::kInt && !int32_path.empty();
   if (side_file) {
     // Written first, so the side file exists once the result does.
     openvdb::GridPtrVec labels;
     try {
-      labels.push_back(BuildComponentGrid<openvdb::Int32Grid>(acc, frame));
+      labels.push_back(BuildComponentGrid<openvdb::Int32Grid>(acc, frame, options.conventions));
     } catch (const std::exception& e) {
       return absl::InternalError(absl::StrCat("writing ", int32_path.string(), ": ", e.what()));
     }
@@ -98,7 +107,7 @@ absl::Status WriteDensityAndComponentVdb(const std::filesystem::path& path,
   std::error_code ec;
   try {
     grids = vdb_internal::ReadAllGrids(density_tmp);
-    auto labels = BuildComponentGrid<openvdb::FloatGrid>(acc, frame);
+    auto labels = BuildComponentGrid<openvdb::FloatGrid>(acc, frame, options.conventions);
     if (side_file)
       labels->insertMeta("nimbus_component_int32_file",
                          openvdb::StringMetadata(int32_path.filename().string()));

@@ -126,6 +126,52 @@ class PreviewFile:
     path: Optional[Path] = None
 
 
+class PreviewSaver:
+    """Numbers a watch's previews densely from 1 in the order received,
+    whatever sequence numbers the server skipped for a slow watcher, and
+    with `previews_dir` saves them as NAME.preview.0001.vdb, 0002, ...
+    (each through a temporary file renamed into place) listed in
+    NAME.previews.json with the sequence and progress each reflects. The
+    server also writes both into each file's metadata
+    (nimbus_preview_sequence, nimbus_preview_done). A preview not newer
+    than the last one (a re-attached watch repeats the latest) is dropped;
+    a second watch into the same folder continues the numbering."""
+
+    def __init__(self, previews_dir, job_id):
+        self.dir = Path(previews_dir) if previews_dir is not None else None
+        if self.dir is not None:
+            self.dir.mkdir(parents=True, exist_ok=True)
+        self.job_id = job_id
+        self.manifest = None
+        self.entries = []
+        self.last_sequence = 0
+
+    def add(self, job, p):
+        """The PreviewFile for preview message `p` of `job`, or None for a repeat."""
+        if p.sequence <= self.last_sequence:
+            return None
+        self.last_sequence = p.sequence
+        name = job.name or "nimbus"
+        if self.dir is not None and self.manifest is None:
+            self.manifest = self.dir / f"{name}.previews.json"
+            self.entries = _read_manifest(self.manifest, self.job_id)
+        preview = PreviewFile(
+            index=len(self.entries) + 1, sequence=p.sequence, done=p.done,
+            total=job.progress.total, unit=job.progress.unit,
+            resolution=list(p.resolution), vdb=p.vdb)
+        if self.dir is None:
+            self.entries.append(None)
+            return preview
+        preview.path = self.dir / f"{name}.preview.{preview.index:04d}.vdb"
+        _write_atomic(preview.path, p.vdb)
+        self.entries.append({"file": preview.path.name, "sequence": p.sequence,
+                             "done": p.done, "total": preview.total, "unit": preview.unit,
+                             "resolution": preview.resolution})
+        _write_atomic(self.manifest, json.dumps(
+            {"job_id": self.job_id, "previews": self.entries}, indent=1).encode())
+        return preview
+
+
 @dataclass
 class WatchEvent:
     """A state change of the job, with a preview when one arrived."""
@@ -335,12 +381,7 @@ class Client:
         req = pb2.WatchJobRequest(job_id=job_id,
                                   preview_resolution=preview_resolution if want_previews else 0,
                                   preview_interval_seconds=preview_interval)
-        manifest = None
-        entries = []
-        if previews_dir is not None:
-            previews_dir = Path(previews_dir)
-            previews_dir.mkdir(parents=True, exist_ok=True)
-        last_sequence = 0
+        saver = PreviewSaver(previews_dir, job_id)
         last = None
         give_up_at = time.monotonic() + self.reconnect_timeout
         while True:
@@ -350,30 +391,8 @@ class Client:
                 for resp in call:
                     got_any = True
                     last = resp.job
-                    preview = None
-                    # A re-attached watch may repeat the latest preview.
-                    if resp.HasField("preview") and resp.preview.sequence > last_sequence:
-                        last_sequence = resp.preview.sequence
-                        p = resp.preview
-                        if previews_dir is not None and manifest is None:
-                            manifest = previews_dir / f"{resp.job.name or 'nimbus'}.previews.json"
-                            entries = _read_manifest(manifest, job_id)
-                        preview = PreviewFile(
-                            index=len(entries) + 1, sequence=p.sequence, done=p.done,
-                            total=resp.job.progress.total, unit=resp.job.progress.unit,
-                            resolution=list(p.resolution), vdb=p.vdb)
-                        if previews_dir is not None:
-                            preview.path = previews_dir / (
-                                f"{resp.job.name or 'nimbus'}.preview.{preview.index:04d}.vdb")
-                            _write_atomic(preview.path, p.vdb)
-                            entries.append({"file": preview.path.name, "sequence": p.sequence,
-                                            "done": p.done, "total": preview.total,
-                                            "unit": preview.unit,
-                                            "resolution": preview.resolution})
-                            _write_atomic(manifest, json.dumps(
-                                {"job_id": job_id, "previews": entries}, indent=1).encode())
-                        else:
-                            entries.append(None)
+                    preview = saver.add(resp.job, resp.preview) if resp.HasField("preview") \
+                        else None
                     yield WatchEvent(job=resp.job, preview=preview)
                 status = None
             except grpc.RpcError as e:

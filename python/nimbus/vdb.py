@@ -4,7 +4,9 @@ Blender's Python API shows a volume's grids but not their metadata, and
 pyopenvdb is not always importable inside a DCC, so the add-on reads what it
 needs (e.g. a suggested density multiplier) straight from the file's header.
 Only the uncompressed parts of the format are read: the header, the grid
-descriptors and each grid's metadata block, never the voxel trees.
+descriptors and each grid's metadata block, never the voxel trees. A VDB
+stream (nimbusd's previews) has no offsets to skip a grid's voxels, so only
+its first grid (the density) is listed.
 """
 
 import struct
@@ -110,9 +112,6 @@ def read_info(path):
             r.read(1)                        # file-wide compression flag
         r.read(36 if version >= _FILE_VERSION_BOOST_UUID else 16)  # uuid
         file_meta = r.meta_map()
-        if not has_offsets:
-            raise VdbFormatError(f"{path}: written without grid offsets (a stream, "
-                                 "not a file); cannot read grid metadata")
         (count,) = r.unpack("<i")
         grids = []
         for _ in range(count):
@@ -126,10 +125,15 @@ def read_info(path):
             # Unique names carry a "\x1e<n>" suffix for duplicates.
             g = GridInfo(name=name.split("\x1e")[0], type=gtype, half_float=half)
             here = f.tell()
-            f.seek(grid_pos)
+            if has_offsets:
+                f.seek(grid_pos)
             if version >= _FILE_VERSION_NODE_MASK_COMPRESSION:
                 r.unpack("<I")               # the grid's compression flags
             g.metadata = r.meta_map()
             grids.append(g)
+            if not has_offsets:
+                # A stream (a preview): the grid's voxels follow with no
+                # offset to skip them, so only the first grid is listed.
+                break
             f.seek(end_pos if end_pos > 0 else here)
         return VdbInfo(file_version=version, metadata=file_meta, grids=grids)

@@ -121,6 +121,11 @@ class ClientTest(unittest.TestCase):
         for p in previews:
             self.assertEqual(p.path.read_bytes(), p.vdb)
             self.assertEqual(p.vdb[:8], (0x56444220).to_bytes(8, "little"))  # VDB magic
+            # The file itself says which preview of the wire it is.
+            meta = nimbus.vdb.read_info(p.path).grids[0].metadata
+            self.assertEqual(meta["nimbus_preview_sequence"], p.sequence)
+            self.assertEqual(meta["nimbus_preview_done"], p.done)
+        self.assertEqual(list(previews_dir.glob("*.tmp")), [])
 
         # Re-attaching to the finished job into the same folder ends at once
         # and leaves the saved previews as they were.
@@ -128,6 +133,41 @@ class ClientTest(unittest.TestCase):
         self.assertEqual(again[-1].state, "SUCCEEDED")
         for p in previews:
             self.assertEqual(p.path.read_bytes(), p.vdb)
+
+    def test_slow_watcher_still_gets_dense_files(self):
+        """A watcher that reads slowly: the hub may skip sequence numbers
+        (whether it does depends on how much gRPC buffers, so the skipping
+        itself is covered by PreviewSaverTest); the files stay 0001..n and
+        each names the sequence it shows."""
+        import time
+        job = self.client.submit(small_tree(resolution=(16, 128, 120), iterations=300_000_000))
+        previews_dir = self.tmp / "slow"
+        previews = []
+        for ev in self.client.watch(job, previews_dir=previews_dir, preview_interval=0.05):
+            if ev.preview is not None:
+                previews.append(ev.preview)
+                time.sleep(0.25)
+        self.assertEqual(ev.state, "SUCCEEDED")
+        self.assertGreaterEqual(len(previews), 2)
+        names = sorted(f.name for f in previews_dir.glob("*.vdb"))
+        self.assertEqual(names, [f"tree.preview.{i:04d}.vdb" for i in range(1, len(previews) + 1)])
+        seqs = [nimbus.vdb.read_info(p.path).grids[0].metadata["nimbus_preview_sequence"]
+                for p in previews]
+        self.assertEqual(seqs, [p.sequence for p in previews])
+        self.assertEqual(seqs, sorted(set(seqs)))
+        print(f"slow watcher: {len(seqs)} files for sequences up to {seqs[-1]}", file=sys.stderr)
+
+    def test_up_axis_half_float_and_suggested_density_metadata(self):
+        spec = small_tree()
+        spec["output"] = {"up_axis": "UP_AXIS_Z", "half_float": True}
+        out = self.tmp / "tree_z.vdb"
+        self.client.render(spec, out)
+        g = nimbus.vdb.read_info(out).grids[0]
+        self.assertTrue(g.half_float)
+        self.assertEqual(g.metadata["nimbus_up_axis"], "Z")
+        self.assertEqual(g.metadata["nimbus_downsample_factor"], 1)
+        d = g.metadata["nimbus_suggested_density"]
+        self.assertTrue(1.0 <= d <= 1000.0, d)
 
     def test_fetch_resumes_a_truncated_file_and_checks_sha256(self):
         final = self.client.wait(self.client.submit(small_tree(resolution=(16, 128, 120))))
@@ -238,6 +278,32 @@ class ClientTest(unittest.TestCase):
             self.client.submit(bad)
         self.assertEqual(cm.exception.code, grpc.StatusCode.INVALID_ARGUMENT)
         self.assertIn("resolutoin", cm.exception.details)
+
+
+class PreviewSaverTest(unittest.TestCase):
+    """The dense numbering on its own, with the sequence numbers a slow
+    watcher sees (the hub skips to the newest; a re-attach repeats it)."""
+
+    def test_dense_names_whatever_the_sequence(self):
+        tmp = Path(tempfile.mkdtemp(prefix="nimbus-saver-"))
+        self.addCleanup(shutil.rmtree, tmp, True)
+        job = nimbus.pb2.Job(id="j-1", name="tree")
+        saver = nimbus.PreviewSaver(tmp, "j-1")
+        got = []
+        for seq in [3, 5, 5, 9, 4, 12]:
+            p = nimbus.pb2.Preview(sequence=seq, done=seq * 10, vdb=b"vdb%d" % seq)
+            got.append(saver.add(job, p))
+        saved = [g for g in got if g is not None]
+        self.assertEqual([g.sequence for g in saved], [3, 5, 9, 12])
+        self.assertEqual([g.index for g in saved], [1, 2, 3, 4])
+        self.assertEqual(sorted(f.name for f in tmp.glob("*.vdb")),
+                         [f"tree.preview.{i:04d}.vdb" for i in range(1, 5)])
+        self.assertEqual((tmp / "tree.preview.0003.vdb").read_bytes(), b"vdb9")
+        manifest = json.loads((tmp / "tree.previews.json").read_text())
+        self.assertEqual([m["sequence"] for m in manifest["previews"]], [3, 5, 9, 12])
+        # A second watch of the same job continues the numbering.
+        again = nimbus.PreviewSaver(tmp, "j-1").add(job, nimbus.pb2.Preview(sequence=13))
+        self.assertEqual(again.path.name, "tree.preview.0005.vdb")
 
 
 class FieldPathTest(unittest.TestCase):

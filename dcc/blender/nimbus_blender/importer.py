@@ -1,9 +1,11 @@
 """Turns Nimbus VDB files into Blender volume objects.
 
-Nimbus is Y-up (the tree grows along +Y); Blender is Z-up. The object gets
-a +90 degree rotation about X, which takes +Y to +Z and +Z to -Y, so the
-file's voxels stay untouched and re-exporting the object's data gives the
-original file back.
+Nimbus is Y-up by default (the tree grows along +Y); Blender is Z-up. A
+Y-up file's object gets a +90 degree rotation about X, which takes +Y to +Z
+and +Z to -Y, so the file's voxels stay untouched and re-exporting the
+object's data gives the original file back. A file written with
+`output.up_axis: UP_AXIS_Z` says so in its nimbus_up_axis metadata; its
+grid transform already holds that rotation, so the object gets none.
 """
 
 import math
@@ -39,6 +41,13 @@ def read_metadata(path, grid_name):
     if g is not None:
         meta.update(g.metadata)
     return meta
+
+
+def rotation_for(meta):
+    """The object rotation that puts the file's up axis on Blender's +Z."""
+    if str(meta.get(UP_AXIS_META_KEY, "y")).lower() == "z":
+        return (0.0, 0.0, 0.0)  # already Z-up
+    return Y_UP_TO_Z_UP
 
 
 def suggested_density(meta):
@@ -92,10 +101,11 @@ def load_into(obj, path, final, grid_name="density"):
     if vol.grids.error_message:
         raise RuntimeError(f"Blender cannot load {path}: {vol.grids.error_message}")
     names = [g.name for g in vol.grids]
+    # Previews are complete files too (renamed into place) with the job's
+    # up axis, so every file sets the rotation.
+    meta = read_metadata(path, grid_name)
+    obj.rotation_euler = rotation_for(meta)
     if final or not obj.data.materials:
-        meta = read_metadata(path, grid_name) if final else {}
-        if str(meta.get(UP_AXIS_META_KEY, "y")).lower() == "z":
-            obj.rotation_euler = (0.0, 0.0, 0.0)  # already Z-up
         density_grid = grid_name if grid_name in names else (names[0] if names else grid_name)
         mat = build_material(f"{obj.name} volume", suggested_density(meta), density_grid,
                              "Cd" if "Cd" in names else None)

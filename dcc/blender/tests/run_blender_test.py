@@ -24,6 +24,10 @@ def main():
         env = dict(os.environ)
         env["BLENDER_USER_SCRIPTS"] = str(Path(home) / "scripts")
         env["BLENDER_USER_CONFIG"] = str(Path(home) / "config")
+        # The add-on's local nimbusd keeps its jobs under the temp folder:
+        # a private one, so parallel runs (other checkouts, other builds'
+        # job-store schemas) never share a database.
+        env["TMPDIR"] = home
         # The add-on must find nimbus in its own bundle, not through the
         # caller's environment.
         env.pop("PYTHONPATH", None)

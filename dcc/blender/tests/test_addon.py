@@ -140,12 +140,34 @@ def check_tree(obj):
     out = next(n for n in nodes if n.bl_idname == "ShaderNodeOutputMaterial")
     check(any(l.from_node == pv and l.to_node == out and l.to_socket.name == "Volume"
               for l in mat.node_tree.links), "Principled Volume feeds the output's Volume")
-    from nimbus_blender import importer
-    check(close(pv.inputs["Density"].default_value, importer.DEFAULT_DENSITY, 1e-6),
-          "default density multiplier without density metadata")
+    import nimbus
+    suggested = nimbus.vdb.read_info(vol.filepath).grids[0].metadata["nimbus_suggested_density"]
+    check(close(pv.inputs["Density"].default_value, suggested, 1e-3 * suggested),
+          f"density multiplier from nimbus_suggested_density ({suggested:.2f})")
     check(pv.inputs["Density Attribute"].default_value == "density", "reads the density grid")
     check(not any(n.bl_idname == "ShaderNodeAttribute" for n in nodes),
           "no Cd attribute node for a file without Cd")
+
+
+def check_z_up_import(address):
+    """A result written Z-up (output.up_axis) imports without a rotation of
+    its own, and its trunk still stands along Blender's +Z."""
+    import nimbus
+    spec = json.loads((REPO / "examples" / "tree.json").read_text())
+    spec["grid"]["resolution"] = [8, 64, 60]
+    spec["chaos_game"]["iterations"] = "4000000"
+    spec["output"] = {"up_axis": "UP_AXIS_Z"}
+    path = TMP / "tree_z.vdb"
+    with nimbus.Client(address) as c:
+        c.render(spec, path)
+    from nimbus_blender import importer
+    obj = importer.import_vdb(str(path), name="tree_z")
+    check(tuple(obj.rotation_euler) == (0.0, 0.0, 0.0), "a Z-up file gets no extra rotation")
+    lo, hi = world_bounds(obj)
+    check(-0.05 <= lo.z <= 0.15 and 1.5 <= hi.z <= 1.9,
+          f"Z-up trunk along +Z ({lo.z:.3f} .. {hi.z:.3f})")
+    check(hi.z - lo.z > hi.y - lo.y, "tallest along Blender z")
+    bpy.data.objects.remove(obj)
 
 
 def check_color_import(address):
@@ -177,6 +199,7 @@ def main():
     try:
         obj = run_panel_job()
         check_tree(obj)
+        check_z_up_import(bpy.context.scene.nimbus.server)
         check_color_import(bpy.context.scene.nimbus.server)
     finally:
         bpy.ops.nimbus.stop_server()
