@@ -121,16 +121,19 @@ absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
   std::atomic<bool> cancelled{false};
   std::atomic<uint64_t> done{0};
   const uint64_t work = uint64_t(b.z) * 2 + uint64_t(b.y);
-  auto poll = [&](uint64_t units) {
-    const uint64_t d = done.fetch_add(units) + units;
-    if (intr.WasInterrupted(d, work)) cancelled = true;
+  // Polled once per slice or layer (about a millisecond at 256^3), not per
+  // TBB chunk: an auto-partitioned chunk can hold a large share of the lattice.
+  auto keep_going = [&] {
+    if (cancelled.load(std::memory_order_relaxed)) return false;
+    if (intr.WasInterrupted(done.fetch_add(1) + 1, work)) cancelled = true;
+    return !cancelled.load(std::memory_order_relaxed);
   };
 
   // Pass 1, along x: nearest member within each row.
   tbb::parallel_for(tbb::blocked_range<int>(0, b.z, 4), [&](const tbb::blocked_range<int>& r) {
     if (cancelled) return;
     std::vector<int> xs;
-    for (int zi = r.begin(); zi < r.end(); ++zi) {
+    for (int zi = r.begin(); zi < r.end() && keep_going(); ++zi) {
       const int z = z0 + zi;
       for (int yi = 0; yi < b.y; ++yi) {
         const int y = y0 + yi;
@@ -162,7 +165,6 @@ absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
         }
       }
     }
-    poll(r.size());
   });
   if (cancelled) return absl::CancelledError("feature transform interrupted");
 
@@ -171,7 +173,7 @@ absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
     if (cancelled) return;
     LineScratch s;
     s.Reserve(b.y);
-    for (int zi = r.begin(); zi < r.end(); ++zi) {
+    for (int zi = r.begin(); zi < r.end() && keep_going(); ++zi) {
       PackedVoxel* slice = F + size_t(zi) * plane;
       for (int xi = 0; xi < b.x; ++xi) {
         if (!need_x.empty() && !need_x[xi]) continue;
@@ -190,7 +192,6 @@ absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
         EnvelopeLine(s, m, wy, y0, b.y, col, b.x);
       }
     }
-    poll(r.size());
   });
   if (cancelled) return absl::CancelledError("feature transform interrupted");
 
@@ -203,7 +204,7 @@ absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
     LineScratch s;
     s.Reserve(b.z);
     std::vector<PackedVoxel> tile(size_t(b.z) * kBlock);
-    for (int yi = r.begin(); yi < r.end(); ++yi) {
+    for (int yi = r.begin(); yi < r.end() && keep_going(); ++yi) {
       const int y = y0 + yi;
       PackedVoxel* layer = F + size_t(yi) * b.x;
       for (int xb = 0; xb < b.x; xb += kBlock) {
@@ -232,7 +233,6 @@ absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
           std::copy_n(tile.data() + size_t(zi) * kBlock, nb, layer + size_t(zi) * plane + xb);
       }
     }
-    poll(r.size());
   });
   if (cancelled) return absl::CancelledError("feature transform interrupted");
   return absl::OkStatus();

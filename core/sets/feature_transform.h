@@ -8,6 +8,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "core/base/big_buffer.h"
 #include "core/base/geometry.h"
 #include "core/base/interrupter.h"
 #include "core/grid/voxel_set.h"
@@ -38,7 +39,9 @@ inline double SquaredDistance(Int3 a, Int3 b, Vec3 h) {
 /// kNoVoxel when the set is empty.
 struct FeatureField {
   VoxelBox box;
-  std::vector<PackedVoxel> nearest;  // x fastest, then y, then z, over `box`
+  // x fastest, then y, then z, over `box`. Every entry is written by the
+  // transform, so the buffer skips the zero fill (core/base/big_buffer.h).
+  std::vector<PackedVoxel, BigBufferAllocator<PackedVoxel>> nearest;
 
   size_t Index(int x, int y, int z) const {
     const Int3 s = box.Size();
