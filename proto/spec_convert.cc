@@ -197,9 +197,13 @@ absl::StatusOr<JobPlan> ConvertSpec(const v1::JobSpec& spec, const Limits& limit
     case v1::JobSpec::kSetIfs:
       NIMBUS_RETURN_IF_ERROR(ConvertSetIfs(spec.set_ifs(), limits, job));
       break;
+    case v1::JobSpec::kFractalField:
+      NIMBUS_RETURN_IF_ERROR(ConvertFractalField(spec.fractal_field(), limits, job));
+      break;
     case v1::JobSpec::GENERATOR_NOT_SET:
-      return Invalid("generator", "set one of: chaos_game, set_ifs");
+      return Invalid("generator", "set one of: chaos_game, set_ifs, fractal_field");
   }
+  if (spec.has_detail()) NIMBUS_RETURN_IF_ERROR(ConvertFieldDetail(spec.detail(), job));
   return job;
 }
 
