@@ -318,6 +318,19 @@ int PrintValidation(const std::string& spec_path, const v1::JobSpec& spec) {
     else
       std::cout << "  set iterations: " << p->iterations << " after " << p->warmup << " warm-up\n";
     std::cout << peak;
+  } else if (const nimbus::FractalFieldPlan* f = plan->fractal_field()) {
+    static const char* kInterp[] = {"n-linear", "pseudo n-cubic", "quintic", "cubic"};
+    std::cout << "  field: " << f->field.dims << "D, " << f->field.meshes.size() << " meshes, "
+              << kInterp[int(f->field.interpolation)] << ", "
+              << (f->output == nimbus::FieldOutputKind::kTerrain ? "terrain" : "density")
+              << (f->shape ? ", shaped" : "") << "\n";
+    for (size_t k = 0; k < f->field.meshes.size(); ++k)
+      std::cout << absl::StrFormat("    [%d] cell=%.6g weight=%.6g\n", k,
+                                   f->field.meshes[k].cell[0], f->field.meshes[k].weight);
+    if (f->animation.frames > 0)
+      std::cout << "  frames: " << f->animation.frames << (f->animation.loop ? " (loop)" : "")
+                << "\n";
+    std::cout << peak << "  spec sha256: " << nimbus::spec::SpecHash(spec) << "\n";
   } else {
     const nimbus::ChaosGameParams& run = *plan->point_run();
     std::cout << "  maps: " << run.ifs.maps.size() << "\n";

@@ -101,6 +101,9 @@ std::string AssetDisplayName(const std::string& label, const std::string& sha256
 
 void ForEachAsset(v1::JobSpec& spec,
                   const std::function<void(const std::string& field, v1::Asset& asset)>& f) {
+  if (spec.has_fractal_field() && spec.fractal_field().shape().has_source())
+    VisitSource(*spec.mutable_fractal_field()->mutable_shape()->mutable_source(),
+                "fractal_field.shape.source", f);
   if (!spec.has_set_ifs()) return;
   v1::SetIfs* s = spec.mutable_set_ifs();
   for (int i = 0; i < s->maps_size(); ++i)

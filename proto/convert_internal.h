@@ -58,5 +58,12 @@ absl::Status ConvertChaosGame(const v1::ChaosGame& cg, const Limits& limits, Job
 absl::Status ConvertMatrixChaosGame(const v1::ChaosGame& cg, const Limits& limits,
                                     JobPlan& plan);
 absl::Status ConvertSetIfs(const v1::SetIfs& s, const Limits& limits, JobPlan& plan);
+/// A set source (mesh, grid, shape, union) at `field`, files resolved and
+/// meshes parsed: set IFS condensation sets and shaped fractal fields.
+absl::Status ConvertSetSource(const v1::SetSource& s, const std::string& field,
+                              const Limits& limits, JobPlan& job, SetSourcePlan& out);
+absl::Status ConvertFractalField(const v1::FractalField& f, const Limits& limits, JobPlan& plan);
+/// JobSpec.detail: a static 3D field that multiplies the density.
+absl::Status ConvertFieldDetail(const v1::FieldDetail& d, JobPlan& plan);
 
 }  // namespace nimbus::spec::internal

@@ -272,6 +272,11 @@ absl::Status ConvertSetMap(const v1::SetMap& m, const std::string& field, const 
 
 namespace internal {
 
+absl::Status ConvertSetSource(const v1::SetSource& s, const std::string& field,
+                              const Limits& limits, JobPlan& job, SetSourcePlan& out) {
+  return ConvertSource(s, field, limits, 0, job, out);
+}
+
 absl::Status ConvertSetIfs(const v1::SetIfs& s, const Limits& limits, JobPlan& job) {
   auto plan = std::make_shared<SetIfsPlan>();
   const Int3 r = job.frame.resolution;

@@ -224,9 +224,17 @@ absl::StatusOr<JobPlan> ConvertSpec(const v1::JobSpec& spec, const Limits& limit
     case v1::JobSpec::kSetIfs:
       NIMBUS_RETURN_IF_ERROR(ConvertSetIfs(spec.set_ifs(), limits, job));
       break;
+    case v1::JobSpec::kFractalField:
+      NIMBUS_RETURN_IF_ERROR(ConvertFractalField(spec.fractal_field(), limits, job));
+      // Field volumes are computed at the grid's resolution: ask for fewer voxels there.
+      if (job.density.conventions.Downsamples())
+        return Invalid(spec.output().max_voxels() ? "output.max_voxels" : "output.target_file_bytes",
+                       "fractal_field jobs are not downsampled; lower grid.resolution instead");
+      break;
     case v1::JobSpec::GENERATOR_NOT_SET:
-      return Invalid("generator", "set one of: chaos_game, set_ifs");
+      return Invalid("generator", "set one of: chaos_game, set_ifs, fractal_field");
   }
+  if (spec.has_detail()) NIMBUS_RETURN_IF_ERROR(ConvertFieldDetail(spec.detail(), job));
   return job;
 }
 

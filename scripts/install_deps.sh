@@ -9,6 +9,9 @@ PACKAGES=(
   libopenvdb-dev libboost-iostreams-dev libtbb-dev libblosc-dev
   libspdlog-dev libcli11-dev libsqlite3-dev libssl-dev libabsl-dev
   libgtest-dev libgmock-dev libbenchmark-dev
+  # Fractal fields: 16-bit PNG height maps; libnoise only for the benchmark's
+  # comparison (bench/fractal_field_bench.cc).
+  libpng-dev libnoise-dev
   python3-openvdb libopenvdb-tools
   # The Python client (python/) and the Blender add-on test (dcc/blender/):
   # Debian's grpc and protobuf for /usr/bin/python3, and Blender 3.4, whose

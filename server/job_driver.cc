@@ -118,6 +118,20 @@ absl::Status JobDriver::WriteFrame(uint64_t index, const CountGrid& counts,
                          plan_.density, meta);
 }
 
+absl::Status JobDriver::WriteResult(const FloatVolume& volume, const nimbus::Metadata& meta) {
+  NIMBUS_RETURN_IF_ERROR(BeginPhase(JobPhase::kWriting, 1, "files"));
+  NIMBUS_RETURN_IF_ERROR(
+      WriteFloatVolumeVdb(ctx_.ResultScratchPath(), volume, meta, plan_.density.conventions));
+  return Progress(1, true);
+}
+
+absl::Status JobDriver::WriteFrame(uint64_t index, const FloatVolume& volume,
+                                   const nimbus::Metadata& meta) {
+  NIMBUS_RETURN_IF_ERROR(PrepareFramesDir());
+  return WriteFloatVolumeVdb(FramesDir() / FrameFileName(plan_.name, index), volume, meta,
+                             plan_.density.conventions);
+}
+
 absl::Status JobDriver::PrepareFramesDir() {
   if (frames_ready_) return absl::OkStatus();
   const std::filesystem::path dir = FramesDir();

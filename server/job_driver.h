@@ -92,6 +92,9 @@ class JobDriver {
   /// result; a listed frame is complete and can be fetched while the job
   /// runs. The first call removes frames a previous attempt left.
   absl::Status WriteFrame(uint64_t index, const CountGrid& counts, const nimbus::Metadata& meta);
+  /// The same for a computed float volume (fractal fields).
+  absl::Status WriteResult(const FloatVolume& volume, const nimbus::Metadata& meta);
+  absl::Status WriteFrame(uint64_t index, const FloatVolume& volume, const nimbus::Metadata& meta);
   /// Removes every frame written so far (a failed or cancelled run).
   void DiscardFrames();
   /// Where a further result file `name` goes (beside the frames), listed

@@ -66,6 +66,7 @@ class JobContext {
 absl::Status RunKind(const JobPlan& plan, const ChaosGamePlan& kind, JobContext& ctx);
 absl::Status RunKind(const JobPlan& plan, const IfsMatrixPlan& kind, JobContext& ctx);
 absl::Status RunKind(const JobPlan& plan, const SetIfsPlan& kind, JobContext& ctx);
+absl::Status RunKind(const JobPlan& plan, const FractalFieldPlan& kind, JobContext& ctx);
 
 /// Runs `plan` with the runner of its kind.
 absl::Status RunJobPlan(const JobPlan& plan, JobContext& ctx);

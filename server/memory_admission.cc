@@ -84,6 +84,30 @@ absl::StatusOr<MemoryAdmission> AdmitSetIfs(const JobPlan& plan, const SetIfsPla
   return MemoryAdmission{bytes, 0};
 }
 
+// A fractal field: the frame being computed and frame 1 kept for the main
+// result (4 bytes a voxel each), the VDB tree built from one (~4.5 bytes a
+// voxel at worst), per thread the node planes and folded channels of one
+// y-z cross-section, and a shape's distance (4), feature transforms (2 x 4)
+// and sets. A terrain's level set is a full volume too.
+uint64_t FractalFieldBytes(const FractalFieldPlan& k, Int3 r, int threads) {
+  const uint64_t voxels = uint64_t(r.Volume());
+  const uint64_t section = uint64_t(r.y + 4) * uint64_t(r.z + 4) * sizeof(float);
+  uint64_t bytes = voxels * 4 * 2 + voxels * 9 / 2 + uint64_t(std::max(threads, 1)) * section * 16;
+  if (k.output == FieldOutputKind::kTerrain) bytes += uint64_t(r.x) * uint64_t(r.y) * 12;
+  if (k.shape) bytes += voxels * (4 + 8) + 2 * ((uint64_t(r.x + 63) / 64) * 8 * uint64_t(r.y) * r.z);
+  return bytes;
+}
+
+absl::StatusOr<MemoryAdmission> AdmitFractalField(const JobPlan& plan, const FractalFieldPlan& k,
+                                                  const spec::Limits& limits, int threads) {
+  const uint64_t bytes = FractalFieldBytes(k, plan.frame.resolution, threads);
+  if (bytes > limits.max_memory_bytes)
+    return absl::ResourceExhaustedError(StrCat("grid.resolution: the fractal field needs up to ",
+                                               GiB(bytes), " of memory; the server limit is ",
+                                               GiB(limits.max_memory_bytes)));
+  return MemoryAdmission{bytes, 0};
+}
+
 // Point IFS kinds: one engine runs at a time, so the run bounds the job,
 // plus `extra` (a component grid's accumulator).
 absl::StatusOr<MemoryAdmission> AdmitPointRun(const JobPlan& plan, const ChaosGameParams& run,
@@ -109,7 +133,8 @@ absl::StatusOr<MemoryAdmission> AdmitMemory(const JobPlan& plan, const spec::Lim
                                        : ComponentAccumulator::MaxMemoryBytes(plan.frame.resolution);
             return AdmitPointRun(plan, k.run, extra, limits, threads, interrupter);
           },
-          [&](const SetIfsPlan& k) { return AdmitSetIfs(plan, k, limits); }},
+          [&](const SetIfsPlan& k) { return AdmitSetIfs(plan, k, limits); },
+          [&](const FractalFieldPlan& k) { return AdmitFractalField(plan, k, limits, threads); }},
       plan.kind);
 }
 

@@ -15,7 +15,8 @@ constexpr uint64_t Mix64(uint64_t z) {
   return z ^ (z >> 31);
 }
 
-/// Hash of integer coordinates and a seed, for lattice noise (node values of the planned fractal fields, docs/algorithms.md#planned-fractal-fields).
+/// Hash of integer coordinates and a seed, for lattice noise (the node values
+/// of fractal fields, core/field/node_hash.h).
 constexpr uint64_t HashCoords(uint64_t seed, uint64_t a, uint64_t b = 0, uint64_t c = 0,
                               uint64_t d = 0, uint64_t e = 0) {
   uint64_t h = Mix64(seed);

@@ -33,5 +33,12 @@ inline constexpr char kBookAddress[] = "nimbus_book_address";
 inline constexpr char kBookPage[] = "nimbus_book_page";
 inline constexpr char kBookDepth[] = "nimbus_book_depth";
 inline constexpr char kBookPages[] = "nimbus_book_pages";
+// Fractal fields.
+inline constexpr char kFieldDimensions[] = "nimbus_field_dimensions";
+inline constexpr char kFieldMeshes[] = "nimbus_field_meshes";
+inline constexpr char kFieldInterpolation[] = "nimbus_field_interpolation";
+inline constexpr char kFieldFrame[] = "nimbus_field_frame";
+inline constexpr char kFieldTime[] = "nimbus_field_time";
+inline constexpr char kFieldOutput[] = "nimbus_field_output";
 
 }  // namespace nimbus::meta_key

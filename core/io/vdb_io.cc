@@ -1,6 +1,7 @@
 #include "core/io/vdb_io.h"
 
 #include <openvdb/io/Stream.h>
+#include <openvdb/tools/SignedFloodFill.h>
 #include <openvdb/openvdb.h>
 
 #include <fcntl.h>
@@ -338,6 +339,17 @@ typename GridT::Ptr NewGrid(const std::string& name, const GridFrame& frame,
   return grid;
 }
 
+// Scales a leaf's active densities by the modulation at the voxel centres.
+template <typename LeafT>
+void Modulate(const std::function<double(const Vec3&)>& modulation, const GridFrame& frame,
+              LeafT& leaf) {
+  for (auto it = leaf.beginValueOn(); it; ++it) {
+    const openvdb::Coord c = it.getCoord();
+    const double m = modulation(frame.VoxelCenter({c.x(), c.y(), c.z()}));
+    it.setValue(float(double(*it) * std::max(0.0, m)));
+  }
+}
+
 // The grids of one result before the conventions: the density plus the
 // optional Cd / address / counts grids, all on the same active voxels.
 struct ResultGrids {
@@ -374,6 +386,7 @@ ResultGrids BuildFineGrids(const CountGrid& counts, const GridFrame& frame,
       auto* node = tree.touchLeaf(c);
       for (int i = 0; i < 512; ++i)
         if (v[i]) node->setValueOn(i, norm(v[i]));
+      if (options.modulation) Modulate(options.modulation, frame, *node);
       if (color || address) {
         const uint64_t* cs = csum + leaf * 512;
         auto* cd_node = color ? g.cd->tree().touchLeaf(c) : nullptr;
@@ -606,6 +619,38 @@ absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid&
   } catch (const std::exception& e) {
     return absl::InternalError(
         absl::StrCat("building the grids of ", path.string(), ": ", e.what()));
+  }
+  return vdb_internal::WriteGridsAtomically(path, grids);
+}
+
+absl::Status WriteFloatVolumeVdb(const std::filesystem::path& path, const FloatVolume& volume,
+                                 const Metadata& metadata, const OutputConventions& conventions) {
+  InitOpenVdb();
+  const Int3 r = volume.frame.resolution;
+  if (volume.values.size() != size_t(r.Volume()))
+    return absl::InvalidArgumentError(absl::StrCat("float volume: ", volume.values.size(),
+                                                   " values for ", r.Volume(), " voxels"));
+  openvdb::GridPtrVec grids;
+  try {
+    auto grid = NewGrid<openvdb::FloatGrid>(
+        volume.grid_name, volume.frame,
+        volume.level_set ? openvdb::GRID_LEVEL_SET : openvdb::GRID_FOG_VOLUME);
+    if (volume.level_set) grid->tree().root().setBackground(volume.background, false);
+    auto acc = grid->getAccessor();
+    size_t i = 0;
+    for (int x = 0; x < r.x; ++x)
+      for (int y = 0; y < r.y; ++y)
+        for (int z = 0; z < r.z; ++z, ++i) {
+          const float v = volume.values[i];
+          const bool on = volume.level_set ? std::abs(v) < volume.background : v != 0.f;
+          if (on) acc.setValue(openvdb::Coord(x, y, z), v);
+        }
+    if (volume.level_set) openvdb::tools::signedFloodFill(grid->tree());
+    FinishGrid(*grid, volume.frame, conventions, 1);
+    for (const auto& [k, v] : metadata) AddMeta(*grid, k, v);
+    grids.push_back(grid);
+  } catch (const std::exception& e) {
+    return absl::InternalError(absl::StrCat("building the grid of ", path.string(), ": ", e.what()));
   }
   return vdb_internal::WriteGridsAtomically(path, grids);
 }

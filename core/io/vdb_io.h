@@ -4,6 +4,7 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <string>
 #include <utility>
 #include <variant>
@@ -65,6 +66,10 @@ struct DensityOptions {
   bool address_grid = false;
   RawCounts raw_counts = RawCounts::kNone;
   OutputConventions conventions;
+  /// When set, every written density is multiplied by max(0,
+  /// modulation(voxel centre in world space)): a fractal field's detail on
+  /// any job's result (JobSpec.detail). Unset: densities as counted.
+  std::function<double(const Vec3&)> modulation;
 };
 
 /// Bytes per active voxel the output grids of `options` take in memory.
@@ -131,6 +136,25 @@ absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid&
 absl::Status WriteIntegerCountsVdb(const std::filesystem::path& path, const CountGrid& counts,
                                    const GridFrame& frame, const DensityOptions& options,
                                    const Metadata& metadata);
+
+/// @brief A dense float volume over a frame (x slowest, z fastest), for
+/// engines that compute values rather than count visits (fractal fields).
+struct FloatVolume {
+  GridFrame frame;
+  std::string grid_name = "density";
+  /// Fog volume: zeros are inactive. Level set: values with |v| < background
+  /// are active, the rest become ±background by sign (signed flood fill).
+  bool level_set = false;
+  float background = 0;
+  std::vector<float> values;
+};
+
+/// Writes `volume` as one FloatGrid (Blosc, renamed into place, content
+/// UUID) with the frame metadata and `metadata`, in the up axis and
+/// precision of `conventions` (their downsampling does not apply here).
+absl::Status WriteFloatVolumeVdb(const std::filesystem::path& path, const FloatVolume& volume,
+                                 const Metadata& metadata,
+                                 const OutputConventions& conventions = {});
 
 /// Reads the exact counts of such a file densely (x slowest, z fastest).
 absl::StatusOr<std::vector<int64_t>> ReadIntegerCountsVdb(const std::filesystem::path& path,

@@ -7,14 +7,18 @@ namespace nimbus {
 const ChaosGameParams* JobPlan::point_run() const {
   return std::visit(Overloaded{[](const ChaosGamePlan& p) { return &p.params; },
                                [](const IfsMatrixPlan& p) { return &p.run; },
-                               [](const SetIfsPlan&) -> const ChaosGameParams* { return nullptr; }},
+                               [](const SetIfsPlan&) -> const ChaosGameParams* { return nullptr; },
+                               [](const FractalFieldPlan&) -> const ChaosGameParams* {
+                                 return nullptr;
+                               }},
                     kind);
 }
 
 std::string_view KindName(const JobKindPlan& kind) {
   return std::visit(Overloaded{[](const ChaosGamePlan&) { return "chaos_game"; },
                                [](const IfsMatrixPlan&) { return "ifs_matrix"; },
-                               [](const SetIfsPlan&) { return "set_ifs"; }},
+                               [](const SetIfsPlan&) { return "set_ifs"; },
+                               [](const FractalFieldPlan&) { return "fractal_field"; }},
                     kind);
 }
 

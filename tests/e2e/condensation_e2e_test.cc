@@ -14,6 +14,7 @@
 #include "core/io/vdb_io.h"
 #include "proto/asset_paths.h"
 #include "proto/spec_convert.h"
+#include "tests/support/early_fetch.h"
 #include "tests/support/fake_job_context.h"
 #include "server/job_runner.h"
 #include "proto/spec_io.h"
@@ -245,21 +246,13 @@ TEST_F(CondensationE2E, BookFramesStreamWhileTheJobRuns) {
   ASSERT_TRUE(client_->UploadSpecAssets(spec, testing::SourcePath("examples")).ok());
   auto job = client_->Submit(spec);
   ASSERT_TRUE(job.ok()) << job.status();
-  int fetched_while_running = 0;
-  std::string first_sha;
-  auto done = client_->Watch(job->id(), {}, [&](const v1::WatchJobResponse& r) {
-    if (r.job().state() != v1::JOB_STATE_RUNNING || r.job().result().files_size() == 0 ||
-        fetched_while_running > 0)
-      return;
-    const v1::ResultFile& f = r.job().result().files(0);
-    EXPECT_EQ(f.file_name(), "morph_book.0001.vdb");
-    ASSERT_TRUE(client_->Fetch(job->id(), dir_ / "early.vdb", f.file_name()).ok());
-    first_sha = f.sha256();
-    ++fetched_while_running;
-  });
+  testing::EarlyFetch early;
+  auto done = testing::WatchFetchingFirstFile(*client_, job->id(), dir_ / "early.vdb", early);
   ASSERT_TRUE(done.ok()) << done.status();
   ASSERT_EQ(done->state(), v1::JOB_STATE_SUCCEEDED) << done->error();
-  EXPECT_EQ(fetched_while_running, 1);
+  EXPECT_EQ(early.fetched_while_running, 1);
+  EXPECT_EQ(early.name, "morph_book.0001.vdb");
+  const std::string first_sha = early.sha256;
   EXPECT_EQ(*Sha256File(dir_ / "early.vdb"), first_sha);
   auto full = client_->Get(job->id());
   ASSERT_TRUE(full.ok());

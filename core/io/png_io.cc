@@ -1,0 +1,86 @@
+#include "core/io/png_io.h"
+
+#include <png.h>
+
+#include <cstdio>
+#include <memory>
+#include <system_error>
+
+#include "absl/strings/str_cat.h"
+
+namespace nimbus {
+
+namespace {
+
+struct FileCloser {
+  void operator()(FILE* f) const {
+    if (f) std::fclose(f);
+  }
+};
+using FilePtr = std::unique_ptr<FILE, FileCloser>;
+
+// libpng reports errors by longjmp; the callers keep no C++ objects with
+// destructors between setjmp and the calls that may jump.
+bool WriteRows(FILE* f, const Gray16Image& image, std::vector<png_bytep>& rows) {
+  png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, nullptr, nullptr, nullptr);
+  if (!png) return false;
+  png_infop info = png_create_info_struct(png);
+  if (!info || setjmp(png_jmpbuf(png))) {
+    png_destroy_write_struct(&png, info ? &info : nullptr);
+    return false;
+  }
+  png_init_io(png, f);
+  png_set_IHDR(png, info, png_uint_32(image.width), png_uint_32(image.height), 16,
+               PNG_COLOR_TYPE_GRAY, PNG_INTERLACE_NONE, PNG_COMPRESSION_TYPE_DEFAULT,
+               PNG_FILTER_TYPE_DEFAULT);
+  png_write_info(png, info);
+  png_set_swap(png);  // PNG is big-endian; our samples are host order
+  png_write_image(png, rows.data());
+  png_write_end(png, nullptr);
+  png_destroy_write_struct(&png, &info);
+  return true;
+}
+
+}  // namespace
+
+absl::Status WritePng16(const std::filesystem::path& path, const Gray16Image& image) {
+  if (image.width <= 0 || image.height <= 0 ||
+      image.pixels.size() != size_t(image.width) * size_t(image.height))
+    return absl::InvalidArgumentError("png: image size does not match its pixels");
+  const std::filesystem::path tmp = path.string() + ".partial";
+  std::vector<png_bytep> rows(size_t(image.height));
+  for (int r = 0; r < image.height; ++r)
+    rows[size_t(r)] = reinterpret_cast<png_bytep>(
+        const_cast<uint16_t*>(&image.pixels[size_t(r) * size_t(image.width)]));
+  {
+    FilePtr f(std::fopen(tmp.c_str(), "wb"));
+    if (!f) return absl::InternalError(absl::StrCat("cannot create ", tmp.string()));
+    if (!WriteRows(f.get(), image, rows) || std::fflush(f.get()) != 0) {
+      f.reset();
+      std::error_code ec;
+      std::filesystem::remove(tmp, ec);
+      return absl::InternalError(absl::StrCat("writing ", path.string(), " failed"));
+    }
+  }
+  std::error_code ec;
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) return absl::InternalError(absl::StrCat("renaming ", tmp.string(), ": ", ec.message()));
+  return absl::OkStatus();
+}
+
+absl::StatusOr<Gray16Image> ReadPng16(const std::filesystem::path& path) {
+  png_image img{};
+  img.version = PNG_IMAGE_VERSION;
+  if (!png_image_begin_read_from_file(&img, path.c_str()))
+    return absl::InvalidArgumentError(absl::StrCat("reading ", path.string(), ": ", img.message));
+  img.format = PNG_FORMAT_LINEAR_Y;  // 16-bit grey, host order
+  Gray16Image out;
+  out.width = int(img.width);
+  out.height = int(img.height);
+  out.pixels.resize(size_t(out.width) * size_t(out.height));
+  if (!png_image_finish_read(&img, nullptr, out.pixels.data(), 0, nullptr))
+    return absl::InvalidArgumentError(absl::StrCat("reading ", path.string(), ": ", img.message));
+  return out;
+}
+
+}  // namespace nimbus
