@@ -102,6 +102,13 @@ absl::StatusOr<v1::Job> NimbusClient::Cancel(const std::string& job_id) {
   return resp.job();
 }
 
+absl::StatusOr<v1::PokeJobResponse> NimbusClient::Poke(const v1::PokeJobRequest& request) {
+  grpc::ClientContext ctx;
+  v1::PokeJobResponse resp;
+  if (auto s = impl_->stub->PokeJob(&ctx, request, &resp); !s.ok()) return FromGrpc(s);
+  return resp;
+}
+
 absl::StatusOr<v1::Job> NimbusClient::Watch(
     const std::string& job_id, const WatchOptions& options,
     const std::function<void(const v1::WatchJobResponse&)>& on_update) {

@@ -37,6 +37,8 @@ class NimbusClient {
   absl::StatusOr<v1::Job> Get(const std::string& job_id);
   absl::StatusOr<v1::ListJobsResponse> List(const v1::ListJobsRequest& request);
   absl::StatusOr<v1::Job> Cancel(const std::string& job_id);
+  /// Pushes or drags a body of a running jelly job (docs/jelly.md).
+  absl::StatusOr<v1::PokeJobResponse> Poke(const v1::PokeJobRequest& request);
 
   /// Streams updates to `on_update` until the job ends, reconnecting after
   /// transport failures (a server restart) and resuming the watch. Returns

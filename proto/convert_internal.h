@@ -53,5 +53,6 @@ absl::Status ConvertChaosGame(const v1::ChaosGame& cg, const Limits& limits, Job
 absl::Status ConvertMatrixChaosGame(const v1::ChaosGame& cg, const Limits& limits,
                                     JobPlan& plan);
 absl::Status ConvertSetIfs(const v1::SetIfs& s, const Limits& limits, JobPlan& plan);
+absl::Status ConvertJelly(const v1::Jelly& j, const Limits& limits, JobPlan& plan);
 
 }  // namespace nimbus::spec::internal

@@ -197,8 +197,11 @@ absl::StatusOr<JobPlan> ConvertSpec(const v1::JobSpec& spec, const Limits& limit
     case v1::JobSpec::kSetIfs:
       NIMBUS_RETURN_IF_ERROR(ConvertSetIfs(spec.set_ifs(), limits, job));
       break;
+    case v1::JobSpec::kJelly:
+      NIMBUS_RETURN_IF_ERROR(ConvertJelly(spec.jelly(), limits, job));
+      break;
     case v1::JobSpec::GENERATOR_NOT_SET:
-      return Invalid("generator", "set one of: chaos_game, set_ifs");
+      return Invalid("generator", "set one of: chaos_game, set_ifs, jelly");
   }
   return job;
 }

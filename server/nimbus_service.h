@@ -45,6 +45,9 @@ class NimbusServiceImpl final : public v1::NimbusService::CallbackService {
       grpc::CallbackServerContext* ctx, const v1::FetchResultRequest* req) override;
   grpc::ServerReadReactor<v1::UploadAssetRequest>* UploadAsset(
       grpc::CallbackServerContext* ctx, v1::UploadAssetResponse* resp) override;
+  grpc::ServerUnaryReactor* PokeJob(grpc::CallbackServerContext* ctx,
+                                    const v1::PokeJobRequest* req,
+                                    v1::PokeJobResponse* resp) override;
 
  private:
   // Validates and stores one submission (runs on the admission thread).
@@ -52,6 +55,8 @@ class NimbusServiceImpl final : public v1::NimbusService::CallbackService {
   // Answers a unary call with `work`'s status, run on the blocking executor.
   grpc::ServerUnaryReactor* OffThread(grpc::CallbackServerContext* ctx,
                                       std::function<grpc::Status()> work);
+  // PokeJob's body (runs on the executor).
+  grpc::Status Poke(const v1::PokeJobRequest& req, v1::PokeJobResponse& resp);
   // CancelJob's body (runs on the executor).
   grpc::Status Cancel(const std::string& job_id, v1::Job& out);
   // Waits up to cancel_wait_ms_ for `job_id` to leave RUNNING; its view then.

@@ -31,8 +31,8 @@
 namespace nimbus::server {
 namespace {
 
-// 1: the first schema. 2: adds jobs.error_code.
-constexpr int kSchemaVersion = 2;
+// 1: the first schema. 2: adds jobs.error_code. 3: adds the pokes table.
+constexpr int kSchemaVersion = 3;
 // Long enough to ride out another process's short write transactions, short
 // enough that a wedged peer surfaces as UNAVAILABLE instead of a hang.
 constexpr int kBusyTimeoutMs = 10000;
@@ -40,6 +40,14 @@ constexpr int kDefaultPageSize = 50;
 constexpr int kMaxPageSize = 500;
 constexpr char kCancelledByRequest[] = "cancelled by request";
 constexpr int kCancelledCode = static_cast<int>(absl::StatusCode::kCancelled);
+
+// Pokes on running jelly jobs; frame -1 until the job's runner takes them.
+#define NIMBUS_POKES_SQL                                                                \
+  "CREATE TABLE IF NOT EXISTS pokes (seq INTEGER PRIMARY KEY, job_id TEXT NOT NULL, "    \
+  "frame INTEGER NOT NULL DEFAULT -1, body INTEGER NOT NULL, drag INTEGER NOT NULL, "     \
+  "x REAL NOT NULL, y REAL NOT NULL, z REAL NOT NULL, drag_stiffness REAL NOT NULL, "    \
+  "drag_frames INTEGER NOT NULL);"                                                      \
+  "CREATE INDEX IF NOT EXISTS pokes_job_frame ON pokes (job_id, frame, seq);"
 
 constexpr char kSchemaSql[] = R"sql(
 CREATE TABLE IF NOT EXISTS jobs (
@@ -71,7 +79,7 @@ CREATE INDEX IF NOT EXISTS jobs_state_create ON jobs (state, create_time, id);
 CREATE INDEX IF NOT EXISTS jobs_create ON jobs (create_time, id);
 -- Idempotency keys are unique, but most jobs have none.
 CREATE UNIQUE INDEX IF NOT EXISTS jobs_request_id ON jobs (request_id) WHERE request_id <> '';
-)sql";
+)sql" NIMBUS_POKES_SQL;
 
 // Version 1 files gain the status code of failed and cancelled jobs. Jobs
 // that ended before codes were kept get CANCELLED (1) or UNKNOWN (2).
@@ -80,6 +88,9 @@ ALTER TABLE jobs ADD COLUMN error_code INTEGER NOT NULL DEFAULT 0;
 UPDATE jobs SET error_code = 1 WHERE state = 5;
 UPDATE jobs SET error_code = 2 WHERE state = 4;
 )sql";
+
+// Version 2 files gain the pokes table (no job has pokes yet).
+constexpr char kMigrateToV3Sql[] = NIMBUS_POKES_SQL;
 
 // Column order shared by every SELECT that feeds RowToRecord. Text a client
 // or a reader could make huge is cut in SQL already (stores written before
@@ -157,6 +168,7 @@ class Statement {
   }
   Statement& Bind(int index, int v) { return Bind(index, static_cast<int64_t>(v)); }
   Statement& Bind(int index, JobState v) { return Bind(index, static_cast<int64_t>(v)); }
+  Statement& BindDouble(int index, double v) { return Check(sqlite3_bind_double(stmt_, index, v)); }
   Statement& Bind(int index, const std::string& v) {
     return Check(
         sqlite3_bind_text(stmt_, index, v.data(), static_cast<int>(v.size()), SQLITE_TRANSIENT));
@@ -184,6 +196,7 @@ class Statement {
 
   int64_t Int(int col) const { return sqlite3_column_int64(stmt_, col); }
   uint64_t Uint(int col) const { return static_cast<uint64_t>(Int(col)); }
+  double Double(int col) const { return sqlite3_column_double(stmt_, col); }
   std::string Text(int col) const {
     const auto* p = reinterpret_cast<const char*>(sqlite3_column_text(stmt_, col));
     return p == nullptr ? std::string() : std::string(p, sqlite3_column_bytes(stmt_, col));
@@ -308,6 +321,10 @@ class SqliteJobStore final : public JobStore {
  public:
   absl::StatusOr<JobRecord> RequestCancel(const std::string& id, TimeMs now) override;
   absl::StatusOr<int> RequeueRunning() override;
+  absl::StatusOr<PokeRecord> AddPoke(const std::string& id, const PokeRecord& poke) override;
+  absl::StatusOr<std::vector<PokeRecord>> TakePokes(const std::string& id,
+                                                    const std::string& worker_id,
+                                                    int64_t frame) override;
 
  private:
   // Rolls back unless committed, so every early return leaves no open
@@ -486,9 +503,15 @@ absl::Status SqliteJobStore::Migrate() {
   if (absl::Status s = txn.Begin(); !s.ok()) return s;
   version = read_version();
   if (!version.ok() || *version == kSchemaVersion) return version.status();
-  // A fresh file gets the newest schema; older ones step up.
-  const char* sql = *version == 0 ? kSchemaSql : kMigrateToV2Sql;
-  if (absl::Status s = Exec(sql); !s.ok()) return s;
+  // A fresh file gets the newest schema; older ones step up one version
+  // at a time.
+  if (*version == 0) {
+    if (absl::Status s = Exec(kSchemaSql); !s.ok()) return s;
+  } else {
+    if (*version < 2)
+      if (absl::Status s = Exec(kMigrateToV2Sql); !s.ok()) return s;
+    if (absl::Status s = Exec(kMigrateToV3Sql); !s.ok()) return s;
+  }
   if (absl::Status s = Exec(absl::StrCat("PRAGMA user_version=", kSchemaVersion).c_str());
       !s.ok()) {
     return s;
@@ -933,6 +956,66 @@ absl::StatusOr<int> SqliteJobStore::RequeueRunning() {
   }
   if (absl::Status s = txn.Commit(); !s.ok()) return s;
   return requeued;
+}
+
+absl::StatusOr<PokeRecord> SqliteJobStore::AddPoke(const std::string& id, const PokeRecord& poke) {
+  std::lock_guard<std::mutex> lock(mu_);
+  Transaction txn(this);
+  if (absl::Status s = txn.Begin(); !s.ok()) return s;
+  absl::StatusOr<JobRecord> job = LoadExistingLocked(id);
+  if (!job.ok()) return job.status();
+  if (job->state != JobState::kRunning)
+    return absl::FailedPreconditionError(absl::StrCat("job ", EchoId(id), " is ",
+                                                      StateName(job->state),
+                                                      "; pokes act on RUNNING jobs only"));
+  {
+    absl::StatusOr<Statement> s = Prepare(
+        "INSERT INTO pokes (job_id, frame, body, drag, x, y, z, drag_stiffness, drag_frames) "
+        "VALUES (?1, -1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)");
+    if (!s.ok()) return s.status();
+    s->Bind(1, id).Bind(2, int64_t{poke.body}).Bind(3, int64_t{poke.drag});
+    s->BindDouble(4, poke.x).BindDouble(5, poke.y).BindDouble(6, poke.z);
+    s->BindDouble(7, poke.drag_stiffness).Bind(8, int64_t{poke.drag_frames});
+    if (absl::Status st = s->Run(); !st.ok()) return st;
+  }
+  PokeRecord out = poke;
+  out.seq = sqlite3_last_insert_rowid(w_.db);
+  out.frame = -1;
+  if (absl::Status s = txn.Commit(); !s.ok()) return s;
+  return out;
+}
+
+absl::StatusOr<std::vector<PokeRecord>> SqliteJobStore::TakePokes(const std::string& id,
+                                                                  const std::string& worker_id,
+                                                                  int64_t frame) {
+  std::lock_guard<std::mutex> lock(mu_);
+  Transaction txn(this);
+  if (absl::Status s = txn.Begin(); !s.ok()) return s;
+  if (absl::Status s = CheckClaimLocked(id, worker_id); !s.ok()) return s;
+  {
+    absl::StatusOr<Statement> s =
+        Prepare("UPDATE pokes SET frame = ?2 WHERE job_id = ?1 AND frame < 0");
+    if (!s.ok()) return s.status();
+    s->Bind(1, id).Bind(2, frame);
+    if (absl::Status st = s->Run(); !st.ok()) return st;
+  }
+  std::vector<PokeRecord> out;
+  {
+    absl::StatusOr<Statement> s = Prepare(
+        "SELECT seq, frame, body, drag, x, y, z, drag_stiffness, drag_frames FROM pokes "
+        "WHERE job_id = ?1 AND frame = ?2 ORDER BY seq");
+    if (!s.ok()) return s.status();
+    s->Bind(1, id).Bind(2, frame);
+    for (;;) {
+      absl::StatusOr<bool> row = s->Step();
+      if (!row.ok()) return row.status();
+      if (!*row) break;
+      out.push_back({s->Int(0), s->Int(1), int32_t(s->Int(2)), s->Int(3) != 0, s->Double(4),
+                     s->Double(5), s->Double(6), s->Double(7), uint32_t(s->Int(8))});
+    }
+  }
+  if (absl::Status s = txn.Commit(); !s.ok()) return s;
+  return out;
 }
 
 absl::StatusOr<std::unique_ptr<JobStore>> OpenSqliteJobStore(const std::string& path) {

@@ -25,5 +25,10 @@ inline constexpr char kBookAddress[] = "nimbus_book_address";
 inline constexpr char kBookPage[] = "nimbus_book_page";
 inline constexpr char kBookDepth[] = "nimbus_book_depth";
 inline constexpr char kBookPages[] = "nimbus_book_pages";
+// Jelly frames.
+inline constexpr char kJellyFrame[] = "nimbus_jelly_frame";
+inline constexpr char kJellyTime[] = "nimbus_jelly_time";
+inline constexpr char kJellyLeaves[] = "nimbus_jelly_leaves";
+inline constexpr char kJellyPokes[] = "nimbus_jelly_pokes";
 
 }  // namespace nimbus::meta_key

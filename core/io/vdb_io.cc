@@ -408,6 +408,19 @@ openvdb::GridPtrVec BuildGrids(const CountGrid& counts, const GridFrame& frame,
   return out;
 }
 
+openvdb::GridBase::Ptr BuildVec3Grid(const Vec3Field& field, const GridFrame& frame,
+                                     const openvdb::GridBase& density) {
+  auto grid = NewGrid<openvdb::Vec3SGrid>(field.name, frame, openvdb::GRID_UNKNOWN);
+  grid->setVectorType(openvdb::VEC_CONTRAVARIANT_RELATIVE);
+  auto acc = grid->getAccessor();
+  for (const auto& [c, v] : field.voxels)
+    acc.setValueOn(openvdb::Coord(c.x, c.y, c.z),
+                   openvdb::Vec3s(float(v.x), float(v.y), float(v.z)));
+  for (const char* key : {"nimbus_resolution", "nimbus_bounds_min", "nimbus_bounds_max"})
+    grid->insertMeta(key, *density[key]);
+  return grid;
+}
+
 absl::StatusOr<DenseVolume> ToDense(const openvdb::GridPtrVecPtr& grids, const std::string& name) {
   openvdb::FloatGrid::Ptr grid;
   for (const auto& g : *grids)
@@ -459,10 +472,17 @@ const MetaValue* DenseVolume::Find(const std::string& key) const {
 absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid& counts,
                              const GridFrame& frame, const DensityOptions& options,
                              const Metadata& metadata) {
+  return WriteDensityVdb(path, counts, frame, options, metadata, {});
+}
+
+absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid& counts,
+                             const GridFrame& frame, const DensityOptions& options,
+                             const Metadata& metadata, const std::vector<Vec3Field>& fields) {
   InitOpenVdb();
   openvdb::GridPtrVec grids;
   try {
     grids = BuildGrids(counts, frame, options, metadata);
+    for (const Vec3Field& f : fields) grids.push_back(BuildVec3Grid(f, frame, *grids.front()));
   } catch (const std::exception& e) {
     return absl::InternalError(
         absl::StrCat("building the grids of ", path.string(), ": ", e.what()));

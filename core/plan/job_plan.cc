@@ -7,14 +7,16 @@ namespace nimbus {
 const ChaosGameParams* JobPlan::point_run() const {
   return std::visit(Overloaded{[](const ChaosGamePlan& p) { return &p.params; },
                                [](const IfsMatrixPlan& p) { return &p.run; },
-                               [](const SetIfsPlan&) -> const ChaosGameParams* { return nullptr; }},
+                               [](const SetIfsPlan&) -> const ChaosGameParams* { return nullptr; },
+                               [](const JellyPlan&) -> const ChaosGameParams* { return nullptr; }},
                     kind);
 }
 
 std::string_view KindName(const JobKindPlan& kind) {
   return std::visit(Overloaded{[](const ChaosGamePlan&) { return "chaos_game"; },
                                [](const IfsMatrixPlan&) { return "ifs_matrix"; },
-                               [](const SetIfsPlan&) { return "set_ifs"; }},
+                               [](const SetIfsPlan&) { return "set_ifs"; },
+                               [](const JellyPlan&) { return "jelly"; }},
                     kind);
 }
 

@@ -21,6 +21,7 @@
 #include "core/base/geometry.h"
 #include "core/chaos/chaos_game.h"
 #include "core/io/vdb_io.h"
+#include "core/jelly/jelly_plan.h"
 #include "core/matrix/ifs_matrix_plan.h"
 #include "core/sets/set_ifs_plan.h"
 
@@ -32,7 +33,7 @@ struct ChaosGamePlan {
 };
 
 /// One alternative per job kind.
-using JobKindPlan = std::variant<ChaosGamePlan, IfsMatrixPlan, SetIfsPlan>;
+using JobKindPlan = std::variant<ChaosGamePlan, IfsMatrixPlan, SetIfsPlan, JellyPlan>;
 
 /// @brief The units a job's iterating phase counts, for progress.
 struct WorkPlan {
@@ -56,12 +57,13 @@ struct JobPlan {
   const ChaosGamePlan* chaos_game() const { return std::get_if<ChaosGamePlan>(&kind); }
   const IfsMatrixPlan* ifs_matrix() const { return std::get_if<IfsMatrixPlan>(&kind); }
   const SetIfsPlan* set_ifs() const { return std::get_if<SetIfsPlan>(&kind); }
+  const JellyPlan* jelly() const { return std::get_if<JellyPlan>(&kind); }
   /// The chaos game of a point-IFS job (plain, or the whole matrix
-  /// selection); null for set IFS.
+  /// selection); null for set IFS and jelly.
   const ChaosGameParams* point_run() const;
 };
 
-/// "chaos_game", "ifs_matrix" or "set_ifs": for logs and messages.
+/// "chaos_game", "ifs_matrix", "set_ifs" or "jelly": for logs and messages.
 std::string_view KindName(const JobKindPlan& kind);
 
 }  // namespace nimbus

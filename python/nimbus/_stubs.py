@@ -26,8 +26,8 @@ import tempfile
 from pathlib import Path
 
 _PACKAGE_DIR = Path(__file__).resolve().parent
-PROTO_FILES = ("maps.proto", "ifs_matrix.proto", "set_ifs.proto", "spec.proto",
-               "nimbus_service.proto")
+PROTO_FILES = ("maps.proto", "ifs_matrix.proto", "set_ifs.proto", "jelly.proto",
+               "spec.proto", "nimbus_service.proto")
 
 
 class StubError(RuntimeError):

@@ -55,6 +55,13 @@ class CompleteFailsStore final : public JobStore {
     return inner_->RequestCancel(id, now);
   }
   absl::StatusOr<int> RequeueRunning() override { return inner_->RequeueRunning(); }
+  absl::StatusOr<PokeRecord> AddPoke(const std::string& id, const PokeRecord& p) override {
+    return inner_->AddPoke(id, p);
+  }
+  absl::StatusOr<std::vector<PokeRecord>> TakePokes(const std::string& id, const std::string& w,
+                                                    int64_t frame) override {
+    return inner_->TakePokes(id, w, frame);
+  }
 
   std::atomic<int> completes{0};
 
