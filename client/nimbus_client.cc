@@ -179,6 +179,14 @@ absl::StatusOr<uint64_t> NimbusClient::Delete(const std::string& job_id) {
   return resp.freed_bytes();
 }
 
+absl::StatusOr<v1::PokeJobResponse> NimbusClient::Poke(const v1::PokeJobRequest& request) {
+  grpc::ClientContext ctx;
+  impl_->Authorize(ctx);
+  v1::PokeJobResponse resp;
+  if (auto s = impl_->stub->PokeJob(&ctx, request, &resp); !s.ok()) return FromGrpc(s);
+  return resp;
+}
+
 absl::StatusOr<v1::Job> NimbusClient::Watch(
     const std::string& job_id, const WatchOptions& options,
     const std::function<void(const v1::WatchJobResponse&)>& on_update) {

@@ -58,6 +58,8 @@ class NimbusClient {
   absl::StatusOr<v1::Job> Pin(const std::string& job_id, bool pinned);
   /// Deletes a finished job and its result files; returns the bytes freed.
   absl::StatusOr<uint64_t> Delete(const std::string& job_id);
+  /// Pushes or drags a body of a running jelly job (docs/jelly.md).
+  absl::StatusOr<v1::PokeJobResponse> Poke(const v1::PokeJobRequest& request);
 
   /// Streams updates to `on_update` until the job ends, reconnecting after
   /// transport failures (a server restart) and resuming the watch. Returns

@@ -22,7 +22,9 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/ascii.h"
+#include "absl/strings/numbers.h"
 #include "absl/strings/str_format.h"
+#include "absl/strings/str_split.h"
 #include "client/nimbus_client.h"
 #include "client/preview_files.h"
 #include "core/base/status_macros.h"
@@ -261,6 +263,10 @@ struct Options {
   std::string state_filter;  // jobs
   int limit = 20;            // jobs
   WatchArgs watch;           // render, watch
+  int body = 0;              // poke
+  std::string impulse, drag;
+  double drag_stiffness = 0;
+  uint32_t drag_frames = 0;
 };
 
 std::atomic<bool> g_interrupted{false};
@@ -331,6 +337,12 @@ int PrintValidation(const std::string& spec_path, const v1::JobSpec& spec) {
       std::cout << "  frames: " << f->animation.frames << (f->animation.loop ? " (loop)" : "")
                 << "\n";
     std::cout << peak << "  spec sha256: " << nimbus::spec::SpecHash(spec) << "\n";
+  } else if (const nimbus::JellyPlan* p = plan->jelly()) {
+    std::cout << "  bodies: " << p->sim.bodies.size() << ", springs: " << p->sim.springs.size()
+              << "\n"
+              << absl::StrFormat("  frames: %u at %g fps, %u substeps (dt %g s)\n", p->frames,
+                                 p->fps, p->substeps, p->sim.dt)
+              << peak;
   } else {
     const nimbus::ChaosGameParams& run = *plan->point_run();
     std::cout << "  maps: " << run.ifs.maps.size() << "\n";
@@ -511,6 +523,43 @@ int RunCancel(const Options& o) {
   return 0;
 }
 
+// "x,y,z" as a Vec3; INVALID_ARGUMENT naming `flag` otherwise.
+absl::StatusOr<v1::Vec3> ParseVec3(const std::string& text, const std::string& flag) {
+  const std::vector<std::string> parts = absl::StrSplit(text, ',');
+  double xyz[3];
+  if (parts.size() != 3 || !absl::SimpleAtod(parts[0], &xyz[0]) ||
+      !absl::SimpleAtod(parts[1], &xyz[1]) || !absl::SimpleAtod(parts[2], &xyz[2]))
+    return absl::InvalidArgumentError(
+        absl::StrCat(flag, ": give three numbers x,y,z, got \"", text, "\""));
+  v1::Vec3 v;
+  v.set_x(xyz[0]);
+  v.set_y(xyz[1]);
+  v.set_z(xyz[2]);
+  return v;
+}
+
+int RunPoke(const Options& o) {
+  if (o.impulse.empty() == o.drag.empty())
+    return ExitFor(absl::InvalidArgumentError("poke: give exactly one of --impulse or --drag"));
+  v1::PokeJobRequest req;
+  req.set_job_id(o.job_id);
+  v1::JellyPush& push = *req.mutable_push();
+  push.set_body(o.body);
+  const bool drag = !o.drag.empty();
+  auto v = ParseVec3(drag ? o.drag : o.impulse, drag ? "--drag" : "--impulse");
+  if (!v.ok()) return ExitFor(v.status());
+  *(drag ? push.mutable_drag_target() : push.mutable_impulse()) = *v;
+  push.set_drag_stiffness(o.drag_stiffness);
+  push.set_drag_frames(o.drag_frames);
+  auto conn = Connect(o.global);
+  if (!conn.ok()) return ExitFor(conn.status());
+  auto resp = conn->client->Poke(req);
+  if (!resp.ok()) return ExitFor(resp.status());
+  std::cout << resp->job().id() << " poke " << resp->poke_id() << ": body " << o.body
+            << " acts from frame " << resp->earliest_frame() + 1 << " or later\n";
+  return 0;
+}
+
 struct Command {
   CLI::App* app;
   int (*run)(const Options&);
@@ -566,6 +615,13 @@ std::vector<Command> AddCommands(CLI::App& app, Options& o) {
   jobs->add_option("--limit", o.limit, "how many")->capture_default_str();
   auto* cancel = app.add_subcommand("cancel", "cancel a queued or running job");
   cancel->add_option("job", o.job_id)->required();
+  auto* poke = app.add_subcommand("poke", "push or drag a body of a running jelly job");
+  poke->add_option("job", o.job_id)->required();
+  poke->add_option("--body", o.body, "index into the spec's jelly.bodies")->required();
+  poke->add_option("--impulse", o.impulse, "impulse x,y,z (mass x velocity change)");
+  poke->add_option("--drag", o.drag, "drag the body towards the point x,y,z");
+  poke->add_option("--stiffness", o.drag_stiffness, "drag spring stiffness (default 50)");
+  poke->add_option("--drag-frames", o.drag_frames, "frames the drag lasts (default 1)");
   auto* pin = app.add_subcommand("pin", "keep a job's result (and assets) past the retention age");
   pin->add_option("job", o.job_id)->required();
   auto* unpin = app.add_subcommand("unpin", "let a pinned job's result expire again");
@@ -584,7 +640,8 @@ std::vector<Command> AddCommands(CLI::App& app, Options& o) {
           {cancel, RunCancel},
           {pin, [](const Options& o) { return RunPin(o, true); }},
           {unpin, [](const Options& o) { return RunPin(o, false); }},
-          {del, RunDelete}};
+          {del, RunDelete},
+          {poke, RunPoke}};
 }
 
 }  // namespace

@@ -65,5 +65,6 @@ absl::Status ConvertSetSource(const v1::SetSource& s, const std::string& field,
 absl::Status ConvertFractalField(const v1::FractalField& f, const Limits& limits, JobPlan& plan);
 /// JobSpec.detail: a static 3D field that multiplies the density.
 absl::Status ConvertFieldDetail(const v1::FieldDetail& d, JobPlan& plan);
+absl::Status ConvertJelly(const v1::Jelly& j, const Limits& limits, JobPlan& plan);
 
 }  // namespace nimbus::spec::internal

@@ -208,6 +208,11 @@ absl::Status ConvertOutput(const v1::Output& o, DensityOptions& density) {
   return ConvertConventions(o, density.conventions);
 }
 
+// The output field that asked for downsampling, for errors.
+const char* DownsamplingField(const v1::Output& o) {
+  return o.max_voxels() != 0 ? "output.max_voxels" : "output.target_file_bytes";
+}
+
 }  // namespace
 
 absl::StatusOr<JobPlan> ConvertSpec(const v1::JobSpec& spec, const Limits& limits) {
@@ -228,11 +233,19 @@ absl::StatusOr<JobPlan> ConvertSpec(const v1::JobSpec& spec, const Limits& limit
       NIMBUS_RETURN_IF_ERROR(ConvertFractalField(spec.fractal_field(), limits, job));
       // Field volumes are computed at the grid's resolution: ask for fewer voxels there.
       if (job.density.conventions.Downsamples())
-        return Invalid(spec.output().max_voxels() ? "output.max_voxels" : "output.target_file_bytes",
+        return Invalid(DownsamplingField(spec.output()),
                        "fractal_field jobs are not downsampled; lower grid.resolution instead");
       break;
+    case v1::JobSpec::kJelly:
+      NIMBUS_RETURN_IF_ERROR(ConvertJelly(spec.jelly(), limits, job));
+      // The velocity grid is not coarsened: its voxels stay the density's.
+      if (job.density.conventions.Downsamples() && !spec.jelly().no_velocity_grid())
+        return Invalid(DownsamplingField(spec.output()),
+                       "jelly frames with a velocity grid are not downsampled; set "
+                       "jelly.no_velocity_grid or lower grid.resolution");
+      break;
     case v1::JobSpec::GENERATOR_NOT_SET:
-      return Invalid("generator", "set one of: chaos_game, set_ifs, fractal_field");
+      return Invalid("generator", "set one of: chaos_game, set_ifs, fractal_field, jelly");
   }
   if (spec.has_detail()) NIMBUS_RETURN_IF_ERROR(ConvertFieldDetail(spec.detail(), job));
   return job;

@@ -42,6 +42,12 @@ absl::StatusOr<JobPlan> ConvertSpec(const v1::JobSpec& spec, const Limits& limit
 absl::StatusOr<Affine3> ComposeSteps(const google::protobuf::RepeatedPtrField<v1::Step>& steps,
                                      const std::string& path);
 
+/// A jelly push (a spec impulse, or a poke on a running job) for a jelly
+/// of `bodies` bodies. Errors are INVALID_ARGUMENT naming fields under
+/// `path` (e.g. "push.body: no body 7 ...").
+absl::StatusOr<JellyPoke> ConvertJellyPush(const v1::JellyPush& push, int bodies,
+                                           const std::string& path);
+
 /// Lower-case hex SHA-256 of the spec's deterministic binary serialisation.
 std::string SpecHash(const v1::JobSpec& spec);
 

@@ -93,10 +93,11 @@ void JobDriver::Preview(const std::vector<const CountGrid*>& parts, uint64_t don
   ctx_.MaybePublishPreview(parts, plan_.frame, plan_.density, done);
 }
 
-absl::Status JobDriver::WriteResult(const CountGrid& counts, const nimbus::Metadata& meta) {
+absl::Status JobDriver::WriteResult(const CountGrid& counts, const nimbus::Metadata& meta,
+                                    const std::vector<Vec3Field>& fields) {
   NIMBUS_RETURN_IF_ERROR(BeginPhase(JobPhase::kWriting, 1, "files"));
   NIMBUS_RETURN_IF_ERROR(
-      WriteDensityVdb(ctx_.ResultScratchPath(), counts, plan_.frame, plan_.density, meta));
+      WriteDensityVdb(ctx_.ResultScratchPath(), counts, plan_.frame, plan_.density, meta, fields));
   if (plan_.density.raw_counts == RawCounts::kInteger) {
     // Exact counts in a further file: readers that cannot open Int64 grids
     // still open the result.
@@ -109,13 +110,14 @@ absl::Status JobDriver::WriteResult(const CountGrid& counts, const nimbus::Metad
 std::filesystem::path JobDriver::FramesDir() { return ExtraFilesDir(ctx_.ResultScratchPath()); }
 
 absl::Status JobDriver::WriteFrame(uint64_t index, const CountGrid& counts,
-                                   const nimbus::Metadata& meta) {
+                                   const nimbus::Metadata& meta,
+                                   const std::vector<Vec3Field>& fields) {
   NIMBUS_RETURN_IF_ERROR(PrepareFramesDir());
   const std::filesystem::path dir = FramesDir();
   // WriteDensityVdb renames a finished file into place, so a listed frame
   // is always complete.
   return WriteDensityVdb(dir / FrameFileName(plan_.name, index), counts, plan_.frame,
-                         plan_.density, meta);
+                         plan_.density, meta, fields);
 }
 
 absl::Status JobDriver::WriteResult(const FloatVolume& volume, const nimbus::Metadata& meta) {

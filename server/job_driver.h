@@ -87,11 +87,14 @@ class JobDriver {
   /// Metadata builder starting from the job's base metadata.
   MetadataBuilder Metadata() const { return MetadataBuilder(ctx_.BaseMetadata()); }
   /// Writes the main result in the writing phase.
-  absl::Status WriteResult(const CountGrid& counts, const nimbus::Metadata& meta);
+  /// `fields`: further Vec3f grids (a jelly's velocity "v").
+  absl::Status WriteResult(const CountGrid& counts, const nimbus::Metadata& meta,
+                           const std::vector<Vec3Field>& fields = {});
   /// Writes frame `index` (0-based) as NAME.0001.vdb (index + 1) beside the
   /// result; a listed frame is complete and can be fetched while the job
   /// runs. The first call removes frames a previous attempt left.
-  absl::Status WriteFrame(uint64_t index, const CountGrid& counts, const nimbus::Metadata& meta);
+  absl::Status WriteFrame(uint64_t index, const CountGrid& counts, const nimbus::Metadata& meta,
+                          const std::vector<Vec3Field>& fields = {});
   /// The same for a computed float volume (fractal fields).
   absl::Status WriteResult(const FloatVolume& volume, const nimbus::Metadata& meta);
   absl::Status WriteFrame(uint64_t index, const FloatVolume& volume, const nimbus::Metadata& meta);

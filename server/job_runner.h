@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "absl/status/status.h"
+#include "absl/status/statusor.h"
 #include "core/base/interrupter.h"
 #include "core/grid/count_grid.h"
 #include "core/io/vdb_io.h"
@@ -59,6 +60,13 @@ class JobContext {
   virtual std::filesystem::path ResultScratchPath() = 0;
   /// Metadata every result grid carries (spec hash, version).
   virtual Metadata BaseMetadata() const = 0;
+  /// Pokes on this (jelly) job that take effect at `frame`: pokes not yet
+  /// given a frame get this one, durably, so a restarted attempt replays
+  /// them at the same frames. Called between frames, in frame order.
+  virtual absl::StatusOr<std::vector<JellyPoke>> TakePokes(uint64_t frame) {
+    (void)frame;
+    return std::vector<JellyPoke>{};
+  }
 };
 
 // One runner per job kind. Each writes ResultScratchPath() (and further
@@ -67,6 +75,7 @@ absl::Status RunKind(const JobPlan& plan, const ChaosGamePlan& kind, JobContext&
 absl::Status RunKind(const JobPlan& plan, const IfsMatrixPlan& kind, JobContext& ctx);
 absl::Status RunKind(const JobPlan& plan, const SetIfsPlan& kind, JobContext& ctx);
 absl::Status RunKind(const JobPlan& plan, const FractalFieldPlan& kind, JobContext& ctx);
+absl::Status RunKind(const JobPlan& plan, const JellyPlan& kind, JobContext& ctx);
 
 /// Runs `plan` with the runner of its kind.
 absl::Status RunJobPlan(const JobPlan& plan, JobContext& ctx);

@@ -109,6 +109,22 @@ struct Completion {
   std::string warnings;
 };
 
+/// @brief A poke on a running jelly job: an impulse or a drag on one body,
+/// durable so that a restarted attempt replays it at the same frame.
+struct PokeRecord {
+  /// Arrival order in the store (set by AddPoke).
+  int64_t seq = 0;
+  /// The frame it acts at, given by the job's runner when it takes the
+  /// poke (the first frame it has not simulated); -1 until then.
+  int64_t frame = -1;
+  int32_t body = 0;
+  bool drag = false;
+  /// Impulse, or drag target.
+  double x = 0, y = 0, z = 0;
+  double drag_stiffness = 0;
+  uint32_t drag_frames = 0;
+};
+
 /// @brief Durable job records. All methods are thread-safe.
 class JobStore {
  public:
@@ -176,6 +192,16 @@ class JobStore {
   /// Serialised specs of the jobs whose assets must be kept: QUEUED,
   /// RUNNING and pinned ones.
   virtual absl::StatusOr<std::vector<std::string>> SpecsInUse() = 0;
+  /// Records a poke for a RUNNING job, without a frame yet; returns it
+  /// with its seq. NOT_FOUND for an unknown id, FAILED_PRECONDITION when
+  /// the job is not running.
+  virtual absl::StatusOr<PokeRecord> AddPoke(const std::string& id, const PokeRecord& poke) = 0;
+  /// For the worker holding the claim: gives every poke of `id` without a
+  /// frame the frame `frame`, then returns the pokes at `frame` in arrival
+  /// order. FAILED_PRECONDITION when the worker no longer holds the claim.
+  virtual absl::StatusOr<std::vector<PokeRecord>> TakePokes(const std::string& id,
+                                                            const std::string& worker_id,
+                                                            int64_t frame) = 0;
 };
 
 /// Opens (creating if needed) the SQLite store at `path`, in WAL mode.

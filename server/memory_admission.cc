@@ -7,6 +7,7 @@
 #include "absl/strings/str_cat.h"
 #include "core/base/overloaded.h"
 #include "core/base/status_macros.h"
+#include "core/jelly/jelly_render.h"
 
 namespace nimbus::server {
 
@@ -108,6 +109,27 @@ absl::StatusOr<MemoryAdmission> AdmitFractalField(const JobPlan& plan, const Fra
   return MemoryAdmission{bytes, 0};
 }
 
+// A jelly frame: the leaf buffers (VRR levels, this frame's and the last
+// frame's leaves), the voxel order for velocities, the counts, and the
+// written grids (density and v) on at most one voxel per leaf.
+absl::StatusOr<MemoryAdmission> AdmitJelly(const JobPlan& plan, const JellyPlan& k,
+                                           const spec::Limits& limits) {
+  const Int3 r = plan.frame.resolution;
+  const uint64_t leaves = k.render.mode == JellyRenderMode::kVrr
+                              ? VrrLeafCount(k.sim.bodies.size(), k.render.depth,
+                                             k.render.start_points.size())
+                              : k.render.points;
+  const uint64_t voxels = std::min<uint64_t>(leaves, uint64_t(r.Volume()));
+  const uint64_t bytes = leaves * (4 * sizeof(Vec3) + 16) + CountGrid::MaxMemoryBytes(r) +
+                         voxels * (OutputBytesPerVoxel(plan.density) + 3 * sizeof(float) + 32);
+  if (bytes > limits.max_memory_bytes)
+    return absl::ResourceExhaustedError(StrCat("jelly.depth: the job needs up to ", GiB(bytes),
+                                               " of memory for ", leaves,
+                                               " leaves per frame; the server limit is ",
+                                               GiB(limits.max_memory_bytes)));
+  return MemoryAdmission{bytes, 0};
+}
+
 // Point IFS kinds: one engine runs at a time, so the run bounds the job,
 // plus `extra` (a component grid's accumulator).
 absl::StatusOr<MemoryAdmission> AdmitPointRun(const JobPlan& plan, const ChaosGameParams& run,
@@ -135,6 +157,7 @@ absl::StatusOr<MemoryAdmission> AdmitMemory(const JobPlan& plan, const spec::Lim
           },
           [&](const SetIfsPlan& k) { return AdmitSetIfs(plan, k, limits); },
           [&](const FractalFieldPlan& k) { return AdmitFractalField(plan, k, limits, threads); }},
+          [&](const JellyPlan& k) { return AdmitJelly(plan, k, limits); }},
       plan.kind);
 }
 

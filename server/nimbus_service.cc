@@ -8,6 +8,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/time/time.h"
+#include "proto/spec_convert.h"
 #include "server/access.h"
 #include "server/bounded_text.h"
 #include "server/job_view.h"
@@ -496,6 +497,59 @@ grpc::ServerUnaryReactor* NimbusServiceImpl::ListJobs(grpc::CallbackServerContex
     resp->set_next_page_token(page->next_page_token);
     return grpc::Status::OK;
   });
+}
+
+grpc::ServerUnaryReactor* NimbusServiceImpl::PokeJob(grpc::CallbackServerContext* ctx,
+                                                     const v1::PokeJobRequest* req,
+                                                     v1::PokeJobResponse* resp) {
+  return OffThread(ctx, [this, req, resp](const Principal& caller) {
+    return Poke(caller, *req, *resp);
+  });
+}
+
+grpc::Status NimbusServiceImpl::Poke(const Principal& caller, const v1::PokeJobRequest& req,
+                                     v1::PokeJobResponse& resp) {
+  if (req.job_id().empty())
+    return grpc::Status(grpc::StatusCode::INVALID_ARGUMENT, "job_id: required");
+  // Another principal's job is NOT_FOUND, as for every other call.
+  auto rec = LoadVisibleJob(*store_, caller, req.job_id());
+  if (!rec.ok()) return ToGrpc(rec.status());
+  v1::JobSpec spec;
+  if (!spec.ParseFromString(rec->spec) || !spec.has_jelly())
+    return grpc::Status(
+        grpc::StatusCode::FAILED_PRECONDITION,
+        absl::StrCat("job ", rec->id, " is not a jelly job; only jelly bodies can be poked"));
+  if (rec->state != JobState::kRunning)
+    return grpc::Status(grpc::StatusCode::FAILED_PRECONDITION,
+                        absl::StrCat("job ", rec->id, " is ", v1::JobState_Name(ToProto(rec->state)),
+                                     "; pokes act on running jobs only"));
+  // The same checks as a spec's impulses.
+  auto push = spec::ConvertJellyPush(req.push(), spec.jelly().bodies_size(), "push");
+  if (!push.ok()) return ToGrpc(push.status());
+  PokeRecord poke;
+  poke.body = push->body;
+  poke.drag = push->kind == JellyPoke::Kind::kDrag;
+  poke.x = push->vector.x, poke.y = push->vector.y, poke.z = push->vector.z;
+  poke.drag_stiffness = push->stiffness;
+  poke.drag_frames = push->frames;
+  // Frames done when the poke arrives: the hub's progress is fresher than
+  // the store's last heartbeat.
+  uint64_t done = rec->progress_done;
+  if (auto live = hub_->Latest(rec->id); live && live->state() == v1::JOB_STATE_RUNNING) {
+    // Writing the result: every frame is simulated, no poke could act.
+    if (live->progress().phase() == v1::PROGRESS_PHASE_WRITING)
+      return grpc::Status(grpc::StatusCode::FAILED_PRECONDITION,
+                          absl::StrCat("job ", rec->id, " has simulated all its frames"));
+    done = std::max<uint64_t>(done, live->progress().done());
+  }
+  auto added = store_->AddPoke(rec->id, poke);
+  if (!added.ok()) return ToGrpc(added.status());
+  spdlog::info("job={} event=poke body={} drag={} earliest_frame={}", rec->id, poke.body,
+               poke.drag, done);
+  *resp.mutable_job() = ToProto(*rec, false);
+  resp.set_poke_id(added->seq);
+  resp.set_earliest_frame(done);
+  return grpc::Status::OK;
 }
 
 grpc::ServerUnaryReactor* NimbusServiceImpl::CancelJob(grpc::CallbackServerContext* ctx,

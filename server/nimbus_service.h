@@ -59,6 +59,9 @@ class NimbusServiceImpl final : public v1::NimbusService::CallbackService {
   grpc::ServerUnaryReactor* DeleteJob(grpc::CallbackServerContext* ctx,
                                       const v1::DeleteJobRequest* req,
                                       v1::DeleteJobResponse* resp) override;
+  grpc::ServerUnaryReactor* PokeJob(grpc::CallbackServerContext* ctx,
+                                    const v1::PokeJobRequest* req,
+                                    v1::PokeJobResponse* resp) override;
 
  private:
   // Validates and stores one submission (runs on the admission thread).
@@ -72,6 +75,9 @@ class NimbusServiceImpl final : public v1::NimbusService::CallbackService {
   // UNAUTHENTICATED at once.
   grpc::ServerUnaryReactor* OffThread(grpc::CallbackServerContext* ctx,
                                       std::function<grpc::Status(const Principal&)> work);
+  // PokeJob's body (runs on the executor).
+  grpc::Status Poke(const Principal& caller, const v1::PokeJobRequest& req,
+                    v1::PokeJobResponse& resp);
   // CancelJob's body (runs on the executor).
   grpc::Status Cancel(const Principal& caller, const std::string& job_id, v1::Job& out);
   // Waits up to cancel_wait_ms_ for `job_id` to leave RUNNING; its view then.

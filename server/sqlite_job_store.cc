@@ -32,8 +32,9 @@ namespace nimbus::server {
 namespace {
 
 // 1: the first schema. 2: adds jobs.error_code. 3: adds owner, pinned and
-// result_expire_time (security: ownership and retention).
-constexpr int kSchemaVersion = 3;
+// result_expire_time (security: ownership and retention). 4: adds the pokes
+// table (jelly jobs).
+constexpr int kSchemaVersion = 4;
 // Long enough to ride out another process's short write transactions, short
 // enough that a wedged peer surfaces as UNAVAILABLE instead of a hang.
 constexpr int kBusyTimeoutMs = 10000;
@@ -41,6 +42,14 @@ constexpr int kDefaultPageSize = 50;
 constexpr int kMaxPageSize = 500;
 constexpr char kCancelledByRequest[] = "cancelled by request";
 constexpr int kCancelledCode = static_cast<int>(absl::StatusCode::kCancelled);
+
+// Pokes on running jelly jobs; frame -1 until the job's runner takes them.
+#define NIMBUS_POKES_SQL                                                                \
+  "CREATE TABLE IF NOT EXISTS pokes (seq INTEGER PRIMARY KEY, job_id TEXT NOT NULL, "    \
+  "frame INTEGER NOT NULL DEFAULT -1, body INTEGER NOT NULL, drag INTEGER NOT NULL, "     \
+  "x REAL NOT NULL, y REAL NOT NULL, z REAL NOT NULL, drag_stiffness REAL NOT NULL, "    \
+  "drag_frames INTEGER NOT NULL);"                                                      \
+  "CREATE INDEX IF NOT EXISTS pokes_job_frame ON pokes (job_id, frame, seq);"
 
 constexpr char kSchemaSql[] = R"sql(
 CREATE TABLE IF NOT EXISTS jobs (
@@ -77,7 +86,7 @@ CREATE INDEX IF NOT EXISTS jobs_state_create ON jobs (state, create_time, id);
 CREATE INDEX IF NOT EXISTS jobs_create ON jobs (create_time, id);
 -- Idempotency keys are unique, but most jobs have none.
 CREATE UNIQUE INDEX IF NOT EXISTS jobs_request_id ON jobs (request_id) WHERE request_id <> '';
-)sql";
+)sql" NIMBUS_POKES_SQL;
 
 // Version 1 files gain the status code of failed and cancelled jobs. Jobs
 // that ended before codes were kept get CANCELLED (1) or UNKNOWN (2).
@@ -95,6 +104,9 @@ ALTER TABLE jobs ADD COLUMN pinned INTEGER NOT NULL DEFAULT 0;
 ALTER TABLE jobs ADD COLUMN result_expire_time INTEGER NOT NULL DEFAULT 0;
 CREATE INDEX IF NOT EXISTS jobs_owner_create ON jobs (owner, create_time, id);
 )sql";
+
+// Version 3 files gain the pokes table (no job has pokes yet).
+constexpr char kMigrateToV4Sql[] = NIMBUS_POKES_SQL;
 
 // Column order shared by every SELECT that feeds RowToRecord. Text a client
 // or a reader could make huge is cut in SQL already (stores written before
@@ -173,6 +185,7 @@ class Statement {
   }
   Statement& Bind(int index, int v) { return Bind(index, static_cast<int64_t>(v)); }
   Statement& Bind(int index, JobState v) { return Bind(index, static_cast<int64_t>(v)); }
+  Statement& BindDouble(int index, double v) { return Check(sqlite3_bind_double(stmt_, index, v)); }
   Statement& Bind(int index, const std::string& v) {
     return Check(
         sqlite3_bind_text(stmt_, index, v.data(), static_cast<int>(v.size()), SQLITE_TRANSIENT));
@@ -200,6 +213,7 @@ class Statement {
 
   int64_t Int(int col) const { return sqlite3_column_int64(stmt_, col); }
   uint64_t Uint(int col) const { return static_cast<uint64_t>(Int(col)); }
+  double Double(int col) const { return sqlite3_column_double(stmt_, col); }
   std::string Text(int col) const {
     const auto* p = reinterpret_cast<const char*>(sqlite3_column_text(stmt_, col));
     return p == nullptr ? std::string() : std::string(p, sqlite3_column_bytes(stmt_, col));
@@ -333,6 +347,10 @@ class SqliteJobStore final : public JobStore {
   absl::StatusOr<std::vector<JobRecord>> ListExpiring(TimeMs cutoff, int limit) override;
   absl::Status MarkResultExpired(const std::string& id, TimeMs now) override;
   absl::StatusOr<std::vector<std::string>> SpecsInUse() override;
+  absl::StatusOr<PokeRecord> AddPoke(const std::string& id, const PokeRecord& poke) override;
+  absl::StatusOr<std::vector<PokeRecord>> TakePokes(const std::string& id,
+                                                    const std::string& worker_id,
+                                                    int64_t frame) override;
 
  private:
   // Rolls back unless committed, so every early return leaves no open
@@ -518,7 +536,9 @@ absl::Status SqliteJobStore::Migrate() {
   } else {
     if (*version < 2)
       if (absl::Status s = Exec(kMigrateToV2Sql); !s.ok()) return s;
-    if (absl::Status s = Exec(kMigrateToV3Sql); !s.ok()) return s;
+    if (*version < 3)
+      if (absl::Status s = Exec(kMigrateToV3Sql); !s.ok()) return s;
+    if (absl::Status s = Exec(kMigrateToV4Sql); !s.ok()) return s;
   }
   if (absl::Status s = Exec(absl::StrCat("PRAGMA user_version=", kSchemaVersion).c_str());
       !s.ok()) {
@@ -1068,6 +1088,66 @@ absl::StatusOr<std::vector<std::string>> SqliteJobStore::SpecsInUse() {
     specs.push_back(s->Blob(0));
   }
   return specs;
+}
+
+absl::StatusOr<PokeRecord> SqliteJobStore::AddPoke(const std::string& id, const PokeRecord& poke) {
+  std::lock_guard<std::mutex> lock(mu_);
+  Transaction txn(this);
+  if (absl::Status s = txn.Begin(); !s.ok()) return s;
+  absl::StatusOr<JobRecord> job = LoadExistingLocked(id);
+  if (!job.ok()) return job.status();
+  if (job->state != JobState::kRunning)
+    return absl::FailedPreconditionError(absl::StrCat("job ", EchoId(id), " is ",
+                                                      StateName(job->state),
+                                                      "; pokes act on RUNNING jobs only"));
+  {
+    absl::StatusOr<Statement> s = Prepare(
+        "INSERT INTO pokes (job_id, frame, body, drag, x, y, z, drag_stiffness, drag_frames) "
+        "VALUES (?1, -1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)");
+    if (!s.ok()) return s.status();
+    s->Bind(1, id).Bind(2, int64_t{poke.body}).Bind(3, int64_t{poke.drag});
+    s->BindDouble(4, poke.x).BindDouble(5, poke.y).BindDouble(6, poke.z);
+    s->BindDouble(7, poke.drag_stiffness).Bind(8, int64_t{poke.drag_frames});
+    if (absl::Status st = s->Run(); !st.ok()) return st;
+  }
+  PokeRecord out = poke;
+  out.seq = sqlite3_last_insert_rowid(w_.db);
+  out.frame = -1;
+  if (absl::Status s = txn.Commit(); !s.ok()) return s;
+  return out;
+}
+
+absl::StatusOr<std::vector<PokeRecord>> SqliteJobStore::TakePokes(const std::string& id,
+                                                                  const std::string& worker_id,
+                                                                  int64_t frame) {
+  std::lock_guard<std::mutex> lock(mu_);
+  Transaction txn(this);
+  if (absl::Status s = txn.Begin(); !s.ok()) return s;
+  if (absl::Status s = CheckClaimLocked(id, worker_id); !s.ok()) return s;
+  {
+    absl::StatusOr<Statement> s =
+        Prepare("UPDATE pokes SET frame = ?2 WHERE job_id = ?1 AND frame < 0");
+    if (!s.ok()) return s.status();
+    s->Bind(1, id).Bind(2, frame);
+    if (absl::Status st = s->Run(); !st.ok()) return st;
+  }
+  std::vector<PokeRecord> out;
+  {
+    absl::StatusOr<Statement> s = Prepare(
+        "SELECT seq, frame, body, drag, x, y, z, drag_stiffness, drag_frames FROM pokes "
+        "WHERE job_id = ?1 AND frame = ?2 ORDER BY seq");
+    if (!s.ok()) return s.status();
+    s->Bind(1, id).Bind(2, frame);
+    for (;;) {
+      absl::StatusOr<bool> row = s->Step();
+      if (!row.ok()) return row.status();
+      if (!*row) break;
+      out.push_back({s->Int(0), s->Int(1), int32_t(s->Int(2)), s->Int(3) != 0, s->Double(4),
+                     s->Double(5), s->Double(6), s->Double(7), uint32_t(s->Int(8))});
+    }
+  }
+  if (absl::Status s = txn.Commit(); !s.ok()) return s;
+  return out;
 }
 
 absl::StatusOr<std::unique_ptr<JobStore>> OpenSqliteJobStore(const std::string& path) {

@@ -138,6 +138,29 @@ class WorkerPool::Context : public JobContext {
   std::filesystem::path ResultScratchPath() override {
     return pool_->results_->ScratchPath(record_.id);
   }
+  absl::StatusOr<std::vector<JellyPoke>> TakePokes(uint64_t frame) override {
+    auto taken = pool_->store_->TakePokes(record_.id, worker_id_, int64_t(frame));
+    if (!taken.ok()) {
+      spdlog::warn("job={} event=take_pokes_failed reason=\"{}\"", record_.id,
+                   taken.status().ToString());
+      if (absl::IsFailedPrecondition(taken.status()))
+        return absl::AbortedError("lost the job's claim");
+      return taken.status();
+    }
+    std::vector<JellyPoke> out;
+    for (const PokeRecord& r : *taken) {
+      JellyPoke p;
+      p.frame = frame;
+      p.body = r.body;
+      p.kind = r.drag ? JellyPoke::Kind::kDrag : JellyPoke::Kind::kImpulse;
+      p.vector = {r.x, r.y, r.z};
+      p.stiffness = r.drag_stiffness;
+      p.frames = r.drag_frames;
+      out.push_back(p);
+    }
+    if (!out.empty()) spdlog::info("job={} event=pokes frame={} count={}", record_.id, frame, out.size());
+    return out;
+  }
   Metadata BaseMetadata() const override {
     // Nothing per job or per run (id, time): a result's bytes depend only
     // on its spec, so identical specs give identical files.

@@ -40,5 +40,10 @@ inline constexpr char kFieldInterpolation[] = "nimbus_field_interpolation";
 inline constexpr char kFieldFrame[] = "nimbus_field_frame";
 inline constexpr char kFieldTime[] = "nimbus_field_time";
 inline constexpr char kFieldOutput[] = "nimbus_field_output";
+// Jelly frames.
+inline constexpr char kJellyFrame[] = "nimbus_jelly_frame";
+inline constexpr char kJellyTime[] = "nimbus_jelly_time";
+inline constexpr char kJellyLeaves[] = "nimbus_jelly_leaves";
+inline constexpr char kJellyPokes[] = "nimbus_jelly_pokes";
 
 }  // namespace nimbus::meta_key

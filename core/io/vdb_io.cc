@@ -554,6 +554,22 @@ openvdb::GridPtrVec BuildGrids(const CountGrid& counts, const GridFrame& fine_fr
   return out;
 }
 
+// Vectors are world-space quantities: a Z-up file turns them with the grid.
+openvdb::GridBase::Ptr BuildVec3Grid(const Vec3Field& field, const GridFrame& frame,
+                                     const OutputConventions& conventions) {
+  auto grid = NewGrid<openvdb::Vec3SGrid>(field.name, frame, openvdb::GRID_UNKNOWN);
+  grid->setVectorType(openvdb::VEC_CONTRAVARIANT_RELATIVE);
+  const bool z_up = conventions.up_axis == UpAxis::kZ;
+  auto acc = grid->getAccessor();
+  for (const auto& [c, v] : field.voxels) {
+    const openvdb::Vec3s w = z_up ? openvdb::Vec3s(float(v.x), float(-v.z), float(v.y))
+                                  : openvdb::Vec3s(float(v.x), float(v.y), float(v.z));
+    acc.setValueOn(openvdb::Coord(c.x, c.y, c.z), w);
+  }
+  FinishGrid(*grid, frame, conventions, 1);
+  return grid;
+}
+
 absl::StatusOr<DenseVolume> ToDense(const openvdb::GridPtrVecPtr& grids, const std::string& name) {
   openvdb::FloatGrid::Ptr grid;
   for (const auto& g : *grids)
@@ -612,10 +628,19 @@ const MetaValue* DenseVolume::Find(const std::string& key) const {
 absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid& counts,
                              const GridFrame& frame, const DensityOptions& options,
                              const Metadata& metadata) {
+  return WriteDensityVdb(path, counts, frame, options, metadata, {});
+}
+
+absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid& counts,
+                             const GridFrame& frame, const DensityOptions& options,
+                             const Metadata& metadata, const std::vector<Vec3Field>& fields) {
   InitOpenVdb();
   openvdb::GridPtrVec grids;
   try {
     grids = BuildGrids(counts, frame, options, metadata);
+    // The converter refuses downsampling when vector fields are written.
+    for (const Vec3Field& f : fields)
+      grids.push_back(BuildVec3Grid(f, frame, options.conventions));
   } catch (const std::exception& e) {
     return absl::InternalError(
         absl::StrCat("building the grids of ", path.string(), ": ", e.what()));

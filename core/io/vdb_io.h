@@ -108,6 +108,13 @@ inline constexpr double kSuggestedDepth = 2.0;
 using MetaValue = std::variant<std::string, int64_t, double>;
 using Metadata = std::vector<std::pair<std::string, MetaValue>>;
 
+/// @brief A sparse Vec3f grid written beside the density (e.g. the
+/// velocity "v" of jelly frames), on voxels of its own.
+struct Vec3Field {
+  std::string name;
+  std::vector<std::pair<Int3, Vec3>> voxels;
+};
+
 /// Writes `counts` as a FloatGrid (fog volume, max value 1) whose transform
 /// maps voxels onto `frame.bounds`, Blosc-compressed, through a temporary
 /// file renamed into place so readers never see a partial file. The grid
@@ -127,6 +134,11 @@ using Metadata = std::vector<std::pair<std::string, MetaValue>>;
 absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid& counts,
                              const GridFrame& frame, const DensityOptions& options,
                              const Metadata& metadata);
+/// The same plus one Vec3f grid per field (vector type "contravariant
+/// relative", as velocities are), carrying the frame metadata.
+absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid& counts,
+                             const GridFrame& frame, const DensityOptions& options,
+                             const Metadata& metadata, const std::vector<Vec3Field>& fields);
 
 /// Writes the exact visit counts as an Int64Grid "counts" (same transform,
 /// frame and normalisation metadata as the density) to its own file, through

@@ -11,6 +11,7 @@ const ChaosGameParams* JobPlan::point_run() const {
                                [](const FractalFieldPlan&) -> const ChaosGameParams* {
                                  return nullptr;
                                }},
+                               [](const JellyPlan&) -> const ChaosGameParams* { return nullptr; }},
                     kind);
 }
 
@@ -19,6 +20,7 @@ std::string_view KindName(const JobKindPlan& kind) {
                                [](const IfsMatrixPlan&) { return "ifs_matrix"; },
                                [](const SetIfsPlan&) { return "set_ifs"; },
                                [](const FractalFieldPlan&) { return "fractal_field"; }},
+                               [](const JellyPlan&) { return "jelly"; }},
                     kind);
 }
 

@@ -22,6 +22,7 @@
 #include "core/chaos/chaos_game.h"
 #include "core/field/field_plan.h"
 #include "core/io/vdb_io.h"
+#include "core/jelly/jelly_plan.h"
 #include "core/matrix/ifs_matrix_plan.h"
 #include "core/sets/set_ifs_plan.h"
 
@@ -33,7 +34,8 @@ struct ChaosGamePlan {
 };
 
 /// One alternative per job kind.
-using JobKindPlan = std::variant<ChaosGamePlan, IfsMatrixPlan, SetIfsPlan, FractalFieldPlan>;
+using JobKindPlan =
+    std::variant<ChaosGamePlan, IfsMatrixPlan, SetIfsPlan, FractalFieldPlan, JellyPlan>;
 
 /// @brief The units a job's iterating phase counts, for progress.
 struct WorkPlan {
@@ -58,12 +60,13 @@ struct JobPlan {
   const IfsMatrixPlan* ifs_matrix() const { return std::get_if<IfsMatrixPlan>(&kind); }
   const SetIfsPlan* set_ifs() const { return std::get_if<SetIfsPlan>(&kind); }
   const FractalFieldPlan* fractal_field() const { return std::get_if<FractalFieldPlan>(&kind); }
+  const JellyPlan* jelly() const { return std::get_if<JellyPlan>(&kind); }
   /// The chaos game of a point-IFS job (plain, or the whole matrix
-  /// selection); null for set IFS and fractal fields.
+  /// selection); null for set IFS, fractal fields and jelly.
   const ChaosGameParams* point_run() const;
 };
 
-/// "chaos_game", "ifs_matrix", "set_ifs" or "fractal_field": for logs and messages.
+/// "chaos_game", "ifs_matrix", "set_ifs", "fractal_field" or "jelly": for logs and messages.
 std::string_view KindName(const JobKindPlan& kind);
 
 }  // namespace nimbus

@@ -350,6 +350,22 @@ class Client:
         """Deletes a finished job and its result files; returns the bytes freed."""
         return self._unary("DeleteJob", pb2.DeleteJobRequest(job_id=_job_id(job))).freed_bytes
 
+    def poke(self, job, body, impulse=None, drag_target=None, drag_stiffness=0.0,
+             drag_frames=0):
+        """Pushes (`impulse`) or drags (`drag_target`) body `body` of a
+        running jelly job; vectors are (x, y, z). Returns the
+        PokeJobResponse (its `earliest_frame` is the first frame that can
+        show the poke)."""
+        if (impulse is None) == (drag_target is None):
+            raise ValueError("give exactly one of impulse or drag_target")
+        req = pb2.PokeJobRequest(job_id=_job_id(job))
+        req.push.body = body
+        req.push.drag_stiffness = drag_stiffness
+        req.push.drag_frames = drag_frames
+        target = req.push.impulse if impulse is not None else req.push.drag_target
+        target.x, target.y, target.z = (float(c) for c in (impulse or drag_target))
+        return self._unary("PokeJob", req)
+
     def list(self, state=None, limit=None, page_size=100):
         """Jobs newest first, all pages (or the first `limit`). `state` is a
         JobState value or a name such as "RUNNING"."""

@@ -9,6 +9,7 @@ import json
 import shutil
 import sys
 import tempfile
+import time
 import unittest
 from pathlib import Path
 
@@ -215,6 +216,29 @@ class ClientTest(unittest.TestCase):
         with self.assertRaises(nimbus.JobFailedError) as cm:
             nimbus.raise_for_job(final)
         self.assertEqual(cm.exception.code, grpc.StatusCode.CANCELLED)
+
+    def test_poke_a_running_jelly_job(self):
+        spec = json.loads((EXAMPLES / "jelly_sierpinski.json").read_text())
+        spec["grid"]["resolution"] = [32]
+        spec["jelly"].update(frames=2000, depth=8)
+        job = self.client.submit(spec)
+        try:
+            for _ in range(600):
+                if nimbus.state_name(self.client.get(job).state) == "RUNNING":
+                    break
+                time.sleep(0.05)
+            resp = self.client.poke(job, 0, impulse=(2, 0, 0))
+            self.assertGreater(resp.poke_id, 0)
+            self.assertLess(resp.earliest_frame, 2000)
+            with self.assertRaises(nimbus.NimbusError) as cm:
+                self.client.poke(job, 4, drag_target=(0, 1, 0))
+            self.assertEqual(cm.exception.code, grpc.StatusCode.INVALID_ARGUMENT)
+            self.assertIn("push.body", str(cm.exception))
+        finally:
+            final = self.client.wait(self.client.cancel(job))
+        with self.assertRaises(nimbus.NimbusError) as cm:
+            self.client.poke(final, 0, impulse=(1, 0, 0))
+        self.assertEqual(cm.exception.code, grpc.StatusCode.FAILED_PRECONDITION)
 
     def test_mesh_assets_are_uploaded_and_pinned(self):
         spec = json.loads((EXAMPLES / "cow_cloud.json").read_text())

@@ -740,7 +740,7 @@ int64_t QueryInt(const std::string& path, const char* sql) {
 
 TEST_F(SqliteJobStoreTest, SchemaIsVersionedWalAndIndexed) {
   const std::string path = db_path().string();
-  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 3);
+  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 4);
   // WAL is persistent in the file header, so a fresh connection reports it.
   EXPECT_EQ(QueryInt(path, "SELECT journal_mode = 'wal' FROM pragma_journal_mode"), 1);
   EXPECT_EQ(QueryInt(path,
@@ -805,19 +805,23 @@ PRAGMA journal_mode=WAL;
 PRAGMA user_version=1;
 )sql";
 
+// Runs `sql` on the database file at `path`, as an older binary would have.
+void ExecOnFile(const std::string& path, const std::string& sql) {
+  sqlite3* db = nullptr;
+  ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
+  char* err = nullptr;
+  EXPECT_EQ(sqlite3_exec(db, sql.c_str(), nullptr, nullptr, &err), SQLITE_OK) << err;
+  sqlite3_free(err);
+  sqlite3_close(db);
+}
+
 TEST(SqliteJobStoreOpenTest, UpgradesAVersionOneFile) {
   TempDir dir;
   const std::string path = (dir / "jobs.db").string();
-  {
-    sqlite3* db = nullptr;
-    ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
-    char* err = nullptr;
-    ASSERT_EQ(sqlite3_exec(db, kVersionOneSchema, nullptr, nullptr, &err), SQLITE_OK) << err;
-    sqlite3_close(db);
-  }
+  ExecOnFile(path, kVersionOneSchema);
   std::unique_ptr<JobStore> store = OpenOrDie(path);
   ASSERT_NE(store, nullptr);
-  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 3);
+  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 4);
   // Old jobs keep everything and gain the code their end implies.
   const std::pair<const char*, int> expected[] = {{"queued", 0}, {"failed", 2}, {"cancelled", 1}};
   for (const auto& [id, code] : expected) {
@@ -837,7 +841,7 @@ TEST(SqliteJobStoreOpenTest, UpgradesAVersionOneFile) {
   store = OpenOrDie(path);
   ASSERT_NE(store, nullptr);
   EXPECT_EQ(store->Get("queued")->error_code, 8);
-  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 3);
+  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 4);
 }
 
 // Another connection holds the write lock, as a slow writer in another
@@ -991,6 +995,91 @@ TEST_F(SqliteJobStoreTest, LapsedLeasesCountAsAttempts) {
   EXPECT_NE(got->error.find("gave up after 2 attempts: none recorded an end"),
             std::string::npos)
       << got->error;
+}
+
+}  // namespace
+}  // namespace nimbus::server
+
+namespace nimbus::server {
+namespace {
+
+PokeRecord Push(int32_t body, double x) {
+  PokeRecord p;
+  p.body = body;
+  p.x = x;
+  return p;
+}
+
+TEST_F(SqliteJobStoreTest, PokesNeedARunningJob) {
+  EXPECT_EQ(store_->AddPoke("nope", Push(0, 1)).status().code(), absl::StatusCode::kNotFound);
+  CreateOrDie(*store_, "a", kT0);
+  auto queued = store_->AddPoke("a", Push(0, 1));
+  EXPECT_EQ(queued.status().code(), absl::StatusCode::kFailedPrecondition);
+  EXPECT_NE(queued.status().message().find("QUEUED"), std::string::npos);
+  ASSERT_TRUE(store_->ClaimNext("w", kT0, 1000).ok());
+  auto ok = store_->AddPoke("a", Push(0, 1));
+  ASSERT_TRUE(ok.ok()) << ok.status();
+  EXPECT_EQ(ok->frame, -1);
+  EXPECT_GT(ok->seq, 0);
+}
+
+TEST_F(SqliteJobStoreTest, TakingPokesFixesTheirFrameForEveryLaterAttempt) {
+  CreateOrDie(*store_, "a", kT0);
+  ASSERT_TRUE(store_->ClaimNext("w1", kT0, 1000).ok());
+  PokeRecord drag = Push(2, 0.5);
+  drag.drag = true;
+  drag.y = -1;
+  drag.z = 2;
+  drag.drag_stiffness = 80;
+  drag.drag_frames = 3;
+  ASSERT_TRUE(store_->AddPoke("a", Push(1, 3)).ok());
+  ASSERT_TRUE(store_->AddPoke("a", drag).ok());
+  // Another worker cannot take them.
+  EXPECT_EQ(store_->TakePokes("a", "intruder", 4).status().code(),
+            absl::StatusCode::kFailedPrecondition);
+  auto at4 = store_->TakePokes("a", "w1", 4);
+  ASSERT_TRUE(at4.ok()) << at4.status();
+  ASSERT_EQ(at4->size(), 2u);
+  EXPECT_EQ((*at4)[0].body, 1);
+  EXPECT_EQ((*at4)[0].x, 3);
+  EXPECT_EQ((*at4)[0].frame, 4);
+  const PokeRecord& d = (*at4)[1];
+  EXPECT_TRUE(d.drag);
+  EXPECT_EQ(d.body, 2);
+  EXPECT_EQ(d.x, 0.5);
+  EXPECT_EQ(d.y, -1);
+  EXPECT_EQ(d.z, 2);
+  EXPECT_EQ(d.drag_stiffness, 80);
+  EXPECT_EQ(d.drag_frames, 3u);
+  EXPECT_LT((*at4)[0].seq, d.seq);
+  EXPECT_TRUE(store_->TakePokes("a", "w1", 5)->empty());
+  // A later poke goes to the next frame taken; the job restarts and a new
+  // attempt sees each poke at its own frame again.
+  ASSERT_TRUE(store_->AddPoke("a", Push(0, 7)).ok());
+  ASSERT_EQ(store_->TakePokes("a", "w1", 6)->size(), 1u);
+  ASSERT_TRUE(store_->Release("a", "w1").ok());
+  ASSERT_TRUE(store_->ClaimNext("w2", kT0 + 1, 1000).ok());
+  EXPECT_EQ(store_->TakePokes("a", "w2", 4)->size(), 2u);
+  EXPECT_TRUE(store_->TakePokes("a", "w2", 5)->empty());
+  auto at6 = store_->TakePokes("a", "w2", 6);
+  ASSERT_EQ(at6->size(), 1u);
+  EXPECT_EQ((*at6)[0].x, 7);
+}
+
+TEST(SqliteJobStoreOpenTest, UpgradesAVersionTwoFileWithOwnersAndAPokesTable) {
+  TempDir dir;
+  const std::string path = (dir / "jobs.db").string();
+  // Version 2 = version 1 plus error_code.
+  ExecOnFile(path, std::string(kVersionOneSchema) +
+                       "ALTER TABLE jobs ADD COLUMN error_code INTEGER NOT NULL DEFAULT 0;"
+                       "PRAGMA user_version=2;");
+  std::unique_ptr<JobStore> store = OpenOrDie(path);
+  ASSERT_NE(store, nullptr);
+  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 4);
+  EXPECT_EQ(QueryInt(path, "SELECT count(*) FROM pokes"), 0);
+  EXPECT_EQ(store->Get("failed")->error, "diverged");
+  ASSERT_TRUE(store->ClaimNext("w", kT0, 100).ok());
+  EXPECT_TRUE(store->AddPoke("queued", Push(0, 1)).ok());
 }
 
 }  // namespace

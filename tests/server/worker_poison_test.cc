@@ -69,6 +69,13 @@ class CompleteFailsStore final : public JobStore {
     return inner_->MarkResultExpired(id, now);
   }
   absl::StatusOr<std::vector<std::string>> SpecsInUse() override { return inner_->SpecsInUse(); }
+  absl::StatusOr<PokeRecord> AddPoke(const std::string& id, const PokeRecord& p) override {
+    return inner_->AddPoke(id, p);
+  }
+  absl::StatusOr<std::vector<PokeRecord>> TakePokes(const std::string& id, const std::string& w,
+                                                    int64_t frame) override {
+    return inner_->TakePokes(id, w, frame);
+  }
 
   std::atomic<int> completes{0};
 
