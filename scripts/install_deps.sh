@@ -9,6 +9,10 @@ PACKAGES=(
   libopenvdb-dev libboost-iostreams-dev libtbb-dev libblosc-dev
   libspdlog-dev libcli11-dev libsqlite3-dev libssl-dev libabsl-dev
   libgtest-dev libgmock-dev libbenchmark-dev
+  # SLEEF: vector sin, cos, atan2, exp, pow ... for the flame kernels.
+  libsleef-dev
+  # flam3-render: the flam3 agreement test and bench/compare_flam3.sh.
+  flam3-utils
   python3-openvdb libopenvdb-tools
   # The Python client (python/) and the Blender add-on test (dcc/blender/):
   # Debian's grpc and protobuf for /usr/bin/python3, and Blender 3.4, whose
