@@ -12,6 +12,10 @@ PACKAGES=(
   # Fractal fields: 16-bit PNG height maps; libnoise only for the benchmark's
   # comparison (bench/fractal_field_bench.cc).
   libpng-dev libnoise-dev
+  # SLEEF: vector sin, cos, atan2, exp, pow ... for the flame kernels.
+  libsleef-dev
+  # flam3-render: the flam3 agreement test and bench/compare_flam3.sh.
+  flam3-utils
   python3-openvdb libopenvdb-tools
   # The Python client (python/) and the Blender add-on test (dcc/blender/):
   # Debian's grpc and protobuf for /usr/bin/python3, and Blender 3.4, whose

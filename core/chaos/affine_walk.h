@@ -1,6 +1,6 @@
 // The chaos game's hot loop for plain affine IFS that only count visits:
 // many walkers in structure-of-arrays form, each plotted point's voxel
-// pushed straight into per-tile bins. A scalar and an AVX2 version give
+// pushed straight into per-tile bins. Scalar, AVX2 and AVX-512 versions give
 // bitwise-identical walks; core/cpu_dispatch.h picks one at run time.
 //
 // Everything here is plain data: the AVX2 translation unit includes only
@@ -71,10 +71,40 @@ struct AffineWalk {
   void (*exit)(void* owner, int lane) = nullptr;
 };
 
+namespace {
+
+// The SIMD kernels' last stage for lanes [g, g + n) of one register, given
+// bit masks of the lanes whose point is to be plotted, is finite and lies
+// inside the grid: a lane not plotted only reports a non-finite point, a
+// plotted one outside the grid reports, the rest push their bin entry.
+// Internal linkage: each SIMD file keeps its own copy (see above).
+inline void PushLanes(const AffineWalk& k, int g, int n, int plot, int finite, int inside,
+                      const uint32_t* bin, const uint32_t* entry) {
+  for (int l = 0; l < n; ++l) {
+    if (!((plot >> l) & 1)) {
+      if (!((finite >> l) & 1)) [[unlikely]]
+        k.exit(k.owner, g + l);
+      continue;
+    }
+    if (!((inside >> l) & 1)) [[unlikely]] {
+      k.exit(k.owner, g + l);
+      continue;
+    }
+    BinCursor& cur = k.bins[bin[l]];
+    if (cur.tail == cur.end) [[unlikely]]
+      k.refill(k.owner, bin[l]);
+    *cur.tail++ = entry[l];
+  }
+}
+
+}  // namespace
+
 /// Advances every lane by `steps` plotted steps.
 void WalkScalar(const AffineWalk& k, Walkers& w, uint64_t steps);
 /// Same walk with AVX2; call only where the CPU has AVX2.
 void WalkAvx2(const AffineWalk& k, Walkers& w, uint64_t steps);
+/// Same walk with AVX-512 (F and DQ); call only where the CPU has them.
+void WalkAvx512(const AffineWalk& k, Walkers& w, uint64_t steps);
 /// Advances one lane by `steps` plotted steps.
 void WalkLane(const AffineWalk& k, Walkers& w, int lane, uint64_t steps);
 

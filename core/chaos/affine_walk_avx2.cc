@@ -206,21 +206,7 @@ void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
       _mm_store_si128(reinterpret_cast<__m128i*>(bin), _mm_srl_epi32(tile, bin_shift));
       _mm_store_si128(reinterpret_cast<__m128i*>(entry),
                       _mm_or_si128(_mm_slli_epi32(_mm_and_si128(tile, in_bin), 15), local));
-      for (int l = 0; l < 4; ++l) {
-        if (!((plot >> l) & 1)) {
-          if (!((finite >> l) & 1)) [[unlikely]]
-            k.exit(k.owner, g + l);
-          continue;
-        }
-        if (!((inside >> l) & 1)) [[unlikely]] {
-          k.exit(k.owner, g + l);
-          continue;
-        }
-        BinCursor& cur = k.bins[bin[l]];
-        if (cur.tail == cur.end) [[unlikely]]
-          k.refill(k.owner, bin[l]);
-        *cur.tail++ = entry[l];
-      }
+      PushLanes(k, g, 4, plot, finite, inside, bin, entry);
     }
   }
 }

@@ -96,6 +96,11 @@ absl::StatusOr<std::unique_ptr<ChaosGame>> ChaosGame::Create(ChaosGameParams par
   game->num_chunks_ = (p.iterations + kChunkIterations - 1) / kChunkIterations;
   game->fast_ = UsesFastPath(p);
   game->simd_ = std::min(p.simd.value_or(ActiveSimd()), DetectSimd());
+  if (!game->fast_ && !p.chain) {
+    game->program_ = FlameProgram(ifs.maps);
+    if (ifs.final_map) game->final_program_.emplace(std::vector<PointMap>{*ifs.final_map});
+    game->apply_maps_ = FlameKernel(game->simd_);
+  }
   for (const PointMap& m : ifs.maps)
     for (const auto& row : m.pre.m)
       game->affine_coef_.insert(game->affine_coef_.end(), row.begin(), row.end());
@@ -441,7 +446,9 @@ void ChaosGame::RunChunkFast(uint64_t chunk, Worker& w) {
   k.exit = &FastChunk::Exit;
 
   const uint64_t rounds = count / kWalkers;
-  if (simd_ == SimdLevel::kAvx2)
+  if (simd_ == SimdLevel::kAvx512)
+    walk::WalkAvx512(k, c.lanes, rounds);
+  else if (simd_ == SimdLevel::kAvx2)
     walk::WalkAvx2(k, c.lanes, rounds);
   else
     walk::WalkScalar(k, c.lanes, rounds);
@@ -452,15 +459,6 @@ void ChaosGame::RunChunkFast(uint64_t chunk, Worker& w) {
 }
 
 namespace {
-
-// Applies the final map and the arcs (phase `n`) to a plotted point; false
-// when the result is not finite.
-inline bool ApplyFinal(const PointMap* final_map, const ArcsTransform* arcs, uint64_t n, Rng& rng,
-                       Vec3& q) {
-  if (final_map) q = final_map->Apply(q, rng);
-  if (arcs) q = arcs->Apply(q, n);
-  return IsFinite(q);
-}
 
 // A walker's colour coordinate as the key bits of one visit.
 inline uint64_t ColorBits(double col) {
@@ -500,128 +498,260 @@ size_t AppendSplatKeys(const CountGrid& grid, Int3 res, double fx, double fy, do
 
 }  // namespace
 
-void ChaosGame::RunChunk(uint64_t chunk, Worker& w) {
-  const ChaosGameParams& p = params_;
-  if (fast_) {
-    RunChunkFast(chunk, w);
-    return;
-  }
-  const uint64_t begin = chunk * kChunkIterations;
-  const uint64_t count = std::min(kChunkIterations, p.iterations - begin);
+// The general path's walkers and what they share: one walker's step and
+// warm-up, and the plotting of a point, for the walker-at-a-time loop
+// (RunChunk, chains) and the batched one (RunChunkBatch) alike.
+struct ChaosGame::General {
+  struct Lane {
+    Rng rng;
+    Vec3 pos;
+    uint32_t state = 0;
+    double addr = 0, col = 0;
+  };
 
+  ChaosGame& game;
+  Worker& w;
+  const ChaosGameParams& p = game.params_;
   const Bounds& b = p.frame.bounds;
   const Int3 res = p.frame.resolution;
-  const Vec3 vs = p.frame.VoxelSize();
-  const double ix = 1.0 / vs.x, iy = 1.0 / vs.y, iz = 1.0 / vs.z;
+  const Vec3 inv = {1.0 / p.frame.VoxelSize().x, 1.0 / p.frame.VoxelSize().y,
+                    1.0 / p.frame.VoxelSize().z};
   const std::vector<PointMap>& maps = p.ifs.maps;
   const PointMap* final_map = p.ifs.final_map ? &*p.ifs.final_map : nullptr;
   const ArcsTransform* arcs = p.ifs.arcs ? &*p.ifs.arcs : nullptr;
-  const bool has_final = final_map || arcs;
   const MarkovChain* chain = p.chain ? &*p.chain : nullptr;
   const bool affine = p.ifs.AllAffine();
   const ColorMode color_mode = p.color.mode;
   const double blend = p.color.blend;
   const double inv_maps = 1.0 / double(maps.size());
-  const bool splat = p.splat;
-  const size_t keys_per_step = splat ? 8 : 1;
+  const size_t keys_per_step = p.splat ? 8 : 1;
+  Poll poll;
   // Counters and the key buffer in locals: stores through `w` could alias
   // them and would keep them in memory.
   uint64_t reseeded = 0, outside = 0, final_nonfinite = 0;
   uint64_t* keys = w.keys.data();
   const size_t cap = w.keys.size();
-  Poll poll{this, chunk};
   size_t n_keys = w.n;
-  auto flush = [&] {
+
+  const uint64_t steps;  // plotted steps of the chunk
+
+  General(ChaosGame& g, Worker& worker, uint64_t chunk, uint64_t count)
+      : game(g), w(worker), poll{&g, chunk}, steps(count) {}
+  ~General() {
+    w.stats.iterations_done += steps;
+    w.n = n_keys;
+    w.stats.reseeded += reseeded;
+    w.stats.outside += outside;
+    w.stats.final_nonfinite += final_nonfinite;
+  }
+
+  // Room for one more plotted step in the key buffer.
+  void Reserve() {
+    if (n_keys + keys_per_step <= cap) [[likely]]
+      return;
     w.n = n_keys;
     w.Flush();
     n_keys = 0;
-  };
+  }
+  uint32_t PickMap(Lane& l) {
+    if (!chain) return game.map_table_.Sample(l.rng.Next());
+    const ChainState& st = chain->states[l.state];
+    const ChainTransition& t = st.transitions[game.state_tables_[l.state].Sample(l.rng.Next())];
+    l.state = t.next_state;
+    return t.map;
+  }
+  void Recolor(Lane& l, uint32_t map) {
+    if (color_mode == ColorMode::kNone) return;
+    l.addr = (double(map) + l.addr) * inv_maps;
+    const double target = color_mode == ColorMode::kAddress ? l.addr : maps[map].color;
+    l.col += blend * (target - l.col);
+  }
+  // One step; returns false if the point went non-finite.
+  bool Step(Lane& l) {
+    const uint32_t map = PickMap(l);
+    l.pos = affine ? maps[map].pre.Apply(l.pos) : maps[map].Apply(l.pos, l.rng);
+    Recolor(l, map);
+    return IsFinite(l.pos);
+  }
+  void WarmUp(Lane& l) {
+    l.pos = RandomPoint(l.rng, b);
+    l.state = chain ? chain->start_state : 0;
+    if (color_mode != ColorMode::kNone) l.addr = l.col = l.rng.Uniform();
+    for (uint32_t i = 0; i < p.warmup; ++i) {
+      if (poll.Tick()) [[unlikely]]
+        return;
+      if (!Step(l)) {
+        l.pos = RandomPoint(l.rng, b);
+        ++reseeded;
+      }
+    }
+  }
+  // Counts a plotted point `q` (after the final transform, when finite) of
+  // the lane with colour `col`; `n` is the step's global index (the arcs'
+  // phase).
+  void Plot(Vec3 q, double col, uint64_t n) {
+    if (arcs) q = arcs->Apply(q, n);
+    if (!IsFinite(q)) {
+      ++final_nonfinite;
+      ++outside;
+      return;
+    }
+    const double fx = (q.x - b.min.x) * inv.x, fy = (q.y - b.min.y) * inv.y,
+                 fz = (q.z - b.min.z) * inv.z;
+    // Written so NaN fails the test and counts as outside.
+    if (!(fx >= 0 && fx < res.x && fy >= 0 && fy < res.y && fz >= 0 && fz < res.z)) {
+      ++outside;
+      return;
+    }
+    const uint64_t color_bits = color_mode == ColorMode::kNone ? 0 : ColorBits(col);
+    if (!p.splat) {
+      keys[n_keys++] = w.grid->Key(int(fx), int(fy), int(fz)) | color_bits;
+      return;
+    }
+    n_keys += AppendSplatKeys(*w.grid, res, fx, fy, fz, color_bits, keys + n_keys);
+  }
+};
 
+void ChaosGame::RunChunk(uint64_t chunk, Worker& w) {
+  if (fast_) return RunChunkFast(chunk, w);
+  if (!params_.chain) return RunChunkBatch(chunk, w);
+  const uint64_t begin = chunk * kChunkIterations;
+  const uint64_t count = std::min(kChunkIterations, params_.iterations - begin);
+  General g(*this, w, chunk, count);
   // Walker-major: each walker runs all its steps in turn with its generator
   // and position in registers. A walker's steps depend on each other only
   // through the position, which out-of-order execution overlaps.
   for (int k = 0; k < kWalkers; ++k) {
-    Rng rng(p.seed, chunk * kWalkers + uint64_t(k));
-    Vec3 pos;
-    uint32_t state = 0;
-    double addr = 0, col = 0;
-    // One step; returns false if the point went non-finite.
-    auto step = [&] {
-      uint32_t map;
-      if (chain) {
-        const ChainState& st = chain->states[state];
-        const ChainTransition& t = st.transitions[state_tables_[state].Sample(rng.Next())];
-        map = t.map;
-        state = t.next_state;
-      } else {
-        map = map_table_.Sample(rng.Next());
-      }
-      pos = affine ? maps[map].pre.Apply(pos) : maps[map].Apply(pos, rng);
-      if (color_mode != ColorMode::kNone) {
-        addr = (double(map) + addr) * inv_maps;
-        const double target = color_mode == ColorMode::kAddress ? addr : maps[map].color;
-        col += blend * (target - col);
-      }
-      return IsFinite(pos);
-    };
-    auto warm_up = [&] {
-      pos = RandomPoint(rng, b);
-      state = chain ? chain->start_state : 0;
-      if (color_mode != ColorMode::kNone) addr = col = rng.Uniform();
-      for (uint32_t i = 0; i < p.warmup; ++i) {
-        if (poll.Tick()) [[unlikely]]
-          return;
-        if (!step()) {
-          pos = RandomPoint(rng, b);
-          ++reseeded;
-        }
-      }
-    };
-    // `n` is the global index of the plotted step (the arcs' phase).
-    auto plot = [&](uint64_t n) {
-      if (chain && !chain->states[state].plotted) return;
-      Vec3 q = pos;
-      if (has_final && !ApplyFinal(final_map, arcs, n, rng, q)) {
-        ++final_nonfinite;
-        ++outside;
-        return;
-      }
-      const double fx = (q.x - b.min.x) * ix, fy = (q.y - b.min.y) * iy, fz = (q.z - b.min.z) * iz;
-      // Written so NaN fails the test and counts as outside.
-      if (!(fx >= 0 && fx < res.x && fy >= 0 && fy < res.y && fz >= 0 && fz < res.z)) {
-        ++outside;
-        return;
-      }
-      const uint64_t color_bits = color_mode == ColorMode::kNone ? 0 : ColorBits(col);
-      if (!splat) {
-        keys[n_keys++] = w.grid->Key(int(fx), int(fy), int(fz)) | color_bits;
-        return;
-      }
-      n_keys += AppendSplatKeys(*w.grid, res, fx, fy, fz, color_bits, keys + n_keys);
-    };
-
-    warm_up();
+    General::Lane l;
+    l.rng = Rng(params_.seed, chunk * kWalkers + uint64_t(k));
+    g.WarmUp(l);
     // Walker k plots steps k, k + kWalkers, ... of the chunk.
     const uint64_t steps = count / kWalkers + (uint64_t(k) < count % kWalkers ? 1 : 0);
     for (uint64_t j = 0; j < steps; ++j) {
       // A stopped chunk's counts are thrown away with the job.
-      if (poll.Tick()) [[unlikely]]
+      if (g.poll.Tick()) [[unlikely]]
         break;
-      if (n_keys + keys_per_step > cap) [[unlikely]]
-        flush();
-      if (!step()) [[unlikely]] {
-        ++reseeded;
-        warm_up();
+      g.Reserve();
+      if (!g.Step(l)) [[unlikely]] {
+        ++g.reseeded;
+        g.WarmUp(l);
         continue;
       }
-      plot(begin + j * kWalkers + uint64_t(k));
+      if (g.chain && !g.chain->states[l.state].plotted) continue;
+      Vec3 q = l.pos;
+      if (g.final_map) q = g.final_map->Apply(q, l.rng);
+      g.Plot(q, l.col, begin + j * kWalkers + uint64_t(k));
     }
   }
-  w.n = n_keys;
-  w.stats.reseeded += reseeded;
-  w.stats.outside += outside;
-  w.stats.final_nonfinite += final_nonfinite;
-  w.stats.iterations_done += count;
+}
+
+namespace {
+
+// Puts walker k in slot slot_of[k], grouping walkers by map (in walker
+// order within a map) and padding each group to a whole register, so a
+// register evaluates only its own map's terms; without room for the
+// padding, groups are packed. Padding slots repeat their group's map.
+// Returns the slot count (a multiple of kSlotAlign).
+int GroupByMap(const uint32_t* map, int n, int* slot_of, flame::Batch& b) {
+  constexpr int kWalkers = ChaosGame::kWalkers;
+  auto round_up = [](int v) {
+    return (v + flame::kSlotAlign - 1) / flame::kSlotAlign * flame::kSlotAlign;
+  };
+  uint32_t groups[kWalkers];
+  int sizes[kWalkers] = {}, group_of[kWalkers], num_groups = 0, padded = 0;
+  for (int k = 0; k < n; ++k) {
+    int g = 0;
+    while (g < num_groups && groups[g] != map[k]) ++g;
+    if (g == num_groups) groups[num_groups++] = map[k];
+    group_of[k] = g;
+    ++sizes[g];
+  }
+  for (int g = 0; g < num_groups; ++g) padded += round_up(sizes[g]);
+  const bool pad = padded <= flame::kSlots;
+  int fill[kWalkers], next = 0;
+  for (int g = 0; g < num_groups; ++g) {
+    fill[g] = next;
+    const int end = next + (pad ? round_up(sizes[g]) : sizes[g]);
+    for (int s = next; s < end; ++s) b.map[s] = groups[g], b.x[s] = b.y[s] = b.z[s] = 0;
+    next = end;
+  }
+  const int count = round_up(next);
+  for (int s = next; s < count; ++s)
+    b.map[s] = groups[num_groups - 1], b.x[s] = b.y[s] = b.z[s] = 0;
+  for (int k = 0; k < n; ++k) slot_of[k] = fill[group_of[k]]++;
+  return count;
+}
+
+}  // namespace
+
+// The batched general path without a chain: all walkers of the chunk step
+// together, their maps applied by the flame kernel of the SIMD level.
+// Random numbers are drawn per walker in the scalar engine's order, so the
+// scalar kernel counts exactly what RunChunk would.
+void ChaosGame::RunChunkBatch(uint64_t chunk, Worker& w) {
+  const uint64_t begin = chunk * kChunkIterations;
+  const uint64_t count = std::min(kChunkIterations, params_.iterations - begin);
+  General g(*this, w, chunk, count);
+  General::Lane lanes[kWalkers];
+  for (int k = 0; k < kWalkers; ++k) {
+    lanes[k].rng = Rng(params_.seed, chunk * kWalkers + uint64_t(k));
+    g.WarmUp(lanes[k]);
+  }
+  const FlameProgram* final_program = final_program_ ? &*final_program_ : nullptr;
+  const uint32_t columns =
+      std::max(program_.draw_columns(), final_program ? final_program->draw_columns() : 0u);
+  std::vector<double> draws(size_t(std::max(columns, 1u)) * flame::kSlots, 0.0);
+  flame::Batch step, fin;
+  step.draws = fin.draws = draws.data();
+  for (int s = 0; s < flame::kSlots; ++s) fin.map[s] = 0;
+  const uint64_t rounds = (count + kWalkers - 1) / kWalkers;
+  for (uint64_t j = 0; j < rounds; ++j) {
+    // In the last round only the first count % kWalkers walkers step.
+    const int active = int(std::min<uint64_t>(kWalkers, count - j * kWalkers));
+    bool stop = false;
+    uint32_t map[kWalkers];
+    int slot[kWalkers];
+    for (int k = 0; k < active; ++k) {
+      stop = stop || g.poll.Tick();
+      map[k] = g.PickMap(lanes[k]);
+    }
+    // A stopped chunk's counts are thrown away with the job.
+    if (stop) [[unlikely]]
+      break;
+    step.count = GroupByMap(map, active, slot, step);
+    for (int k = 0; k < active; ++k) {
+      General::Lane& l = lanes[k];
+      const int s = slot[k];
+      program_.Draw(map[k], l.rng, draws.data(), s);
+      step.x[s] = l.pos.x, step.y[s] = l.pos.y, step.z[s] = l.pos.z;
+    }
+    apply_maps_(program_.tables(), step);
+    int plotted[kWalkers], n_plotted = 0;
+    for (int k = 0; k < active; ++k) {
+      General::Lane& l = lanes[k];
+      l.pos = {step.x[slot[k]], step.y[slot[k]], step.z[slot[k]]};
+      g.Recolor(l, map[k]);
+      if (!IsFinite(l.pos)) [[unlikely]] {
+        ++g.reseeded;
+        g.WarmUp(l);
+        continue;
+      }
+      plotted[n_plotted] = k;
+      if (final_program) final_program->Draw(0, l.rng, draws.data(), n_plotted);
+      fin.x[n_plotted] = l.pos.x, fin.y[n_plotted] = l.pos.y, fin.z[n_plotted] = l.pos.z;
+      ++n_plotted;
+    }
+    if (final_program) {
+      fin.count = (n_plotted + flame::kSlotAlign - 1) / flame::kSlotAlign * flame::kSlotAlign;
+      for (int s = n_plotted; s < fin.count; ++s) fin.x[s] = fin.y[s] = fin.z[s] = 0;
+      apply_maps_(final_program->tables(), fin);
+    }
+    for (int i = 0; i < n_plotted; ++i) {
+      const int k = plotted[i];
+      g.Reserve();
+      g.Plot({fin.x[i], fin.y[i], fin.z[i]}, lanes[k].col, begin + j * kWalkers + uint64_t(k));
+    }
+  }
 }
 
 absl::Status ChaosGame::RunUntil(uint64_t iterations, Interrupter* interrupter) {

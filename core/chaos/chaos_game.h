@@ -12,6 +12,7 @@
 #include "core/base/cpu_dispatch.h"
 #include "core/base/geometry.h"
 #include "core/base/interrupter.h"
+#include "core/chaos/flame_program.h"
 #include "core/chaos/point_map.h"
 
 namespace nimbus {
@@ -95,7 +96,8 @@ struct ChaosGameParams {
   /// so counts are in units of 1/kSplatScale visit.
   bool splat = false;
   /// SIMD level of the walk kernels; unset means ActiveSimd(). Never above
-  /// what the CPU has. Every level gives the same counts.
+  /// what the CPU has. Affine maps count the same at every level; maps with
+  /// variations count the same for a given level (docs/chaos_game.md).
   std::optional<SimdLevel> simd;
   /// Bytes the accumulation may hold (0: no limit). A run whose counters
   /// outgrow it stops with ResourceExhausted instead of exhausting the
@@ -196,7 +198,11 @@ class ChaosGame {
   ChaosGame(ChaosGameParams params, int threads);
   struct Worker;
   struct FastChunk;
+  struct General;
   void RunChunk(uint64_t chunk, Worker& worker);
+  // The general path without a chain: the chunk's walkers in one batch,
+  // maps applied by the flame kernel of the SIMD level (core/flame_walk.h).
+  void RunChunkBatch(uint64_t chunk, Worker& worker);
   // The fast path (UsesFastPath): the walk kernels of core/affine_walk.h
   // write into per-thread TileBins. Same random streams and arithmetic as
   // RunChunk, so the same counts.
@@ -222,6 +228,10 @@ class ChaosGame {
   bool fast_ = false;
   SimdLevel simd_ = SimdLevel::kScalar;
   std::vector<double> affine_coef_;  // 12 per map, for the fast path
+  // The maps and the final map for RunChunkBatch, and its kernel.
+  FlameProgram program_;
+  std::optional<FlameProgram> final_program_;
+  flame::ApplyMapsFn apply_maps_ = nullptr;
   // The chain as flat tables for the fast path (walk::ChainTables).
   struct FlatChain {
     std::vector<uint64_t> state, sample, step;

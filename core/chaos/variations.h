@@ -10,36 +10,9 @@
 
 #include "core/base/geometry.h"
 #include "core/base/random.h"
+#include "core/chaos/variation_kind.h"
 
 namespace nimbus {
-
-enum class VariationKind {
-  kLinear,
-  kSinusoidal,
-  kSpherical,
-  kSwirl,
-  kHorseshoe,
-  kPolar,
-  kHandkerchief,
-  kHeart,
-  kDisc,
-  kSpiral,
-  kHyperbolic,
-  kDiamond,
-  kEx,
-  kJulia,
-  kBent,
-  kWaves,
-  kFisheye,
-  kPopcorn,
-  kExponential,
-  kPower,
-  kCylinder,
-  kBubble,
-  kBlur,
-  kNoise,
-  kPolarDoubling,  // the reference description's (r, theta) -> (r / sqrt 2, 2 theta)
-};
 
 /// One weighted term of a map's variation sum. `params` carries the few
 /// variations that take parameters; unused entries are ignored.

@@ -335,7 +335,8 @@ ChaosGameParams CroppedWithBlowUp(uint64_t iterations) {
 
 std::vector<SimdLevel> SimdLevelsOfThisCpu() {
   std::vector<SimdLevel> levels = {SimdLevel::kScalar};
-  if (DetectSimd() == SimdLevel::kAvx2) levels.push_back(SimdLevel::kAvx2);
+  if (DetectSimd() >= SimdLevel::kAvx2) levels.push_back(SimdLevel::kAvx2);
+  if (DetectSimd() >= SimdLevel::kAvx512) levels.push_back(SimdLevel::kAvx512);
   return levels;
 }
 
@@ -354,10 +355,11 @@ TEST(ChaosGameFastPath, MatchesTheReferenceLoopAtEverySimdLevel) {
   }
 }
 
-// Each way of finding a map's coefficients in the AVX2 kernel: up to 4 maps
-// (one permute), up to 8 (two), and more (gathers).
+// Each way of finding a map's coefficients in the AVX2 kernel (up to 4 maps:
+// one permute, up to 8: two, more: gathers) and the AVX-512 kernel (up to 8:
+// one permute, more: gathers).
 TEST(ChaosGameFastPath, SimdLevelsAgreeForEveryMapCount) {
-  if (DetectSimd() != SimdLevel::kAvx2) GTEST_SKIP() << "no AVX2 on this CPU";
+  if (DetectSimd() < SimdLevel::kAvx2) GTEST_SKIP() << "no AVX2 on this CPU";
   for (int maps : {1, 3, 5, 8, 11}) {
     SCOPED_TRACE(maps);
     ChaosGameParams params = OctantCloud(300'000 + maps, 32);
@@ -371,13 +373,17 @@ TEST(ChaosGameFastPath, SimdLevelsAgreeForEveryMapCount) {
     params.ifs.probabilities.clear();
     for (int i = 0; i < maps; ++i) params.ifs.probabilities.push_back(1.0 + i);
     params.simd = SimdLevel::kScalar;
-    ChaosGameStats scalar_stats, avx2_stats;
+    ChaosGameStats scalar_stats;
     const CountGrid scalar = RunGame(params, 1, &scalar_stats);
-    params.simd = SimdLevel::kAvx2;
-    const CountGrid avx2 = RunGame(params, 2, &avx2_stats);
-    ExpectSameGrids(scalar, avx2);
-    EXPECT_EQ(scalar_stats.outside, avx2_stats.outside);
     EXPECT_GT(scalar.Total(), 0u);
+    for (SimdLevel level : SimdLevelsOfThisCpu()) {
+      SCOPED_TRACE(std::string(SimdName(level)));
+      params.simd = level;
+      ChaosGameStats stats;
+      const CountGrid got = RunGame(params, 2, &stats);
+      ExpectSameGrids(scalar, got);
+      EXPECT_EQ(scalar_stats.outside, stats.outside);
+    }
   }
 }
 

@@ -42,6 +42,8 @@ Affine3 TestPre() {
 VariationTerm Term(VariationKind kind) { return VariationTerm{kind, 1.0, {}}; }
 
 Complex Xy(Vec3 p) { return {p.x, p.y}; }
+// flam3's planar angle, measured from +y towards +x (docs/variations.md).
+double FlameAngle(Vec3 p) { return std::atan2(p.x, p.y); }
 Vec3 FromXy(Complex w, double z) { return {w.real(), w.imag(), z}; }
 
 // Relative to the size of the expected vector: near-zero components of a
@@ -98,35 +100,34 @@ TEST(Variations, Horseshoe) {
 
 TEST(Variations, Polar) {
   ExpectFormula(VariationKind::kPolar, [](Vec3 p) {
-    const Complex w = Xy(p);
-    return Vec3{std::arg(w) / kPi, std::abs(w) - 1.0, p.z};
+    return Vec3{FlameAngle(p) / kPi, std::abs(Xy(p)) - 1.0, p.z};
   });
 }
 
 TEST(Variations, Handkerchief) {
   ExpectFormula(VariationKind::kHandkerchief, [](Vec3 p) {
-    const double rho = std::abs(Xy(p)), t = std::arg(Xy(p));
+    const double rho = std::abs(Xy(p)), t = FlameAngle(p);
     return Vec3{rho * std::sin(t + rho), rho * std::cos(t - rho), p.z};
   });
 }
 
 TEST(Variations, Heart) {
   ExpectFormula(VariationKind::kHeart, [](Vec3 p) {
-    const double rho = std::abs(Xy(p)), t = std::arg(Xy(p));
+    const double rho = std::abs(Xy(p)), t = FlameAngle(p);
     return Vec3{rho * std::sin(t * rho), -rho * std::cos(t * rho), p.z};
   });
 }
 
 TEST(Variations, Disc) {
   ExpectFormula(VariationKind::kDisc, [](Vec3 p) {
-    const double rho = std::abs(Xy(p)), t = std::arg(Xy(p));
+    const double rho = std::abs(Xy(p)), t = FlameAngle(p);
     return Vec3{t / kPi * std::sin(kPi * rho), t / kPi * std::cos(kPi * rho), p.z};
   });
 }
 
 TEST(Variations, Spiral) {
   ExpectFormula(VariationKind::kSpiral, [](Vec3 p) {
-    const double rho = std::abs(Xy(p)), t = std::arg(Xy(p));
+    const double rho = std::abs(Xy(p)), t = FlameAngle(p);
     return Vec3{(std::cos(t) + std::sin(rho)) / (rho + kEps),
                 (std::sin(t) - std::cos(rho)) / (rho + kEps), p.z};
   });
@@ -134,21 +135,21 @@ TEST(Variations, Spiral) {
 
 TEST(Variations, Hyperbolic) {
   ExpectFormula(VariationKind::kHyperbolic, [](Vec3 p) {
-    const double rho = std::abs(Xy(p)), t = std::arg(Xy(p));
-    return Vec3{std::sin(t) / (rho + kEps), rho * std::cos(t), p.z};
+    const double rho = std::abs(Xy(p)), t = FlameAngle(p);
+    return Vec3{std::sin(t) / (rho + kEps), (rho + kEps) * std::cos(t), p.z};
   });
 }
 
 TEST(Variations, Diamond) {
   ExpectFormula(VariationKind::kDiamond, [](Vec3 p) {
-    const double rho = std::abs(Xy(p)), t = std::arg(Xy(p));
+    const double rho = std::abs(Xy(p)), t = FlameAngle(p);
     return Vec3{std::sin(t) * std::cos(rho), std::cos(t) * std::sin(rho), p.z};
   });
 }
 
 TEST(Variations, Ex) {
   ExpectFormula(VariationKind::kEx, [](Vec3 p) {
-    const double rho = std::abs(Xy(p)), t = std::arg(Xy(p));
+    const double rho = std::abs(Xy(p)), t = FlameAngle(p);
     const double a = std::pow(std::sin(t + rho), 3), b = std::pow(std::cos(t - rho), 3);
     return Vec3{rho * (a + b), rho * (a - b), p.z};
   });
@@ -191,7 +192,7 @@ TEST(Variations, Exponential) {
 
 TEST(Variations, Power) {
   ExpectFormula(VariationKind::kPower, [](Vec3 p) {
-    const double rho = std::abs(Xy(p)), t = std::arg(Xy(p));
+    const double rho = std::abs(Xy(p)), t = FlameAngle(p);
     return FromXy(std::polar(std::pow(rho, std::sin(t)), t), p.z);
   });
 }
@@ -228,7 +229,8 @@ TEST(Variations, JuliaMatchesEitherSquareRootFromSameDraw) {
   for (int round = 0; round < 20; ++round) {
     for (Vec3 p : SamplePoints()) {
       const Vec3 got = EvaluateVariation(Term(VariationKind::kJulia), p, TestPre(), rng);
-      Complex want = std::sqrt(Xy(p));  // principal root
+      // A square root of rho e^{i t} with flam3's angle t.
+      Complex want = std::polar(std::sqrt(std::abs(Xy(p))), 0.5 * FlameAngle(p));
       if (twin.Next() >> 63) {
         want = -want;
         ++flipped;

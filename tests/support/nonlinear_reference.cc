@@ -147,7 +147,7 @@ Vec3 DocsVariation(VariationKind kind, Vec3 q, Rng& rng) {
     case VariationKind::kJulia: {
       const double omega = (rng.Next() >> 63) ? kPi : 0.0;
       const std::complex<double> root =
-          std::polar(std::sqrt(std::abs(w)), 0.5 * std::arg(w) + omega);
+          std::polar(std::sqrt(std::abs(w)), 0.5 * std::atan2(q.x, q.y) + omega);  // flam3's angle
       return {root.real(), root.imag(), q.z};
     }
     case VariationKind::kBubble:

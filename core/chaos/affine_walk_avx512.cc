@@ -1,0 +1,195 @@
+// AVX-512 version of the affine walk: eight lanes per register, two register
+// groups per round. Compiled without FMA contraction, so every product and
+// sum rounds exactly as in the scalar kernel and the counts are the same.
+// Includes nothing but the plain data header; see affine_walk.h.
+#include <immintrin.h>
+
+#include "core/chaos/affine_walk.h"
+
+// GCC 12's AVX-512 headers start some intrinsics from an undefined register,
+// which -Wmaybe-uninitialized reports; the values are all written.
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+
+namespace nimbus::walk {
+
+namespace {
+
+// With up to 8 maps the tables sit in one register each and a lane permute
+// fetches an entry; beyond that, gathers.
+enum Lookup { kPermute, kGather };
+
+struct Tables {
+  __m512i threshold, alias;  // up to 8 entries, as uint64
+  __m512d coef[12];          // [j] = coefficient j of maps 0..7
+};
+
+inline __m512i Gather32(const uint32_t* table, __m512i index) {
+  return _mm512_cvtepu32_epi64(_mm512_i64gather_epi32(index, table, 4));
+}
+
+inline __m512i Gather64(const uint64_t* table, __m512i index) {
+  return _mm512_i64gather_epi64(index, table, 8);
+}
+
+inline __m512i Load(const uint64_t* p) { return _mm512_load_si512(p); }
+inline void Store(uint64_t* p, __m512i v) { _mm512_store_si512(p, v); }
+
+template <Lookup kLookup, bool kChain>
+void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
+  Tables tab;
+  if constexpr (kLookup == kPermute) {
+    alignas(64) uint64_t thr[8] = {0}, ali[8] = {0};
+    if constexpr (!kChain) {  // a chain has its own tables, and no map alias table
+      for (uint32_t m = 0; m < k.num_maps; ++m) thr[m] = k.threshold[m], ali[m] = k.alias[m];
+    }
+    tab.threshold = _mm512_load_si512(thr);
+    tab.alias = _mm512_load_si512(ali);
+    alignas(64) double c[8];
+    for (int j = 0; j < 12; ++j) {
+      for (uint32_t m = 0; m < 8; ++m) c[m] = m < k.num_maps ? k.coef[12 * m + j] : 0.0;
+      tab.coef[j] = _mm512_load_pd(c);
+    }
+  }
+  const __m512i n = _mm512_set1_epi64(k.num_maps);
+  const __m512i low32 = _mm512_set1_epi64(0xffffffffLL);
+  const __m512d min_x = _mm512_set1_pd(k.min[0]), min_y = _mm512_set1_pd(k.min[1]),
+                min_z = _mm512_set1_pd(k.min[2]);
+  const __m512d inv_x = _mm512_set1_pd(k.inv_voxel[0]), inv_y = _mm512_set1_pd(k.inv_voxel[1]),
+                inv_z = _mm512_set1_pd(k.inv_voxel[2]);
+  const __m512d res_x = _mm512_set1_pd(k.res[0]), res_y = _mm512_set1_pd(k.res[1]),
+                res_z = _mm512_set1_pd(k.res[2]);
+  const __m512d zero = _mm512_setzero_pd();
+  const __m256i tiles_y = _mm256_set1_epi32(int(k.tiles_y)),
+                tiles_z = _mm256_set1_epi32(int(k.tiles_z));
+  const __m256i three = _mm256_set1_epi32(3), seven = _mm256_set1_epi32(7);
+  const __m256i in_bin = _mm256_set1_epi32(int((1u << k.bin_shift) - 1));
+  const __m128i bin_shift = _mm_cvtsi32_si128(int(k.bin_shift));
+
+  for (uint64_t s = 0; s < steps; ++s) {
+    for (int g = 0; g < kLanes; g += 8) {
+      // xoshiro256++, eight streams.
+      __m512i s0 = Load(w.s0 + g), s1 = Load(w.s1 + g), s2 = Load(w.s2 + g), s3 = Load(w.s3 + g);
+      const __m512i r = _mm512_add_epi64(_mm512_rol_epi64(_mm512_add_epi64(s0, s3), 23), s0);
+      const __m512i t = _mm512_slli_epi64(s1, 17);
+      s2 = _mm512_xor_si512(s2, s0);
+      s3 = _mm512_xor_si512(s3, s1);
+      s1 = _mm512_xor_si512(s1, s2);
+      s0 = _mm512_xor_si512(s0, s3);
+      s2 = _mm512_xor_si512(s2, t);
+      s3 = _mm512_rol_epi64(s3, 45);
+      Store(w.s0 + g, s0), Store(w.s1 + g, s1), Store(w.s2 + g, s2), Store(w.s3 + g, s3);
+
+      // Alias sampling: i = (r_hi * n) >> 32, keep i if r_lo < threshold[i];
+      // with a chain, over the transitions of the walker's state.
+      __m512i m;
+      __mmask8 plot = 0xFF;
+      if constexpr (kChain) {
+        const ChainTables& c = *k.chain;
+        const __m512i info = Gather64(c.state, Load(w.state + g));
+        const __m512i off = _mm512_and_si512(info, low32);
+        const __m512i i = _mm512_srli_epi64(
+            _mm512_mul_epu32(_mm512_srli_epi64(r, 32), _mm512_srli_epi64(info, 32)), 32);
+        const __m512i sample = Gather64(c.sample, _mm512_add_epi64(off, i));
+        const __mmask8 keep =
+            _mm512_cmpgt_epi64_mask(_mm512_and_si512(sample, low32), _mm512_and_si512(r, low32));
+        const __m512i t2 =
+            _mm512_add_epi64(off, _mm512_mask_blend_epi64(keep, _mm512_srli_epi64(sample, 32), i));
+        const __m512i step = Gather64(c.step, t2);
+        m = _mm512_and_si512(step, _mm512_set1_epi64(0x7fffffff));
+        Store(w.state + g, _mm512_srli_epi64(step, 32));
+        plot = _mm512_test_epi64_mask(step, _mm512_set1_epi64(0x80000000LL));
+      } else {
+        const __m512i i = _mm512_srli_epi64(_mm512_mul_epu32(_mm512_srli_epi64(r, 32), n), 32);
+        __m512i thr, ali;
+        if constexpr (kLookup == kGather) {
+          thr = Gather32(k.threshold, i);
+          ali = Gather32(k.alias, i);
+        } else {
+          thr = _mm512_permutexvar_epi64(i, tab.threshold);
+          ali = _mm512_permutexvar_epi64(i, tab.alias);
+        }
+        const __mmask8 keep = _mm512_cmpgt_epi64_mask(thr, _mm512_and_si512(r, low32));
+        m = _mm512_mask_blend_epi64(keep, ali, i);
+      }
+
+      // The map's coefficients for each lane.
+      const __m512i gather_index = _mm512_mullo_epi64(m, _mm512_set1_epi64(12));
+      auto coef = [&](int j) -> __m512d {
+        if constexpr (kLookup == kGather)
+          return _mm512_i64gather_pd(gather_index, k.coef + j, 8);
+        else
+          return _mm512_permutexvar_pd(m, tab.coef[j]);
+      };
+      const __m512d x = _mm512_load_pd(w.x + g), y = _mm512_load_pd(w.y + g),
+                    z = _mm512_load_pd(w.z + g);
+      auto row = [&](int j) {
+        __m512d v = _mm512_mul_pd(coef(j), x);
+        v = _mm512_add_pd(v, _mm512_mul_pd(coef(j + 1), y));
+        v = _mm512_add_pd(v, _mm512_mul_pd(coef(j + 2), z));
+        return _mm512_add_pd(v, coef(j + 3));
+      };
+      const __m512d nx = row(0), ny = row(4), nz = row(8);
+      _mm512_store_pd(w.x + g, nx);
+      _mm512_store_pd(w.y + g, ny);
+      _mm512_store_pd(w.z + g, nz);
+
+      // Voxel coordinates and the inside test (NaN compares false).
+      const __m512d fx = _mm512_mul_pd(_mm512_sub_pd(nx, min_x), inv_x);
+      const __m512d fy = _mm512_mul_pd(_mm512_sub_pd(ny, min_y), inv_y);
+      const __m512d fz = _mm512_mul_pd(_mm512_sub_pd(nz, min_z), inv_z);
+      __mmask8 inside =
+          _mm512_cmp_pd_mask(fx, zero, _CMP_GE_OQ) & _mm512_cmp_pd_mask(fx, res_x, _CMP_LT_OQ) &
+          _mm512_cmp_pd_mask(fy, zero, _CMP_GE_OQ) & _mm512_cmp_pd_mask(fy, res_y, _CMP_LT_OQ) &
+          _mm512_cmp_pd_mask(fz, zero, _CMP_GE_OQ) & _mm512_cmp_pd_mask(fz, res_z, _CMP_LT_OQ);
+      // Lanes in an unplotted chain state only need to be finite.
+      __mmask8 finite = 0xFF;
+      if constexpr (kChain) {
+        finite = _mm512_cmp_pd_mask(_mm512_sub_pd(nx, nx), zero, _CMP_EQ_OQ) &
+                 _mm512_cmp_pd_mask(_mm512_sub_pd(ny, ny), zero, _CMP_EQ_OQ) &
+                 _mm512_cmp_pd_mask(_mm512_sub_pd(nz, nz), zero, _CMP_EQ_OQ);
+      }
+
+      const __m256i ix = _mm512_cvttpd_epi32(fx), iy = _mm512_cvttpd_epi32(fy),
+                    iz = _mm512_cvttpd_epi32(fz);
+      const __m256i tile = _mm256_add_epi32(
+          _mm256_mullo_epi32(_mm256_add_epi32(_mm256_mullo_epi32(_mm256_srli_epi32(ix, 5), tiles_y),
+                                              _mm256_srli_epi32(iy, 5)),
+                             tiles_z),
+          _mm256_srli_epi32(iz, 5));
+      const __m256i leaf = _mm256_or_si256(
+          _mm256_or_si256(_mm256_slli_epi32(_mm256_and_si256(_mm256_srli_epi32(ix, 3), three), 4),
+                          _mm256_slli_epi32(_mm256_and_si256(_mm256_srli_epi32(iy, 3), three), 2)),
+          _mm256_and_si256(_mm256_srli_epi32(iz, 3), three));
+      const __m256i local = _mm256_or_si256(
+          _mm256_slli_epi32(leaf, 9),
+          _mm256_or_si256(_mm256_or_si256(_mm256_slli_epi32(_mm256_and_si256(ix, seven), 6),
+                                          _mm256_slli_epi32(_mm256_and_si256(iy, seven), 3)),
+                          _mm256_and_si256(iz, seven)));
+      alignas(32) uint32_t bin[8], entry[8];
+      _mm256_store_si256(reinterpret_cast<__m256i*>(bin), _mm256_srl_epi32(tile, bin_shift));
+      _mm256_store_si256(
+          reinterpret_cast<__m256i*>(entry),
+          _mm256_or_si256(_mm256_slli_epi32(_mm256_and_si256(tile, in_bin), 15), local));
+      PushLanes(k, g, 8, plot, finite, inside, bin, entry);
+    }
+  }
+}
+
+template <bool kChain>
+void WalkWith(const AffineWalk& k, Walkers& w, uint64_t steps) {
+  if (k.num_maps <= 8)
+    Walk<kPermute, kChain>(k, w, steps);
+  else
+    Walk<kGather, kChain>(k, w, steps);
+}
+
+}  // namespace
+
+void WalkAvx512(const AffineWalk& k, Walkers& w, uint64_t steps) {
+  if (k.chain)
+    WalkWith<true>(k, w, steps);
+  else
+    WalkWith<false>(k, w, steps);
+}
+
+}  // namespace nimbus::walk
