@@ -156,7 +156,7 @@ absl::StatusOr<MemoryAdmission> AdmitMemory(const JobPlan& plan, const spec::Lim
             return AdmitPointRun(plan, k.run, extra, limits, threads, interrupter);
           },
           [&](const SetIfsPlan& k) { return AdmitSetIfs(plan, k, limits); },
-          [&](const FractalFieldPlan& k) { return AdmitFractalField(plan, k, limits, threads); }},
+          [&](const FractalFieldPlan& k) { return AdmitFractalField(plan, k, limits, threads); },
           [&](const JellyPlan& k) { return AdmitJelly(plan, k, limits); }},
       plan.kind);
 }

@@ -10,7 +10,7 @@ const ChaosGameParams* JobPlan::point_run() const {
                                [](const SetIfsPlan&) -> const ChaosGameParams* { return nullptr; },
                                [](const FractalFieldPlan&) -> const ChaosGameParams* {
                                  return nullptr;
-                               }},
+                               },
                                [](const JellyPlan&) -> const ChaosGameParams* { return nullptr; }},
                     kind);
 }
@@ -19,7 +19,7 @@ std::string_view KindName(const JobKindPlan& kind) {
   return std::visit(Overloaded{[](const ChaosGamePlan&) { return "chaos_game"; },
                                [](const IfsMatrixPlan&) { return "ifs_matrix"; },
                                [](const SetIfsPlan&) { return "set_ifs"; },
-                               [](const FractalFieldPlan&) { return "fractal_field"; }},
+                               [](const FractalFieldPlan&) { return "fractal_field"; },
                                [](const JellyPlan&) { return "jelly"; }},
                     kind);
 }
