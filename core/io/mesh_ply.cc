@@ -205,6 +205,11 @@ class MeshBuilder {
   // Finds the vertex x/y/z and the face index list, or says what is missing.
   absl::Status Locate(const PlyHeader& header, std::string_view name) {
     for (const PlyElement& e : header.elements) {
+      // A second vertex or face element would pair one element's property
+      // indices with the other's instances (a fuzzer-found overflow).
+      if ((e.name == "vertex" && vertex_el_) || (e.name == "face" && face_el_))
+        return absl::InvalidArgumentError(
+            Cat(name, ": PLY header has more than one '", e.name, "' element"));
       if (e.name == "vertex") {
         vertex_el_ = &e;
         for (size_t i = 0; i < e.properties.size(); ++i) {

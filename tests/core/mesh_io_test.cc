@@ -267,5 +267,23 @@ TEST(MeshIo, PlyElementCountsAreCheckedAgainstTheFile) {
   EXPECT_THAT(Message(ParsePly(big, "b.ply").status()), HasSubstr("truncated binary PLY"));
 }
 
+// A second vertex element once paired the first one's x, y, z indices with
+// the second one's shorter instances (found by the 10-minute fuzz run).
+TEST(MeshIo, PlyWithTwoVertexElementsIsRefused) {
+  std::ifstream in(
+      testing::SourcePath("tests/fuzz/corpus/ply_fuzzer/crash-two-vertex-elements.ply"),
+      std::ios::binary);
+  const std::string hostile((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  ASSERT_FALSE(hostile.empty());
+  EXPECT_THAT(Message(ParsePly(hostile, "h.ply").status()),
+              HasSubstr("more than one 'vertex' element"));
+  const std::string two_faces =
+      "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+      "property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+      "element face 1\nproperty uchar n\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n1\n";
+  EXPECT_THAT(Message(ParsePly(two_faces, "f.ply").status()),
+              HasSubstr("more than one 'face' element"));
+}
+
 }  // namespace
 }  // namespace nimbus
