@@ -102,7 +102,13 @@ def _visit_source(src, field_path, fn):
 def for_each_asset(spec, fn):
     """Calls fn(field_path, asset) for every Asset message of the spec, the
     same walk as ForEachAsset in proto/asset_paths.cc."""
-    if spec.WhichOneof("generator") != "set_ifs":
+    generator = spec.WhichOneof("generator")
+    if generator == "fractal_field":
+        f = spec.fractal_field
+        if f.HasField("shape") and f.shape.HasField("source"):
+            _visit_source(f.shape.source, "fractal_field.shape.source", fn)
+        return
+    if generator != "set_ifs":
         return
     s = spec.set_ifs
     for i, m in enumerate(s.maps):

@@ -268,6 +268,19 @@ class ClientTest(unittest.TestCase):
         info = nimbus.vdb.read_info(out)
         self.assertEqual(info.grids[0].metadata["nimbus_resolution"][0], 40)
 
+    def test_shaped_field_mesh_is_uploaded(self):
+        spec = json.loads((EXAMPLES / "cumulus.json").read_text())
+        spec["grid"]["resolution"] = [32]
+        spec_path = self.tmp / "cumulus_small.json"
+        spec_path.write_text(json.dumps(spec))
+        job = self.client.submit(spec_path, base_dir=EXAMPLES)
+        assets = []
+        nimbus.for_each_asset(self.client.get(job).spec, lambda f, a: assets.append((f, a)))
+        self.assertEqual([f for f, _ in assets], ["fractal_field.shape.source.mesh.asset"])
+        self.assertEqual(assets[0][1].sha256, sha256(EXAMPLES / "meshes" / "suzanne.obj"))
+        final = self.client.wait(job)
+        self.assertEqual(nimbus.state_name(final.state), "SUCCEEDED", final.status.message)
+
     def test_missing_asset_names_its_field(self):
         spec = json.loads((EXAMPLES / "cow_cloud.json").read_text())
         spec["set_ifs"]["maps"][1]["condensation"]["random_balls"]["inside"]["mesh"]["asset"][
