@@ -33,6 +33,13 @@ struct StoredAsset {
 absl::StatusOr<StoredAsset> FindStoredAssetInfo(const std::filesystem::path& dir,
                                                 const std::string& sha256);
 
+/// The checked copy of a stored grid asset: its float grids as the
+/// sandboxed checker re-wrote them (server/untrusted_file.h). nimbusd reads
+/// grid assets only from there.
+inline std::filesystem::path LaunderedPath(const std::filesystem::path& stored) {
+  return std::filesystem::path(stored.string() + ".laundered");
+}
+
 /// Where a stored asset's bytes are (FindStoredAssetInfo(...).path).
 absl::StatusOr<std::filesystem::path> FindStoredAsset(const std::filesystem::path& dir,
                                                       const std::string& sha256);

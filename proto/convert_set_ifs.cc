@@ -135,6 +135,11 @@ absl::Status ConvertSource(const v1::SetSource& s, const std::string& field, con
       out.kind = SetSourcePlan::Kind::kGrid;
       if (!g.has_asset()) return Invalid(f + ".asset", "required");
       if (auto st = ResolveAsset(g.asset(), f + ".asset", limits, out); !st.ok()) return st;
+      // The server checked the upload in a sandbox and kept the grids it
+      // read, re-written by Nimbus: read those, never the uploaded bytes.
+      if (std::error_code ec; g.asset().source_case() == v1::Asset::kSha256 &&
+                              std::filesystem::exists(LaunderedPath(out.file), ec))
+        out.file = LaunderedPath(out.file);
       if (auto st = CheckLength(g.grid_name(), kMaxGridNameBytes, f + ".grid_name"); !st.ok())
         return st;
       out.grid_name = g.grid_name();

@@ -143,6 +143,7 @@ int AssetStore::ExpireUnreferenced(std::filesystem::file_time_type cutoff,
     if (!std::filesystem::remove(path, ec)) continue;
     std::filesystem::remove(spec::StoredAssetNamesPath(dir_, sha256), ec);
     std::filesystem::remove(OwnersPath(sha256), ec);
+    std::filesystem::remove(spec::LaunderedPath(path), ec);
     ++removed;
   }
   return removed;
@@ -175,6 +176,7 @@ AssetStore::Upload::~Upload() {
   out_.close();
   std::error_code ec;
   std::filesystem::remove(tmp_, ec);
+  std::filesystem::remove(spec::LaunderedPath(tmp_), ec);
 }
 
 absl::Status AssetStore::Upload::Append(const std::string& data) {
@@ -220,6 +222,9 @@ absl::StatusOr<AssetInfo> AssetStore::Upload::Finish() {
   if (!store_->Find(sha256_).ok()) {
     std::filesystem::rename(tmp_, store_->dir_ / sha256_, ec);
     if (ec) return absl::InternalError(absl::StrCat("cannot store the asset: ", ec.message()));
+    // The checker's copy of a grid moves with it (FindStoredAsset's path).
+    std::filesystem::rename(spec::LaunderedPath(tmp_),
+                            spec::LaunderedPath(store_->dir_ / sha256_), ec);
     done_ = true;
     fresh = true;
   }

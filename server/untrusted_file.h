@@ -5,7 +5,10 @@
 // parsers are ours, but an upload is still hostile input. So every asset
 // is first read whole by a short-lived child process with limits on its
 // address space and CPU time (and a wall-clock deadline enforced by the
-// parent); a poison file costs that child, never nimbusd.
+// parent); a poison file costs that child, never nimbusd. A grid that
+// reads cleanly is re-written there by Nimbus's writer, and nimbusd reads
+// only that copy: undefined behaviour in OpenVDB's reader need not show in
+// the child as well as in nimbusd.
 //
 // How the child starts: the parent posix_spawn()s /proc/self/exe (safe in
 // a multithreaded process: nothing of ours runs between fork and exec) as
@@ -35,6 +38,9 @@ struct UntrustedFile {
   /// Grids: a grid the file must hold as a float grid; empty: any file of
   /// readable grids that holds at least one float grid.
   std::string grid_name;
+  /// Grids: where the checker writes the float grids it read, re-serialised
+  /// by Nimbus (empty: nowhere). nimbusd reads only that copy.
+  std::filesystem::path laundered;
 };
 
 struct SandboxLimits {
