@@ -29,12 +29,13 @@ class BigBufferAllocator {
 
  public:
   using value_type = T;
+  /// One transparent huge page: smaller buffers come from operator new.
+  static constexpr size_t kHuge = size_t{2} << 20;
   BigBufferAllocator() = default;
   template <class U>
   BigBufferAllocator(const BigBufferAllocator<U>&) noexcept {}
 
   T* allocate(size_t n) {
-    constexpr size_t kHuge = size_t{2} << 20;
     const size_t bytes = n * sizeof(T);
     if (bytes < kHuge) return static_cast<T*>(::operator new(bytes));
     void* p = std::aligned_alloc(kHuge, (bytes + kHuge - 1) / kHuge * kHuge);
@@ -43,7 +44,7 @@ class BigBufferAllocator {
     return static_cast<T*>(p);
   }
   void deallocate(T* p, size_t n) noexcept {
-    if (n * sizeof(T) < (size_t{2} << 20)) {
+    if (n * sizeof(T) < kHuge) {
       ::operator delete(p);
     } else {
       std::free(p);

@@ -19,6 +19,7 @@
 #include "server/job_runner.h"
 #include "proto/spec_io.h"
 #include "tests/support/nimbusd_process.h"
+#include "tests/support/server_fixture.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus {
@@ -33,20 +34,8 @@ std::string ReadAll(const std::filesystem::path& p) {
   return ss.str();
 }
 
-v1::JobSpec Example(const std::string& name) {
-  auto spec = spec::LoadSpecFile(testing::SourcePath("examples/" + name));
-  EXPECT_TRUE(spec.ok()) << spec.status();
-  return *spec;
-}
-
-class CondensationE2E : public ::testing::Test {
+class CondensationE2E : public testing::NimbusdTest {
  protected:
-  void SetUp() override {
-    absl::Status s = server_.Start();
-    ASSERT_TRUE(s.ok()) << s;
-    client_ = NimbusClient::Connect(server_.target());
-    ASSERT_TRUE(client_->WaitForReady(20).ok()) << "nimbusd did not answer";
-  }
   // Submits and watches to the end.
   v1::Job Run(const v1::JobSpec& spec) {
     auto job = client_->Submit(spec);
@@ -57,10 +46,6 @@ class CondensationE2E : public ::testing::Test {
     return done.ok() ? *done : v1::Job{};
   }
 
-  testing::TempDir dir_;
-  testing::NimbusdProcess server_{
-      dir_ / "data", {"--workers", "1", "--threads-per-job", "2", "--log-level", "warn"}};
-  std::unique_ptr<NimbusClient> client_;
 };
 
 TEST_F(CondensationE2E, UploadsAreCheckedAgainstTheirSha256) {
@@ -86,7 +71,7 @@ TEST_F(CondensationE2E, UploadsAreCheckedAgainstTheirSha256) {
   EXPECT_EQ(cut.status().code(), absl::StatusCode::kInvalidArgument) << cut.status();
   EXPECT_NE(cut.status().message().find("truncated"), std::string::npos) << cut.status();
 
-  v1::JobSpec spec = Example("cow_cloud.json");
+  v1::JobSpec spec = testing::LoadExample("cow_cloud.json");
   spec.mutable_grid()->set_resolution(0, 32);
   spec::ForEachAsset(spec,
                      [&](const std::string&, v1::Asset& a) { a.set_sha256(Sha256Hex(altered)); });
@@ -98,7 +83,7 @@ TEST_F(CondensationE2E, UploadsAreCheckedAgainstTheirSha256) {
 }
 
 TEST_F(CondensationE2E, NetworkServerRefusesLocalPaths) {
-  v1::JobSpec spec = Example("cow_cloud.json");
+  v1::JobSpec spec = testing::LoadExample("cow_cloud.json");
   spec::ResolveAssetPaths(spec, testing::SourcePath("examples"));
   auto refused = client_->Submit(spec);
   EXPECT_EQ(refused.status().code(), absl::StatusCode::kInvalidArgument);
@@ -106,7 +91,7 @@ TEST_F(CondensationE2E, NetworkServerRefusesLocalPaths) {
 }
 
 TEST_F(CondensationE2E, CowCloudProducesAVdb) {
-  v1::JobSpec spec = Example("cow_cloud.json");
+  v1::JobSpec spec = testing::LoadExample("cow_cloud.json");
   spec.mutable_grid()->set_resolution(0, 48);
   spec.mutable_set_ifs()->mutable_random()->set_iterations(300);
   ASSERT_TRUE(client_->UploadSpecAssets(spec, testing::SourcePath("examples")).ok());
@@ -146,7 +131,7 @@ TEST_F(CondensationE2E, CowCloudProducesAVdb) {
   // The server's result is exactly what the engine makes of the same spec
   // with the mesh read locally: upload, content addressing and the worker
   // change nothing.
-  v1::JobSpec local = Example("cow_cloud.json");
+  v1::JobSpec local = testing::LoadExample("cow_cloud.json");
   local.mutable_grid()->set_resolution(0, 48);
   local.mutable_set_ifs()->mutable_random()->set_iterations(300);
   spec::ResolveAssetPaths(local, testing::SourcePath("examples"));
@@ -161,7 +146,7 @@ TEST_F(CondensationE2E, CowCloudProducesAVdb) {
 }
 
 TEST_F(CondensationE2E, CancelStopsASetIfsJob) {
-  v1::JobSpec spec = Example("cow_cloud.json");
+  v1::JobSpec spec = testing::LoadExample("cow_cloud.json");
   spec.mutable_grid()->set_resolution(0, 64);
   spec.mutable_set_ifs()->mutable_random()->set_iterations(1'000'000);
   ASSERT_TRUE(client_->UploadSpecAssets(spec, testing::SourcePath("examples")).ok());
@@ -193,7 +178,7 @@ TEST_F(CondensationE2E, JobFailingAtRunTimeKeepsItsStatusCode) {
   tetrahedron->mutable_chaos_game()->set_iterations(uint64_t{1} << 38);
   auto busy = client_->Submit(*tetrahedron);  // one worker: holds the next job back
   ASSERT_TRUE(busy.ok()) << busy.status();
-  v1::JobSpec spec = Example("cow_cloud.json");
+  v1::JobSpec spec = testing::LoadExample("cow_cloud.json");
   spec.mutable_grid()->set_resolution(0, 32);
   ASSERT_TRUE(client_->UploadSpecAssets(spec, testing::SourcePath("examples")).ok());
   auto job = client_->Submit(spec);
@@ -214,7 +199,7 @@ TEST_F(CondensationE2E, JobFailingAtRunTimeKeepsItsStatusCode) {
 }
 
 TEST_F(CondensationE2E, BookWritesOneFramePerPage) {
-  v1::JobSpec spec = Example("morph_book.json");
+  v1::JobSpec spec = testing::LoadExample("morph_book.json");
   spec.mutable_grid()->set_resolution(0, 32);
   spec.mutable_set_ifs()->mutable_book()->set_depth(3);
   ASSERT_TRUE(client_->UploadSpecAssets(spec, testing::SourcePath("examples")).ok());
@@ -240,7 +225,7 @@ TEST_F(CondensationE2E, BookWritesOneFramePerPage) {
 
 // Pages are listed and can be fetched while later ones are still running.
 TEST_F(CondensationE2E, BookFramesStreamWhileTheJobRuns) {
-  v1::JobSpec spec = Example("morph_book.json");
+  v1::JobSpec spec = testing::LoadExample("morph_book.json");
   spec.mutable_grid()->set_resolution(0, 96);
   spec.mutable_set_ifs()->mutable_book()->set_depth(7);  // 128 pages
   ASSERT_TRUE(client_->UploadSpecAssets(spec, testing::SourcePath("examples")).ok());
@@ -299,7 +284,7 @@ TEST_F(CondensationE2E, DegenerateMeshIsAClearError) {
 // against the spec's folder and are uploaded by the CLI; book frames land
 // next to -o, named after it.
 TEST_F(CondensationE2E, CliUploadsMeshesAndWritesFrames) {
-  v1::JobSpec spec = Example("morph_book.json");
+  v1::JobSpec spec = testing::LoadExample("morph_book.json");
   spec.mutable_grid()->set_resolution(0, 24);
   spec.mutable_set_ifs()->mutable_book()->set_depth(2);
   std::filesystem::create_directories(dir_ / "job" / "meshes");

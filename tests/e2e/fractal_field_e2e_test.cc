@@ -11,6 +11,7 @@
 #include "proto/spec_io.h"
 #include "tests/support/early_fetch.h"
 #include "tests/support/nimbusd_process.h"
+#include "tests/support/server_fixture.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus {
@@ -18,29 +19,10 @@ namespace {
 
 using client::NimbusClient;
 
-v1::JobSpec Example(const std::string& name) {
-  auto spec = spec::LoadSpecFile(testing::SourcePath("examples/" + name));
-  EXPECT_TRUE(spec.ok()) << spec.status();
-  return *spec;
-}
-
-class FractalFieldE2E : public ::testing::Test {
- protected:
-  void SetUp() override {
-    absl::Status s = server_.Start();
-    ASSERT_TRUE(s.ok()) << s;
-    client_ = NimbusClient::Connect(server_.target());
-    ASSERT_TRUE(client_->WaitForReady(20).ok()) << "nimbusd did not answer";
-  }
-
-  testing::TempDir dir_;
-  testing::NimbusdProcess server_{
-      dir_ / "data", {"--workers", "1", "--threads-per-job", "2", "--log-level", "warn"}};
-  std::unique_ptr<NimbusClient> client_;
-};
+class FractalFieldE2E : public testing::NimbusdTest {};
 
 TEST_F(FractalFieldE2E, WindLoopFramesStreamWhileTheJobRuns) {
-  v1::JobSpec spec = Example("wind_loop.json");
+  v1::JobSpec spec = testing::LoadExample("wind_loop.json");
   // Many small frames, so some are listed before the last is done.
   spec.mutable_grid()->set_resolution(0, 48);
   spec.mutable_grid()->set_resolution(1, 48);
@@ -73,7 +55,7 @@ TEST_F(FractalFieldE2E, WindLoopFramesStreamWhileTheJobRuns) {
 }
 
 TEST_F(FractalFieldE2E, TerrainHasAPngHeightMap) {
-  v1::JobSpec spec = Example("terrain.json");
+  v1::JobSpec spec = testing::LoadExample("terrain.json");
   spec.mutable_grid()->set_resolution(0, 64);
   spec.mutable_grid()->set_resolution(1, 48);
   spec.mutable_grid()->set_resolution(2, 16);
@@ -94,7 +76,7 @@ TEST_F(FractalFieldE2E, TerrainHasAPngHeightMap) {
 }
 
 TEST_F(FractalFieldE2E, CumulusFromAnUploadedMesh) {
-  v1::JobSpec spec = Example("cumulus.json");
+  v1::JobSpec spec = testing::LoadExample("cumulus.json");
   spec.mutable_grid()->set_resolution(0, 48);
   ASSERT_TRUE(client_->UploadSpecAssets(spec, testing::SourcePath("examples")).ok());
   auto job = client_->Submit(spec);
@@ -112,7 +94,7 @@ TEST_F(FractalFieldE2E, CumulusFromAnUploadedMesh) {
 }
 
 TEST_F(FractalFieldE2E, BadSpecIsRefusedAtSubmit) {
-  v1::JobSpec spec = Example("wind_loop.json");
+  v1::JobSpec spec = testing::LoadExample("wind_loop.json");
   spec.mutable_fractal_field()->mutable_field()->mutable_mesh_series()->set_count(65);
   auto job = client_->Submit(spec);
   ASSERT_EQ(job.status().code(), absl::StatusCode::kInvalidArgument) << job.status();

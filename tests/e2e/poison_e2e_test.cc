@@ -15,6 +15,7 @@
 #include "proto/asset_paths.h"
 #include "proto/spec_io.h"
 #include "tests/support/nimbusd_process.h"
+#include "tests/support/server_fixture.h"
 #include "tests/support/test_util.h"
 #include "tests/support/vdb_fixtures.h"
 
@@ -36,15 +37,8 @@ v1::JobSpec CowCloud() {
   return s;
 }
 
-class PoisonE2E : public ::testing::Test {
+class PoisonE2E : public testing::NimbusdTest {
  protected:
-  void SetUp() override {
-    absl::Status s = server_.Start();
-    ASSERT_TRUE(s.ok()) << s;
-    client_ = NimbusClient::Connect(server_.target());
-    ASSERT_TRUE(client_->WaitForReady(20).ok()) << "nimbusd did not answer";
-  }
-
   absl::StatusOr<v1::UploadAssetResponse> Upload(const std::string& name,
                                                  const std::string& bytes) {
     return client_->UploadBytes(name, bytes, Sha256Hex(bytes), bytes.size());
@@ -70,10 +64,6 @@ class PoisonE2E : public ::testing::Test {
     EXPECT_GE(page->jobs_size(), 1);
   }
 
-  testing::TempDir dir_;
-  testing::NimbusdProcess server_{
-      dir_ / "data", {"--workers", "1", "--threads-per-job", "2", "--log-level", "warn"}};
-  std::unique_ptr<NimbusClient> client_;
 };
 
 TEST_F(PoisonE2E, DamagedVdbIsRefusedAtUploadAndAtSubmit) {

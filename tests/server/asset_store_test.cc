@@ -294,7 +294,7 @@ TEST_F(AssetStoreTest, GarbageMeshesAreRefused) {
 TEST(UntrustedFile, LimitsStopAGreedyReader) {
   testing::TempDir dir;
   const std::string vdb = testing::SphereVdbBytes(dir / "sphere.vdb");
-  UntrustedFile file{UntrustedKind::kVdbGrid, dir / "sphere.vdb", ".vdb", ""};
+  UntrustedFile file{UntrustedKind::kVdbGrid, dir / "sphere.vdb", ".vdb", "", {}};
   EXPECT_TRUE(CheckUntrustedFile(file).ok());
   SandboxLimits tiny;
   tiny.memory_bytes = 16 << 20;  // less than the reader's own program needs
