@@ -25,6 +25,7 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
+#include "client/flame_import.h"
 #include "client/nimbus_client.h"
 #include "client/preview_files.h"
 #include "core/base/status_macros.h"
@@ -267,6 +268,7 @@ struct Options {
   std::string impulse, drag;
   double drag_stiffness = 0;
   uint32_t drag_frames = 0;
+  nimbus::client::FlameImportOptions flame;  // import-flame
 };
 
 std::atomic<bool> g_interrupted{false};
@@ -362,6 +364,33 @@ int RunValidate(const Options& o) {
   if (!spec.ok()) return ExitFor(spec.status());
   nimbus::spec::ResolveAssetPaths(*spec, std::filesystem::path(o.spec_path).parent_path());
   return PrintValidation(o.spec_path, *spec);
+}
+
+// Converts a flam3 genome into a spec file (docs/flame_import.md), checked
+// by the same converter the server uses before it is written.
+int RunImportFlame(const Options& o) {
+  std::ifstream in(o.spec_path, std::ios::binary);
+  if (!in) return ExitFor(absl::NotFoundError(absl::StrCat("cannot read ", o.spec_path)));
+  std::string xml(size_t{64} << 20, '\0');
+  in.read(xml.data(), std::streamsize(xml.size()));
+  if (in.gcount() == std::streamsize(xml.size()))
+    return ExitFor(absl::InvalidArgumentError(o.spec_path + ": larger than 64 MiB"));
+  xml.resize(size_t(in.gcount()));
+  auto got = nimbus::client::ImportFlame(xml, o.flame);
+  if (!got.ok()) return ExitFor(absl::Status(got.status().code(),
+                                             o.spec_path + ": " + std::string(got.status().message())));
+  for (const std::string& w : got->warnings) std::cerr << "nimbus: warning: " << w << "\n";
+  auto plan = nimbus::spec::ConvertSpec(got->spec, nimbus::spec::Limits{});
+  if (!plan.ok()) return ExitFor(plan.status());
+  const std::string json = nimbus::spec::SpecToJson(got->spec);
+  if (o.out_path.empty() || o.out_path == "-") {
+    std::cout << json;
+    return 0;
+  }
+  std::ofstream(o.out_path) << json;
+  std::cerr << "nimbus: wrote " << o.out_path << " (genome '" << got->spec.name() << "', "
+            << got->spec.chaos_game().ifs().maps_size() << " maps)\n";
+  return 0;
 }
 
 // A connection plus a loaded spec whose local mesh and grid files are
@@ -630,7 +659,15 @@ std::vector<Command> AddCommands(CLI::App& app, Options& o) {
   del->add_option("job", o.job_id)->required();
   auto* validate = app.add_subcommand("validate", "check a spec locally and summarise it");
   validate->add_option("spec", o.spec_path, "spec file")->required();
+  auto* import = app.add_subcommand("import-flame", "convert a flam3 genome (.flam3) to a spec");
+  import->add_option("flame", o.spec_path, "flam3 XML file")->required();
+  import->add_option("-o,--output", o.out_path, "spec .json to write (default: stdout)");
+  import->add_option("--genome", o.flame.genome, "a genome's name or index, when several");
+  import->add_option("--iterations", o.flame.iterations,
+                     "samples (default flam3's quality x width x height)");
+  import->add_option("--seed", o.flame.seed, "random seed")->capture_default_str();
   return {{validate, RunValidate},
+          {import, RunImportFlame},
           {render, RunRender},
           {submit, RunSubmit},
           {watch, RunWatch},

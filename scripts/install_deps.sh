@@ -16,6 +16,8 @@ PACKAGES=(
   libsleef-dev
   # flam3-render: the flam3 agreement test and bench/compare_flam3.sh.
   flam3-utils
+  # expat: reading flam3 genomes (nimbus import-flame).
+  libexpat1-dev
   python3-openvdb libopenvdb-tools
   # The Python client (python/) and the Blender add-on test (dcc/blender/):
   # Debian's grpc and protobuf for /usr/bin/python3, and Blender 3.4, whose

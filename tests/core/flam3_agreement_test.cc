@@ -15,6 +15,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "core/chaos/chaos_game.h"
+#include "tests/support/flam3_oracle.h"
 
 namespace nimbus {
 namespace {
@@ -29,8 +30,6 @@ constexpr int kCell = 4;            // compared on 32 x 32 cells
 // (heart), 0.46 (hyperbolic), 0.59 (disc, diamond), 0.71 (power), 0.78
 // (julia) and 0.91 (handkerchief).
 constexpr double kMinCorrelation = 0.95;
-
-bool HaveFlam3() { return std::system("command -v flam3-render >/dev/null 2>&1") == 0; }
 
 // The genome's two maps in flam3's coefficient order a d b e c f, where
 // x' = a x + b y + c and y' = d x + e y + f.
@@ -59,30 +58,6 @@ std::string Genome(const std::string& variation) {
   return g.str();
 }
 
-// flam3-render's picture as grey levels, row 0 at the smallest y.
-std::vector<double> RenderWithFlam3(const std::string& variation, const std::string& dir) {
-  const std::string genome = dir + "/" + variation + ".flam3", out = dir + "/" + variation + ".ppm";
-  std::ofstream(genome) << Genome(variation);
-  const std::string cmd = absl::StrCat("env nthreads=1 verbose=0 format=ppm out=", out,
-                                       " flam3-render < ", genome, " > /dev/null 2>&1");
-  EXPECT_EQ(std::system(cmd.c_str()), 0) << cmd;
-  std::ifstream in(out, std::ios::binary);
-  std::string magic;
-  int w = 0, h = 0, max = 0;
-  in >> magic >> w >> h >> max;
-  in.get();
-  EXPECT_EQ(magic, "P6");
-  EXPECT_EQ(w, kSize);
-  EXPECT_EQ(h, kSize);
-  std::vector<double> grey(size_t(kSize) * kSize);
-  for (double& v : grey) {
-    unsigned char rgb[3];
-    in.read(reinterpret_cast<char*>(rgb), 3);
-    v = rgb[0];
-  }
-  return grey;
-}
-
 // The engine's log(1 + visits) on the same pixels, same maps and samples.
 std::vector<double> RenderWithNimbus(const std::string& variation) {
   ChaosGameParams p;
@@ -109,29 +84,8 @@ std::vector<double> RenderWithNimbus(const std::string& variation) {
   return out;
 }
 
-// Pearson correlation of the two pictures' cell means.
-double CellCorrelation(const std::vector<double>& a, const std::vector<double>& b) {
-  const int n = kSize / kCell;
-  std::vector<double> ca(size_t(n) * n, 0.0), cb(ca.size(), 0.0);
-  for (int y = 0; y < kSize; ++y)
-    for (int x = 0; x < kSize; ++x) {
-      ca[size_t(y / kCell) * n + x / kCell] += a[size_t(y) * kSize + x];
-      cb[size_t(y / kCell) * n + x / kCell] += b[size_t(y) * kSize + x];
-    }
-  double ma = 0, mb = 0;
-  for (size_t i = 0; i < ca.size(); ++i) ma += ca[i], mb += cb[i];
-  ma /= double(ca.size()), mb /= double(cb.size());
-  double sab = 0, saa = 0, sbb = 0;
-  for (size_t i = 0; i < ca.size(); ++i) {
-    sab += (ca[i] - ma) * (cb[i] - mb);
-    saa += (ca[i] - ma) * (ca[i] - ma);
-    sbb += (cb[i] - mb) * (cb[i] - mb);
-  }
-  return sab / std::sqrt(saa * sbb);
-}
-
 TEST(Flam3Agreement, PlanarVariationsMatchFlam3InLogDensity) {
-  if (!HaveFlam3())
+  if (!testing::HaveFlam3())
     GTEST_SKIP() << "flam3-render is absent: scripts/install_deps.sh installs it (flam3-utils)";
   char dir_template[] = "/tmp/nimbus_flam3_XXXXXX";
   const std::string dir = mkdtemp(dir_template);
@@ -139,7 +93,10 @@ TEST(Flam3Agreement, PlanarVariationsMatchFlam3InLogDensity) {
        {"swirl", "horseshoe", "polar", "handkerchief", "heart", "disc", "spiral", "hyperbolic",
         "diamond", "ex", "julia", "fisheye", "exponential", "power", "bubble", "sinusoidal"}) {
     SCOPED_TRACE(v);
-    const double r = CellCorrelation(RenderWithFlam3(v, dir), RenderWithNimbus(v));
+    const std::vector<double> flam3 =
+        testing::RenderWithFlam3(Genome(v), dir, v, kSize, kSize);
+    ASSERT_EQ(flam3.size(), size_t(kSize) * kSize) << "flam3-render failed on " << v;
+    const double r = testing::CellCorrelation(flam3, RenderWithNimbus(v), kSize, kSize, kCell);
     RecordProperty(absl::StrCat("correlation_", v), absl::StrCat(r));
     std::printf("%-14s log-density correlation %.3f\n", v, r);
     EXPECT_GE(r, kMinCorrelation);
