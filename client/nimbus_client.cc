@@ -227,6 +227,9 @@ absl::Status NimbusClient::Fetch(const std::string& job_id, const std::filesyste
   const std::filesystem::path part = path.string() + ".part";
   std::error_code ec;
   uint64_t offset = std::filesystem::exists(part, ec) ? std::filesystem::file_size(part, ec) : 0;
+  // Hashed as it arrives, so the file is not read a second time.
+  Sha256 hash;
+  if (offset > 0) NIMBUS_RETURN_IF_ERROR(HashFileInto(part, hash));
   std::string expected_sha;
   uint64_t total = 0;
   for (int attempt = 0;; ++attempt) {
@@ -248,6 +251,7 @@ absl::Status NimbusClient::Fetch(const std::string& job_id, const std::filesyste
         return absl::DataLossError(
             absl::StrCat("server sent offset ", chunk.offset(), ", expected ", offset));
       out.write(chunk.data().data(), std::streamsize(chunk.data().size()));
+      hash.Update(chunk.data());
       offset += chunk.data().size();
     }
     out.close();
@@ -267,11 +271,10 @@ absl::Status NimbusClient::Fetch(const std::string& job_id, const std::filesyste
   }
   if (offset != total)
     return absl::DataLossError(absl::StrCat("downloaded ", offset, " of ", total, " bytes"));
-  auto sha = Sha256File(part);
-  if (!sha.ok()) return sha.status();
-  if (*sha != expected_sha) {
+  const std::string sha = hash.HexDigest();
+  if (sha != expected_sha) {
     std::filesystem::remove(part, ec);
-    return absl::DataLossError(absl::StrCat("sha256 mismatch for ", path.string(), ": got ", *sha,
+    return absl::DataLossError(absl::StrCat("sha256 mismatch for ", path.string(), ": got ", sha,
                                             ", server says ", expected_sha));
   }
   std::filesystem::rename(part, path, ec);

@@ -15,6 +15,21 @@ using Clock = std::chrono::steady_clock;
 // Between progress reports and rounds: watchers see ~5 updates a second.
 constexpr auto kReportInterval = std::chrono::milliseconds(200);
 constexpr double kRoundSeconds = 0.2;
+
+// Records the result write's wall time as the job stat write_ms, so the
+// share of a job spent writing its VDB is visible (GetJob's stats).
+class WriteTimer {
+ public:
+  explicit WriteTimer(JobContext& ctx) : ctx_(ctx), start_(Clock::now()) {}
+  ~WriteTimer() {
+    ctx_.SetStat("write_ms", uint64_t(std::chrono::duration<double, std::milli>(
+                                          Clock::now() - start_).count()));
+  }
+
+ private:
+  JobContext& ctx_;
+  Clock::time_point start_;
+};
 }  // namespace
 
 MetadataBuilder& MetadataBuilder::Add(std::string_view key, MetaValue value) {
@@ -96,6 +111,7 @@ void JobDriver::Preview(const std::vector<const CountGrid*>& parts, uint64_t don
 absl::Status JobDriver::WriteResult(const CountGrid& counts, const nimbus::Metadata& meta,
                                     const std::vector<Vec3Field>& fields) {
   NIMBUS_RETURN_IF_ERROR(BeginPhase(JobPhase::kWriting, 1, "files"));
+  WriteTimer timer(ctx_);
   NIMBUS_RETURN_IF_ERROR(
       WriteDensityVdb(ctx_.ResultScratchPath(), counts, plan_.frame, plan_.density, meta, fields));
   if (plan_.density.raw_counts == RawCounts::kInteger) {
@@ -122,6 +138,7 @@ absl::Status JobDriver::WriteFrame(uint64_t index, const CountGrid& counts,
 
 absl::Status JobDriver::WriteResult(const FloatVolume& volume, const nimbus::Metadata& meta) {
   NIMBUS_RETURN_IF_ERROR(BeginPhase(JobPhase::kWriting, 1, "files"));
+  WriteTimer timer(ctx_);
   NIMBUS_RETURN_IF_ERROR(
       WriteFloatVolumeVdb(ctx_.ResultScratchPath(), volume, meta, plan_.density.conventions));
   return Progress(1, true);

@@ -4,6 +4,8 @@
 
 #include <chrono>
 #include <condition_variable>
+#include <mutex>
+#include <optional>
 #include <random>
 
 #include "absl/strings/str_cat.h"
@@ -261,7 +263,9 @@ class WatchReactor : public grpc::ServerWriteReactor<v1::WatchJobResponse> {
 
 // Streams a result file in chunks from the requested offset. The lookup and
 // every chunk read run on the blocking executor; gRPC threads only write.
-// Exactly one step (a queued read or a write) is outstanding at a time.
+// The next chunk is read while the previous one is on the wire: at most one
+// read and one write are outstanding, and the reactor finishes only when no
+// read is (a read still running must not outlive the reactor).
 class FetchReactor : public grpc::ServerWriteReactor<v1::FetchResultResponse> {
  public:
   FetchReactor(JobStore* store, ResultStore* results, BlockingExecutor* blocking,
@@ -274,18 +278,113 @@ class FetchReactor : public grpc::ServerWriteReactor<v1::FetchResultResponse> {
         job_id_(req.job_id()),
         file_name_(req.file_name()),
         offset_(req.offset()) {
+    reading_ = true;
     if (!blocking_->Post([this] { Start(); })) Finish(Busy(*blocking_));
   }
   void OnWriteDone(bool ok) override {
+    std::optional<Chunk> next;
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      writing_ = false;
+      if (!ok) {
+        failed_ = true;
+        if (reading_) return;  // the read's end finishes the call
+      } else if (ahead_) {
+        next = std::move(ahead_);
+        ahead_.reset();
+        writing_ = true;
+      } else {
+        return;  // the read in flight sends when it is done
+      }
+    }
     if (!ok) return Finish(grpc::Status::CANCELLED);
-    if (!blocking_->Post([this] { Next(); })) Finish(Busy(*blocking_));
+    Send(std::move(*next));
   }
   void OnDone() override { delete this; }
 
  private:
+  // A chunk read from the store; `end` past the last byte.
+  struct Chunk {
+    absl::Status status;
+    std::string data;
+    uint64_t offset = 0;
+    bool end = false;
+  };
+
   void Start() {
-    if (grpc::Status s = Open(); !s.ok()) return Finish(s);
-    Next();
+    if (grpc::Status s = Open(); !s.ok()) {
+      {
+        std::lock_guard<std::mutex> lock(mu_);
+        reading_ = false;
+      }
+      return Finish(s);
+    }
+    read_offset_ = offset_;
+    ReadNext();
+  }
+
+  Chunk ReadChunk() {
+    Chunk c;
+    c.offset = read_offset_;
+    if (read_offset_ >= size_) {
+      c.end = true;
+      return c;
+    }
+    auto data = file_name_.empty()
+                    ? results_->Read(key_, read_offset_, kFetchChunk)
+                    : results_->ReadFile(key_, file_name_, running_, read_offset_, kFetchChunk);
+    if (!data.ok()) {
+      c.status = data.status();
+    } else if (data->empty()) {
+      c.status = absl::DataLossError(
+          absl::StrCat("result ends at ", read_offset_, " of ", size_, " bytes"));
+    } else {
+      read_offset_ += data->size();
+      c.data = std::move(*data);
+    }
+    return c;
+  }
+
+  // Executor: reads a chunk and sends it, or leaves it for OnWriteDone
+  // while the previous chunk is still being written.
+  void ReadNext() {
+    Chunk c = ReadChunk();
+    bool failed;
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      reading_ = false;
+      failed = failed_;
+      if (!failed && writing_) {
+        ahead_ = std::move(c);
+        return;
+      }
+      writing_ = !failed;
+    }
+    if (failed) return Finish(grpc::Status::CANCELLED);  // the client went away
+    Send(std::move(c));
+  }
+
+  // Owns resp_ (no write outstanding) and no read is running.
+  void Send(Chunk c) {
+    if (!c.status.ok()) return Finish(ToGrpc(c.status));
+    if (c.end && sent_any_) return Finish(grpc::Status::OK);
+    if (sent_any_) resp_.Clear();  // size and hash ride on the first chunk only
+    resp_.set_offset(c.offset);
+    resp_.set_data(std::move(c.data));
+    sent_any_ = true;
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      if (c.end)
+        ahead_ = Chunk{absl::OkStatus(), "", c.offset, true};  // an empty file's one chunk
+      else
+        reading_ = true;
+    }
+    if (!c.end && !blocking_->Post([this] { ReadNext(); })) {
+      std::lock_guard<std::mutex> lock(mu_);
+      reading_ = false;
+      ahead_ = Chunk{absl::ResourceExhaustedError(Busy(*blocking_).error_message()), "", 0, false};
+    }
+    StartWrite(&resp_);
   }
 
   // Finds the file and checks the request against it.
@@ -327,20 +426,6 @@ class FetchReactor : public grpc::ServerWriteReactor<v1::FetchResultResponse> {
     return grpc::Status::OK;
   }
 
-  void Next() {
-    if (offset_ >= size_ && sent_any_) return Finish(grpc::Status::OK);
-    auto data = file_name_.empty()
-                    ? results_->Read(key_, offset_, kFetchChunk)
-                    : results_->ReadFile(key_, file_name_, running_, offset_, kFetchChunk);
-    if (!data.ok()) return Finish(ToGrpc(data.status()));
-    if (sent_any_) resp_.Clear();  // size and hash ride on the first chunk only
-    resp_.set_offset(offset_);
-    offset_ += data->size();
-    resp_.set_data(std::move(*data));
-    sent_any_ = true;
-    StartWrite(&resp_);
-  }
-
   Principal caller_;
   int64_t retention_ms_;
   JobStore* store_;
@@ -351,9 +436,13 @@ class FetchReactor : public grpc::ServerWriteReactor<v1::FetchResultResponse> {
   std::string key_;
   bool running_ = false;
   uint64_t offset_;
+  uint64_t read_offset_ = 0;  // the next chunk to read
   uint64_t size_ = 0;
   bool sent_any_ = false;
   v1::FetchResultResponse resp_;
+  std::mutex mu_;
+  bool reading_ = false, writing_ = false, failed_ = false;
+  std::optional<Chunk> ahead_;
 };
 
 }  // namespace

@@ -41,16 +41,21 @@ std::string Sha256Hex(std::string_view data) {
   return h.HexDigest();
 }
 
-absl::StatusOr<std::string> Sha256File(const std::filesystem::path& path) {
+absl::Status HashFileInto(const std::filesystem::path& path, Sha256& h) {
   std::ifstream in(path, std::ios::binary);
   if (!in) return absl::NotFoundError(absl::StrCat("cannot open ", path.string()));
-  Sha256 h;
   std::string buf(1 << 20, '\0');
   while (in) {
     in.read(buf.data(), std::streamsize(buf.size()));
     h.Update(std::string_view(buf.data(), size_t(in.gcount())));
   }
   if (in.bad()) return absl::DataLossError(absl::StrCat("error reading ", path.string()));
+  return absl::OkStatus();
+}
+
+absl::StatusOr<std::string> Sha256File(const std::filesystem::path& path) {
+  Sha256 h;
+  if (absl::Status s = HashFileInto(path, h); !s.ok()) return s;
   return h.HexDigest();
 }
 

@@ -29,5 +29,7 @@ class Sha256 {
 
 std::string Sha256Hex(std::string_view data);
 absl::StatusOr<std::string> Sha256File(const std::filesystem::path& path);
+/// Feeds a whole file to `h` (a download resuming from a partial file).
+absl::Status HashFileInto(const std::filesystem::path& path, Sha256& h);
 
 }  // namespace nimbus
