@@ -90,7 +90,7 @@ for g in sierpinski_2d:209715200 flame6_2d:104857600; do
   read -r fs fkb < <(timed env nthreads="$flam3_threads" verbose=0 format=png \
     out="$work/$name.png" flam3-render <"$work/$name.flam3")
   read -r ns nkb < <(timed "$nimbus" --data-dir "$work/data" --threads "$threads" \
-    render "$here/flam3/$name.json" -o "$work/$name.vdb")
+    render --no-cache "$here/flam3/$name.json" -o "$work/$name.vdb")
   printf "%-14s %12s %10.2f %10.1f %10.0f %10.2f %10.1f %10.0f %7.2fx\n" "$name" "$samples" \
     "$fs" "$(echo "$samples / $fs / 1000000" | bc -l)" "$(echo "$fkb / 1024" | bc -l)" \
     "$ns" "$(echo "$samples / $ns / 1000000" | bc -l)" "$(echo "$nkb / 1024" | bc -l)" \

@@ -269,6 +269,8 @@ struct Options {
   double drag_stiffness = 0;
   uint32_t drag_frames = 0;
   nimbus::client::FlameImportOptions flame;  // import-flame
+  bool no_cache = false;     // render, submit
+  uint32_t shards = 0;       // render, submit
 };
 
 std::atomic<bool> g_interrupted{false};
@@ -403,6 +405,9 @@ struct SpecSession {
 absl::StatusOr<SpecSession> OpenWithSpec(const Options& o) {
   SpecSession s;
   NIMBUS_ASSIGN_OR_RETURN(s.spec, nimbus::spec::LoadSpecFile(o.spec_path));
+  // Command-line overrides of the spec (docs/result_cache.md, docs/sharding.md).
+  if (o.no_cache) s.spec.set_no_cache(true);
+  if (o.shards > 0) s.spec.set_shards(o.shards);
   NIMBUS_ASSIGN_OR_RETURN(s.conn, Connect(o.global));
   NIMBUS_RETURN_IF_ERROR(
       s.conn.client->UploadSpecAssets(s.spec, std::filesystem::path(o.spec_path).parent_path()));
@@ -630,6 +635,12 @@ std::vector<Command> AddCommands(CLI::App& app, Options& o) {
   AddWatchFlags(render, o.watch);
   auto* submit = app.add_subcommand("submit", "queue a spec and print the job id");
   submit->add_option("spec", o.spec_path, "spec file")->required();
+  for (CLI::App* c : {render, submit}) {
+    c->add_flag("--no-cache", o.no_cache,
+                "run the job even if a finished job had the same spec (JobSpec.no_cache)");
+    c->add_option("--shards", o.shards,
+                  "split a chaos-game job into this many shards (JobSpec.shards)");
+  }
   auto* watch = app.add_subcommand("watch", "follow a job until it ends");
   watch->add_option("job", o.job_id)->required();
   AddWatchFlags(watch, o.watch);

@@ -213,6 +213,29 @@ const char* DownsamplingField(const v1::Output& o) {
   return o.max_voxels() != 0 ? "output.max_voxels" : "output.target_file_bytes";
 }
 
+// Sharding (docs/sharding.md) once the kind is known: one chaos game that
+// runs to its end, and no more shards than chunks.
+absl::Status CheckShards(const v1::JobSpec& spec, const JobPlan& job) {
+  const uint32_t s = spec.shards();
+  if (s <= 1) return absl::OkStatus();
+  if (s > kMaxShards) return Invalid("shards", StrCat("must be at most ", kMaxShards, ", got ", s));
+  const ChaosGameParams* run = job.shardable_run();
+  if (run == nullptr) {
+    if (job.ifs_matrix())
+      return Invalid("shards", "cannot be combined with chaos_game.matrices.component_grid");
+    return Invalid("shards", StrCat("applies to chaos_game jobs only, not ",
+                                    std::string(KindName(job.kind))));
+  }
+  if (run->convergence.tolerance > 0)
+    return Invalid("shards", "cannot be combined with chaos_game.convergence: where it stops "
+                             "depends on the whole run");
+  const uint64_t chunks = ChaosGame::NumChunks(run->iterations);
+  if (s > chunks)
+    return Invalid("shards", StrCat("must be at most the run's ", chunks,
+                                    " chunks of 2^20 iterations, got ", s));
+  return absl::OkStatus();
+}
+
 }  // namespace
 
 absl::StatusOr<JobPlan> ConvertSpec(const v1::JobSpec& spec, const Limits& limits) {
@@ -248,10 +271,20 @@ absl::StatusOr<JobPlan> ConvertSpec(const v1::JobSpec& spec, const Limits& limit
       return Invalid("generator", "set one of: chaos_game, set_ifs, fractal_field, jelly");
   }
   if (spec.has_detail()) NIMBUS_RETURN_IF_ERROR(ConvertFieldDetail(spec.detail(), job));
+  NIMBUS_RETURN_IF_ERROR(CheckShards(spec, job));
   return job;
 }
 
-std::string SpecHash(const v1::JobSpec& spec) {
+std::string SpecHash(const v1::JobSpec& spec_in) {
+  const v1::JobSpec* canonical = &spec_in;
+  v1::JobSpec stripped;
+  if (spec_in.shards() != 0 || spec_in.no_cache()) {
+    stripped = spec_in;
+    stripped.clear_shards();
+    stripped.clear_no_cache();
+    canonical = &stripped;
+  }
+  const v1::JobSpec& spec = *canonical;
   std::string bytes;
   google::protobuf::io::StringOutputStream sos(&bytes);
   google::protobuf::io::CodedOutputStream cos(&sos);

@@ -48,7 +48,12 @@ absl::StatusOr<Affine3> ComposeSteps(const google::protobuf::RepeatedPtrField<v1
 absl::StatusOr<JellyPoke> ConvertJellyPush(const v1::JellyPush& push, int bodies,
                                            const std::string& path);
 
-/// Lower-case hex SHA-256 of the spec's deterministic binary serialisation.
+/// Lower-case hex SHA-256 of the spec's deterministic binary serialisation,
+/// without the fields that do not change the result (`shards`, `no_cache`):
+/// the canonical hash named in result metadata and used by the result cache.
 std::string SpecHash(const v1::JobSpec& spec);
+
+/// Most shards of one job (docs/sharding.md).
+inline constexpr uint32_t kMaxShards = 256;
 
 }  // namespace nimbus::spec

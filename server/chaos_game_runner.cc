@@ -55,7 +55,7 @@ JobDriver::Rounds ChaosRounds(ChaosGame& game, JobDriver& driver, uint64_t offse
                               std::vector<const CountGrid*> fixed_parts, uint64_t* peak_bytes) {
   JobDriver::Rounds r;
   r.offset = offset;
-  r.total = game.params().iterations;
+  r.total = game.range_iterations();
   r.min_step = ChaosGame::kChunkIterations;
   r.first_step = ChaosGame::kChunkIterations * uint64_t(driver.ctx().threads());
   r.advance = [&game, &driver, peak_bytes](uint64_t target) -> absl::StatusOr<uint64_t> {
@@ -87,24 +87,33 @@ absl::Status RunChaosGameParams(const JobPlan& plan, ChaosGameParams params, Job
   }
   NIMBUS_RETURN_IF_ERROR(d.RunRounds(rounds));
   const ChaosGameStats stats = game->stats();
-  ReportChaosGameStats(stats, ctx);
   const CountGrid counts = game->TakeCounts();
+  return FinishChaosGame(plan, d, game->params(), counts, stats,
+                         {conv.converged, conv.last_change, peak_bytes});
+}
+
+absl::Status FinishChaosGame(const JobPlan& plan, JobDriver& d, const ChaosGameParams& params,
+                             const CountGrid& counts, const ChaosGameStats& stats,
+                             const ChaosStop& stop) {
+  JobContext& ctx = d.ctx();
+  ReportChaosGameStats(stats, ctx);
   // The output grids come on top of the merged counters.
   uint64_t active_voxels = 0;
   counts.ForEachTile([&](Int3, const uint32_t* t) {
     for (int i = 0; i < CountGrid::kTileVoxels; ++i) active_voxels += t[i] != 0;
   });
-  peak_bytes = std::max(peak_bytes, uint64_t(counts.MemoryBytes()) +
-                                        active_voxels * OutputBytesPerVoxel(plan.density));
+  const uint64_t peak_bytes =
+      std::max(stop.peak_bytes, uint64_t(counts.MemoryBytes()) +
+                                    active_voxels * OutputBytesPerVoxel(plan.density));
   ctx.SetStat("peak_memory_bytes", peak_bytes);
   MetadataBuilder meta = d.Metadata();
-  meta.Add(meta_key::kSeed, int64_t(game->params().seed))
+  meta.Add(meta_key::kSeed, int64_t(params.seed))
       .ChaosStats(stats)
       .Add(meta_key::kFinalNonfinite, int64_t(stats.final_nonfinite))
-      .Add(meta_key::kStopReason, conv.converged ? "converged" : "iterations")
+      .Add(meta_key::kStopReason, stop.converged ? "converged" : "iterations")
       // Count units per plotted point: raw counts divide by this.
-      .Add(meta_key::kCountScale, int64_t(game->params().splat ? kSplatScale : 1));
-  if (conv.last_change >= 0) meta.Add(meta_key::kConvergenceChange, conv.last_change);
+      .Add(meta_key::kCountScale, int64_t(params.splat ? kSplatScale : 1));
+  if (stop.last_change >= 0) meta.Add(meta_key::kConvergenceChange, stop.last_change);
   return d.WriteResult(counts, meta.Build());
 }
 

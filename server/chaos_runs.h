@@ -19,6 +19,19 @@ void ReportChaosGameStats(const ChaosGameStats& stats, JobContext& ctx);
 JobDriver::Rounds ChaosRounds(ChaosGame& game, JobDriver& driver, uint64_t offset,
                               std::vector<const CountGrid*> fixed_parts, uint64_t* peak_bytes);
 
+/// How a chaos game's run ended, for the result's metadata.
+struct ChaosStop {
+  bool converged = false;
+  double last_change = -1;  // < 0: no convergence check ran
+  uint64_t peak_bytes = 0;  // of the run, before the output grids
+};
+
+/// The finishing every chaos-game job shares, sharded (the merge) or not:
+/// counters and warnings, metadata, and the written density of `counts`.
+absl::Status FinishChaosGame(const JobPlan& plan, JobDriver& d, const ChaosGameParams& params,
+                             const CountGrid& counts, const ChaosGameStats& stats,
+                             const ChaosStop& stop);
+
 /// Runs one chaos game as the whole job and writes its density.
 absl::Status RunChaosGameParams(const JobPlan& plan, ChaosGameParams params, JobContext& ctx);
 

@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
+#include "absl/strings/str_cat.h"
 
 namespace nimbus::server {
 
@@ -58,6 +59,18 @@ struct JobRecord {
   bool pinned = false;
   /// When the retention sweep deleted the result files (0: not expired).
   TimeMs result_expire_time = 0;
+  // Sharded jobs and the result cache (docs/sharding.md, docs/result_cache.md).
+  /// Set on a shard: the job it belongs to.
+  std::string parent_id;
+  uint32_t shard_index = 0;
+  /// On a parent and on each of its shards; 0 for an ordinary job.
+  uint32_t shard_count = 0;
+  /// On a parent: shards not yet SUCCEEDED. The parent is not claimable
+  /// (its merge cannot run) while this is > 0.
+  uint32_t shards_pending = 0;
+  std::string spec_sha256;
+  /// A result-cache hit: the job whose result this one copies.
+  std::string cached_from;
 };
 
 /// What a principal holds, for quotas.
@@ -66,6 +79,17 @@ struct OwnerUsage {
   uint64_t active_jobs = 0;
   /// Bytes of unexpired results of SUCCEEDED jobs.
   uint64_t result_bytes = 0;
+};
+
+struct Completion {
+  JobState state = JobState::kSucceeded;  // a terminal state
+  std::string error;
+  /// absl::StatusCode of the failure (CANCELLED for a cancelled job).
+  int error_code = 0;
+  std::string result_key;
+  uint64_t result_size = 0;
+  std::string result_sha256;
+  std::string warnings;
 };
 
 struct NewJob {
@@ -77,6 +101,16 @@ struct NewJob {
   std::string warnings;
   uint64_t estimated_memory_bytes = 0;
   std::string owner;
+  /// > 1: a sharded job (docs/sharding.md). Create inserts the parent and its
+  /// shards in one transaction.
+  uint32_t shard_count = 0;
+  /// sha256 (hex) of the canonical spec, for the result cache; may be empty.
+  std::string spec_sha256;
+  /// A result-cache hit (docs/result_cache.md): Create inserts the job
+  /// SUCCEEDED at once, with `cached_result`'s result fields, and records
+  /// `cached_from` (the job whose result it copies).
+  std::string cached_from;
+  Completion cached_result;
 };
 
 struct ListOptions {
@@ -90,23 +124,14 @@ struct ListOptions {
   /// pass this many bytes, so a response stays far below gRPC's message
   /// limit; a page always holds at least one job.
   uint64_t max_bytes = uint64_t{1} << 20;
+  /// Shards are hidden from listings unless asked for.
+  bool include_shards = false;
 };
 
 struct ListPage {
   /// Newest first.
   std::vector<JobRecord> jobs;
   std::string next_page_token;
-};
-
-struct Completion {
-  JobState state = JobState::kSucceeded;  // a terminal state
-  std::string error;
-  /// absl::StatusCode of the failure (CANCELLED for a cancelled job).
-  int error_code = 0;
-  std::string result_key;
-  uint64_t result_size = 0;
-  std::string result_sha256;
-  std::string warnings;
 };
 
 /// @brief A poke on a running jelly job: an impulse or a drag on one body,
@@ -202,7 +227,18 @@ class JobStore {
   virtual absl::StatusOr<std::vector<PokeRecord>> TakePokes(const std::string& id,
                                                             const std::string& worker_id,
                                                             int64_t frame) = 0;
+  /// The shards of `parent_id` in shard order (NOT_FOUND for an unknown id).
+  virtual absl::StatusOr<std::vector<JobRecord>> ListShards(const std::string& parent_id) = 0;
+  /// The newest SUCCEEDED, unexpired, top-level job of `owner` with this
+  /// spec hash, or nullopt (result cache).
+  virtual absl::StatusOr<std::optional<JobRecord>> FindCached(const std::string& spec_sha256,
+                                                              const std::string& owner) = 0;
 };
+
+/// Id of shard `index` of `parent_id`: "<parent id>.shard-<index>".
+inline std::string ShardJobId(const std::string& parent_id, uint32_t index) {
+  return absl::StrCat(parent_id, ".shard-", index);
+}
 
 /// Opens (creating if needed) the SQLite store at `path`, in WAL mode.
 absl::StatusOr<std::unique_ptr<JobStore>> OpenSqliteJobStore(const std::string& path);

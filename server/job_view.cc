@@ -1,5 +1,6 @@
 #include "server/job_view.h"
 
+#include <algorithm>
 #include <chrono>
 
 #include "absl/strings/str_split.h"
@@ -79,6 +80,12 @@ v1::Job ToProto(const JobRecord& r, bool with_spec) {
   j.set_owner(r.owner);
   j.set_pinned(r.pinned);
   if (r.result_expire_time) SetTime(r.result_expire_time, j.mutable_result_expire_time());
+  // Result cache and sharded jobs (docs/result_cache.md, docs/sharding.md).
+  j.set_cached_from(r.cached_from);
+  if (r.shard_count > 1 && r.parent_id.empty()) {
+    j.set_shards(r.shard_count);
+    j.set_shards_succeeded(r.shard_count - std::min(r.shards_pending, r.shard_count));
+  }
   return j;
 }
 

@@ -15,6 +15,7 @@
 #include "server/bounded_text.h"
 #include "server/job_view.h"
 #include "server/memory_admission.h"
+#include "server/shard_runner.h"
 #include "server/untrusted_file.h"
 
 namespace nimbus::server {
@@ -144,7 +145,12 @@ class WatchReactor : public grpc::ServerWriteReactor<v1::WatchJobResponse> {
       return FinishLocked(ToGrpc(rec.status()));
     }
     v1::Job initial = ToProto(*rec, false);
-    if (auto live = hub_->Latest(job_id_); live && live->state() == initial.state())
+    // A sharded parent's live view (shards summed) may say RUNNING while
+    // its record still waits QUEUED for the merge.
+    const bool parent = rec->shard_count > 1 && rec->parent_id.empty();
+    if (auto live = hub_->Latest(job_id_);
+        live && (live->state() == initial.state() ||
+                 (parent && rec->state == JobState::kQueued && !IsTerminal(live->state()))))
       initial = *live;
     {
       std::lock_guard<std::mutex> lock(mu_);
@@ -513,9 +519,6 @@ grpc::Status NimbusServiceImpl::Admit(const Principal& caller, const v1::SubmitJ
   // Validation names the offending field; nothing is allocated for grids.
   auto job = spec::ConvertSpec(req.spec(), limits_);
   if (!job.ok()) return ToGrpc(job.status());
-  // Memory admission: the job's one pilot census, if it needs one.
-  auto memory = AdmitMemory(*job, limits_, pool_->threads_per_job());
-  if (!memory.ok()) return ToGrpc(memory.status());
   NewJob nj;
   nj.id = NewJobId();
   nj.name = job->name;
@@ -523,9 +526,24 @@ grpc::Status NimbusServiceImpl::Admit(const Principal& caller, const v1::SubmitJ
   nj.request_id = req.request_id();
   nj.progress_total = job->work.total;
   for (const auto& w : job->warnings) nj.warnings += w + "\n";
-  nj.estimated_memory_bytes = memory->estimated_bytes;
   nj.owner = caller.name;
+  // Jelly results also depend on the pokes a running job receives, which
+  // are not in the spec: they are never cache entries.
+  if (job->jelly() == nullptr) nj.spec_sha256 = spec::SpecHash(req.spec());
+  // A finished twin answers at once, without memory admission.
+  const bool cached = !req.spec().no_cache() && !nj.spec_sha256.empty() && AnswerFromCache(nj);
+  if (!cached) {
+    // Memory admission: the job's one pilot census, if it needs one.
+    auto memory = AdmitMemory(*job, limits_, pool_->threads_per_job());
+    if (!memory.ok()) return ToGrpc(memory.status());
+    nj.estimated_memory_bytes = memory->estimated_bytes;
+    nj.shard_count = req.spec().shards() > 0 ? req.spec().shards()
+                                             : AutoShards(*job, auto_shard_iterations_);
+  }
   auto rec = store_->Create(nj, NowMs());
+  // Not stored, or an idempotent retry got its first job: the cache's copy
+  // is not needed.
+  if (cached && (!rec.ok() || rec->id != nj.id)) (void)results_->Delete(nj.id);
   if (!rec.ok()) return ToGrpc(rec.status());
   spdlog::info("job={} event=submitted name={} owner={} work={}", rec->id, rec->name, rec->owner,
                rec->progress_total);
@@ -533,6 +551,31 @@ grpc::Status NimbusServiceImpl::Admit(const Principal& caller, const v1::SubmitJ
   if (rec->state == JobState::kQueued) hub_->PublishJob(resp.job());
   pool_->Wake();
   return grpc::Status::OK;
+}
+
+bool NimbusServiceImpl::AnswerFromCache(NewJob& nj) {
+  auto hit = store_->FindCached(nj.spec_sha256, nj.owner);
+  if (!hit.ok() || !hit->has_value()) return false;
+  const JobRecord& from = **hit;
+  // Its own copy: each job's result lives and expires on its own.
+  auto copy = results_->CopyResult(from.result_key, from.id, nj.id);
+  if (!copy.ok()) {
+    spdlog::warn("job={} event=cache_copy_failed from={} reason=\"{}\"", nj.id, from.id,
+                 copy.status().ToString());
+    return false;
+  }
+  nj.cached_from = from.id;
+  nj.cached_result.result_key = copy->key;
+  nj.cached_result.result_size = copy->size;
+  nj.cached_result.result_sha256 = copy->sha256;
+  nj.estimated_memory_bytes = from.estimated_memory_bytes;
+  spdlog::info("job={} event=cache_hit from={}", nj.id, from.id);
+  return true;
+}
+
+void NimbusServiceImpl::AddShardProgress(const JobRecord& rec, v1::Job& view) {
+  if (rec.shard_count <= 1 || !rec.parent_id.empty() || rec.state != JobState::kQueued) return;
+  if (auto shards = store_->ListShards(rec.id); shards.ok()) AggregateShards(*shards, view);
 }
 
 grpc::ServerUnaryReactor* NimbusServiceImpl::OffThread(
@@ -556,6 +599,7 @@ grpc::ServerUnaryReactor* NimbusServiceImpl::GetJob(grpc::CallbackServerContext*
     auto rec = LoadVisibleJob(*store_, caller, req->job_id());
     if (!rec.ok()) return ToGrpc(rec.status());
     *resp->mutable_job() = ToProto(*rec, true);
+    AddShardProgress(*rec, *resp->mutable_job());
     // The hub has fresher progress than the store's last heartbeat.
     if (auto live = hub_->Latest(req->job_id()); live && live->state() == resp->job().state()) {
       *resp->mutable_job()->mutable_progress() = live->progress();
@@ -582,7 +626,11 @@ grpc::ServerUnaryReactor* NimbusServiceImpl::ListJobs(grpc::CallbackServerContex
     if (!caller.admin) o.owner = caller.name;
     auto page = store_->List(o);
     if (!page.ok()) return ToGrpc(page.status());
-    for (const JobRecord& r : page->jobs) *resp->add_jobs() = ToProto(r, false);
+    for (const JobRecord& r : page->jobs) {
+      v1::Job* j = resp->add_jobs();
+      *j = ToProto(r, false);
+      AddShardProgress(r, *j);
+    }
     resp->set_next_page_token(page->next_page_token);
     return grpc::Status::OK;
   });
@@ -657,6 +705,10 @@ grpc::Status NimbusServiceImpl::Cancel(const Principal& caller, const std::strin
   auto rec = store_->RequestCancel(job_id, NowMs());
   if (!rec.ok()) return ToGrpc(rec.status());
   pool_->Cancel(job_id);
+  // A sharded job's cancel reaches the shards this process runs at once.
+  if (rec->parent_id.empty())
+    for (uint32_t k = 0; rec->shard_count > 1 && k < rec->shard_count; ++k)
+      pool_->Cancel(ShardJobId(job_id, k));
   spdlog::info("job={} event=cancel_requested state={}", rec->id,
                v1::JobState_Name(ToProto(rec->state)));
   out = ToProto(*rec, false);
@@ -840,6 +892,10 @@ grpc::Status NimbusServiceImpl::Delete(const Principal& caller, const std::strin
                                        v1::DeleteJobResponse& resp) {
   auto rec = LoadVisibleJob(*store_, caller, job_id);
   if (!rec.ok()) return ToGrpc(rec.status());
+  if (!rec->parent_id.empty())
+    return grpc::Status(grpc::StatusCode::FAILED_PRECONDITION,
+                        absl::StrCat("job ", rec->id, " is a shard; delete its job ",
+                                     rec->parent_id, " instead"));
   if (!IsTerminal(rec->state))
     return grpc::Status(
         grpc::StatusCode::FAILED_PRECONDITION,
@@ -852,6 +908,11 @@ grpc::Status NimbusServiceImpl::Delete(const Principal& caller, const std::strin
     if (!freed.ok()) return ToGrpc(freed.status());
     resp.set_freed_bytes(*freed);
   }
+  // Partials a failed or cancelled sharded job left behind.
+  if (rec->shard_count > 1 && rec->parent_id.empty())
+    if (auto shards = store_->ListShards(job_id); shards.ok())
+      for (const JobRecord& s : *shards)
+        if (!s.result_key.empty()) (void)results_->Delete(s.result_key);
   if (auto st = store_->Delete(job_id); !st.ok()) return ToGrpc(st);
   hub_->Forget(job_id);
   spdlog::info("job={} event=deleted freed_bytes={}", job_id, resp.freed_bytes());

@@ -28,6 +28,9 @@ class NimbusServiceImpl final : public v1::NimbusService::CallbackService {
   /// How long CancelJob waits for a job running in this process to stop
   /// before answering it RUNNING with cancel_requested (default 5 s).
   void set_cancel_wait_ms(int64_t ms) { cancel_wait_ms_ = ms; }
+  /// Jobs above this many iterations that did not choose their shards are
+  /// split (docs/sharding.md); 0: never.
+  void set_auto_shard_iterations(uint64_t n) { auto_shard_iterations_ = n; }
   /// Who may call (no tokens: everyone, as the anonymous admin), what each
   /// principal may store, and how long results are kept (0: for ever; only
   /// named in FetchResult's answer for an expired result).
@@ -93,6 +96,12 @@ class NimbusServiceImpl final : public v1::NimbusService::CallbackService {
   TokenTable tokens_;
   Quotas quotas_;
   int64_t retention_ms_ = 0;
+  uint64_t auto_shard_iterations_ = 0;
+  // The result cache (docs/result_cache.md): fills `nj` as a copy of the
+  // newest finished job with its spec hash, if any. False on a miss.
+  bool AnswerFromCache(NewJob& nj);
+  // A sharded parent's view with its shards' progress summed.
+  void AddShardProgress(const JobRecord& rec, v1::Job& view);
   // Cancels waiting for their job to stop; bounded so they can never hold
   // every executor thread and starve reads.
   std::atomic<int> cancel_waits_{0};

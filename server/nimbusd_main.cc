@@ -111,6 +111,10 @@ int main(int argc, char** argv) {
                  "plus one second, ms")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
+  app.add_option("--auto-shard-iterations", o.auto_shard_iterations,
+                 "split chaos-game jobs above this many iterations into shards of about "
+                 "this size that any worker may run (docs/sharding.md); 0: never")
+      ->capture_default_str();
   app.add_option("--max-attempts", o.max_attempts,
                  "attempts a job gets before it fails with its last error (0: no limit)")
       ->capture_default_str();

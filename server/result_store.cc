@@ -8,6 +8,7 @@
 #include <cerrno>
 #include <cstring>
 #include <fstream>
+#include <functional>
 #include <map>
 #include <mutex>
 #include <sstream>
@@ -126,6 +127,31 @@ class LocalResultStore : public ResultStore {
     return result;
   }
 
+  // Hard links: a cache hit costs no copy, and deleting either job's
+  // result leaves the other's (results are never written again).
+  absl::StatusOr<StoredResult> CopyResult(const std::string& from_key, const std::string& from_id,
+                                          const std::string& to_key) override {
+    const std::filesystem::path scratch = ScratchPath(to_key);
+    std::error_code ec;
+    std::filesystem::create_directories(scratch.parent_path(), ec);
+    std::filesystem::remove(scratch, ec);
+    std::filesystem::create_hard_link(Path(from_key), scratch, ec);
+    if (ec) return ResultStore::CopyResult(from_key, from_id, to_key);  // e.g. no links here
+    const std::filesystem::path files = FilesDir(from_id);
+    if (std::filesystem::is_directory(files, ec)) {
+      const std::filesystem::path extra = ExtraFilesDir(scratch);
+      std::filesystem::remove_all(extra, ec);
+      std::filesystem::create_directories(extra, ec);
+      for (const auto& e : std::filesystem::directory_iterator(files, ec)) {
+        // Commit writes its own manifest; a linked one would be rewritten.
+        if (e.path().filename() == kManifest) continue;
+        std::filesystem::create_hard_link(e.path(), extra / e.path().filename(), ec);
+        if (ec) return DiskError(absl::StrCat("link ", e.path().string()), ec.value());
+      }
+    }
+    return Commit(to_key, scratch);
+  }
+
   absl::StatusOr<std::string> Read(const std::string& key, uint64_t offset,
                                    uint64_t max_bytes) override {
     return ReadRange(Path(key), offset, max_bytes, absl::StrCat("result ", key));
@@ -218,6 +244,39 @@ class LocalResultStore : public ResultStore {
 };
 
 }  // namespace
+
+absl::StatusOr<StoredResult> ResultStore::CopyResult(const std::string& from_key,
+                                                     const std::string& from_id,
+                                                     const std::string& to_key) {
+  constexpr uint64_t kPiece = uint64_t{16} << 20;
+  const std::filesystem::path scratch = ScratchPath(to_key);
+  std::error_code ec;
+  std::filesystem::create_directories(scratch.parent_path(), ec);
+  // Streams one file of the result into `path`, piece by piece.
+  auto copy = [&](const std::filesystem::path& path,
+                  const std::function<absl::StatusOr<std::string>(uint64_t)>& read) {
+    std::ofstream out(path, std::ios::binary | std::ios::trunc);
+    for (uint64_t offset = 0;;) {
+      absl::StatusOr<std::string> piece = read(offset);
+      if (!piece.ok()) return piece.status();
+      if (piece->empty()) break;
+      out.write(piece->data(), std::streamsize(piece->size()));
+      offset += piece->size();
+    }
+    out.flush();
+    return out ? absl::OkStatus() : DiskError(absl::StrCat("copy into ", path.string()), EIO);
+  };
+  absl::Status st = copy(scratch, [&](uint64_t o) { return Read(from_key, o, kPiece); });
+  if (!st.ok()) return st;
+  const std::vector<StoredFile> files = ListFiles(from_id, false);
+  if (!files.empty()) std::filesystem::create_directories(ExtraFilesDir(scratch), ec);
+  for (const StoredFile& f : files) {
+    st = copy(ExtraFilesDir(scratch) / f.name,
+              [&](uint64_t o) { return ReadFile(from_id, f.name, false, o, kPiece); });
+    if (!st.ok()) return st;
+  }
+  return Commit(to_key, scratch);
+}
 
 std::filesystem::path ExtraFilesDir(const std::filesystem::path& scratch) {
   return scratch.string() + ".files";

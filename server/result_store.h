@@ -54,6 +54,14 @@ class ResultStore {
   /// deleted job); returns the bytes freed. A missing result frees 0.
   virtual absl::StatusOr<uint64_t> Delete(const std::string& key) = 0;
 
+  /// A copy of the committed result `from_key` (further files of job
+  /// `from_id` included) committed under `to_key`, for the result cache
+  /// (docs/result_cache.md): each job's files then live and expire on their
+  /// own. This default reads and commits through the other methods.
+  virtual absl::StatusOr<StoredResult> CopyResult(const std::string& from_key,
+                                                  const std::string& from_id,
+                                                  const std::string& to_key);
+
   /// Further files of a committed result, in name order; or, when
   /// `running`, the finished files the job has written so far.
   virtual std::vector<StoredFile> ListFiles(const std::string& key, bool running) = 0;

@@ -163,6 +163,7 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
       impl->store.get(), impl->results.get(), impl->assets.get(), &impl->hub, impl->pool.get(),
       limits);
   impl->service->set_cancel_wait_ms(options.cancel_wait_ms);
+  impl->service->set_auto_shard_iterations(options.auto_shard_iterations);
   const bool auth = !tokens->empty();
   const size_t principals = tokens->size();
   impl->service->set_security(

@@ -59,6 +59,9 @@ struct ServerOptions {
   /// Results (and assets no queued, running or pinned job names) are
   /// deleted this long after their job ended (were uploaded); 0 = kept.
   int64_t retention_ms = 0;
+  /// Jobs above this many iterations that leave JobSpec.shards at 0 are
+  /// split into shards (docs/sharding.md); 0: never.
+  uint64_t auto_shard_iterations = 0;
 };
 
 /// @brief A running server. Jobs left RUNNING by a previous process are

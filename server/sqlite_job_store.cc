@@ -33,8 +33,10 @@ namespace {
 
 // 1: the first schema. 2: adds jobs.error_code. 3: adds owner, pinned and
 // result_expire_time (security: ownership and retention). 4: adds the pokes
-// table (jelly jobs).
-constexpr int kSchemaVersion = 4;
+// table (jelly jobs). 5: adds sharded jobs (parent_id, shard_index,
+// shard_count, shards_pending) and the result cache (spec_sha256,
+// cached_from).
+constexpr int kSchemaVersion = 5;
 // Long enough to ride out another process's short write transactions, short
 // enough that a wedged peer surfaces as UNAVAILABLE instead of a hang.
 constexpr int kBusyTimeoutMs = 10000;
@@ -108,6 +110,20 @@ CREATE INDEX IF NOT EXISTS jobs_owner_create ON jobs (owner, create_time, id);
 // Version 3 files gain the pokes table (no job has pokes yet).
 constexpr char kMigrateToV4Sql[] = NIMBUS_POKES_SQL;
 
+// Version 4 files gain shards and the result cache; a fresh file gets
+// these columns on top of kSchemaSql too.
+constexpr char kMigrateToV5Sql[] = R"sql(
+ALTER TABLE jobs ADD COLUMN parent_id TEXT NOT NULL DEFAULT '';
+ALTER TABLE jobs ADD COLUMN shard_index INTEGER NOT NULL DEFAULT 0;
+ALTER TABLE jobs ADD COLUMN shard_count INTEGER NOT NULL DEFAULT 0;
+ALTER TABLE jobs ADD COLUMN shards_pending INTEGER NOT NULL DEFAULT 0;
+ALTER TABLE jobs ADD COLUMN spec_sha256 TEXT NOT NULL DEFAULT '';
+ALTER TABLE jobs ADD COLUMN cached_from TEXT NOT NULL DEFAULT '';
+CREATE INDEX IF NOT EXISTS jobs_parent ON jobs (parent_id, shard_index) WHERE parent_id <> '';
+CREATE INDEX IF NOT EXISTS jobs_spec_sha256 ON jobs (spec_sha256, owner)
+  WHERE spec_sha256 <> '';
+)sql";
+
 // Column order shared by every SELECT that feeds RowToRecord. Text a client
 // or a reader could make huge is cut in SQL already (stores written before
 // the bounds may hold a gigabyte of error text), and again by BoundText
@@ -117,7 +133,8 @@ constexpr char kMigrateToV4Sql[] = NIMBUS_POKES_SQL;
   "attempts, cancel_requested, worker_id, lease_expiry, progress_done, progress_total, "   \
   "substr(error, 1, 4200), result_key, result_size, result_sha256, "                       \
   "substr(warnings, 1, 16500), estimated_memory_bytes, error_code, owner, pinned, "        \
-  "result_expire_time"
+  "result_expire_time, parent_id, shard_index, shard_count, shards_pending, spec_sha256, " \
+  "cached_from"
 
 absl::StatusCode CodeFor(int rc) {
   switch (rc & 0xff) {
@@ -197,6 +214,13 @@ class Statement {
         sqlite3_bind_blob(stmt_, index, v.data(), static_cast<int>(v.size()), SQLITE_TRANSIENT));
   }
 
+  /// Ready to run again with new bindings.
+  void Reset() {
+    sqlite3_reset(stmt_);
+    sqlite3_clear_bindings(stmt_);
+    bind_rc_ = SQLITE_OK;
+  }
+
   /// True when a row is available, false when done.
   absl::StatusOr<bool> Step() {
     if (bind_rc_ != SQLITE_OK) return Error(bind_rc_);
@@ -261,6 +285,12 @@ JobRecord RowToRecord(const Statement& s) {
   r.owner = s.Text(21);
   r.pinned = s.Int(22) != 0;
   r.result_expire_time = s.Int(23);
+  r.parent_id = s.Text(24);
+  r.shard_index = static_cast<uint32_t>(s.Int(25));
+  r.shard_count = static_cast<uint32_t>(s.Int(26));
+  r.shards_pending = static_cast<uint32_t>(s.Int(27));
+  r.spec_sha256 = s.Text(28);
+  r.cached_from = s.Text(29);
   return r;
 }
 
@@ -351,6 +381,9 @@ class SqliteJobStore final : public JobStore {
   absl::StatusOr<std::vector<PokeRecord>> TakePokes(const std::string& id,
                                                     const std::string& worker_id,
                                                     int64_t frame) override;
+  absl::StatusOr<std::vector<JobRecord>> ListShards(const std::string& parent_id) override;
+  absl::StatusOr<std::optional<JobRecord>> FindCached(const std::string& spec_sha256,
+                                                      const std::string& owner) override;
 
  private:
   // Rolls back unless committed, so every early return leaves no open
@@ -412,6 +445,14 @@ class SqliteJobStore final : public JobStore {
   absl::StatusOr<std::optional<std::pair<TimeMs, std::string>>> PickClaimableLocked(TimeMs now);
   // Fails a job whose attempts ran out, keeping its last attempt's error.
   absl::Status GiveUpLocked(const std::string& id, uint32_t attempts, TimeMs now);
+  // Sharded jobs (docs/sharding.md). After `id` reached a terminal state: a
+  // shard that SUCCEEDED counts down its parent's shards_pending; one that
+  // FAILED or was CANCELLED ends its parent the same way (and its siblings).
+  absl::Status ShardEndedLocked(const std::string& id, TimeMs now);
+  // QUEUED shards of `parent_id` become CANCELLED, RUNNING ones get
+  // cancel_requested.
+  absl::Status CancelShardsLocked(const std::string& parent_id, TimeMs now);
+  absl::Status InsertShardsLocked(const NewJob& job, TimeMs now);
 
   std::mutex mu_;  // guards w_
   Connection w_;
@@ -538,8 +579,10 @@ absl::Status SqliteJobStore::Migrate() {
       if (absl::Status s = Exec(kMigrateToV2Sql); !s.ok()) return s;
     if (*version < 3)
       if (absl::Status s = Exec(kMigrateToV3Sql); !s.ok()) return s;
-    if (absl::Status s = Exec(kMigrateToV4Sql); !s.ok()) return s;
+    if (*version < 4)
+      if (absl::Status s = Exec(kMigrateToV4Sql); !s.ok()) return s;
   }
+  if (absl::Status s = Exec(kMigrateToV5Sql); !s.ok()) return s;
   if (absl::Status s = Exec(absl::StrCat("PRAGMA user_version=", kSchemaVersion).c_str());
       !s.ok()) {
     return s;
@@ -644,16 +687,20 @@ absl::StatusOr<JobRecord> SqliteJobStore::Create(const NewJob& job, TimeMs now) 
     }
   }
 
+  if (job.shard_count > 1 && !job.cached_from.empty())
+    return absl::InvalidArgumentError("a result-cache hit cannot be sharded");
+  const uint32_t shards = job.shard_count > 1 ? job.shard_count : 0;
   {
     absl::StatusOr<Statement> s = Prepare(
         "INSERT INTO jobs (id, name, state, spec, request_id, create_time, progress_total, "
-        "warnings, estimated_memory_bytes, owner) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, "
-        "?10)");
+        "warnings, estimated_memory_bytes, owner, shard_count, shards_pending, spec_sha256) "
+        "VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?11, ?12)");
     if (!s.ok()) return s.status();
     s->Bind(1, job.id).Bind(2, job.name).Bind(3, JobState::kQueued).BindBlob(4, job.spec);
     s->Bind(5, job.request_id).Bind(6, now).Bind(7, job.progress_total);
     s->Bind(8, BoundText(job.warnings, kMaxWarningsBytes));
     s->Bind(9, job.estimated_memory_bytes).Bind(10, job.owner);
+    s->Bind(11, int64_t{shards}).Bind(12, job.spec_sha256);
     if (absl::Status st = s->Run(); !st.ok()) {
       if (st.code() == absl::StatusCode::kAlreadyExists) {
         return absl::AlreadyExistsError(absl::StrCat("job \"", job.id, "\" already exists"));
@@ -661,10 +708,123 @@ absl::StatusOr<JobRecord> SqliteJobStore::Create(const NewJob& job, TimeMs now) 
       return st;
     }
   }
+  if (shards > 0)
+    if (absl::Status st = InsertShardsLocked(job, now); !st.ok()) return st;
+  if (!job.cached_from.empty()) {
+    // A cache hit is born finished, with the copied result.
+    const Completion& c = job.cached_result;
+    absl::StatusOr<Statement> s = Prepare(
+        "UPDATE jobs SET state = 3, start_time = ?1, end_time = ?1, "
+        "progress_done = progress_total, result_key = ?2, result_size = ?3, "
+        "result_sha256 = ?4, cached_from = ?5 WHERE id = ?6");
+    if (!s.ok()) return s.status();
+    s->Bind(1, now).Bind(2, c.result_key).Bind(3, c.result_size).Bind(4, c.result_sha256);
+    s->Bind(5, job.cached_from).Bind(6, job.id);
+    if (absl::Status st = s->Run(); !st.ok()) return st;
+  }
   absl::StatusOr<JobRecord> created = LoadExistingLocked(job.id);
   if (!created.ok()) return created.status();
   if (absl::Status s = txn.Commit(); !s.ok()) return s;
   return created;
+}
+
+absl::Status SqliteJobStore::InsertShardsLocked(const NewJob& job, TimeMs now) {
+  absl::StatusOr<Statement> s = Prepare(
+      "INSERT INTO jobs (id, name, state, spec, create_time, progress_total, warnings, "
+      "estimated_memory_bytes, owner, parent_id, shard_index, shard_count, spec_sha256) "
+      "VALUES (?1, ?2, 1, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12)");
+  if (!s.ok()) return s.status();
+  for (uint32_t k = 0; k < job.shard_count; ++k) {
+    s->Reset();
+    s->Bind(1, ShardJobId(job.id, k)).Bind(2, job.name).BindBlob(3, job.spec).Bind(4, now);
+    s->Bind(5, job.progress_total).Bind(6, BoundText(job.warnings, kMaxWarningsBytes));
+    s->Bind(7, job.estimated_memory_bytes).Bind(8, job.owner).Bind(9, job.id);
+    s->Bind(10, int64_t{k}).Bind(11, int64_t{job.shard_count}).Bind(12, job.spec_sha256);
+    if (absl::Status st = s->Run(); !st.ok()) return st;
+  }
+  return absl::OkStatus();
+}
+
+absl::Status SqliteJobStore::CancelShardsLocked(const std::string& parent_id, TimeMs now) {
+  {
+    absl::StatusOr<Statement> s = Prepare(
+        "UPDATE jobs SET state = 5, end_time = ?2, error = ?3, cancel_requested = 1, "
+        "error_code = ?4 WHERE parent_id = ?1 AND state = 1");
+    if (!s.ok()) return s.status();
+    s->Bind(1, parent_id).Bind(2, now).Bind(3, std::string(kCancelledByRequest));
+    s->Bind(4, kCancelledCode);
+    if (absl::Status st = s->Run(); !st.ok()) return st;
+  }
+  absl::StatusOr<Statement> s =
+      Prepare("UPDATE jobs SET cancel_requested = 1 WHERE parent_id = ?1 AND state = 2");
+  if (!s.ok()) return s.status();
+  s->Bind(1, parent_id);
+  return s->Run();
+}
+
+absl::Status SqliteJobStore::ShardEndedLocked(const std::string& id, TimeMs now) {
+  absl::StatusOr<JobRecord> shard = LoadExistingLocked(id);
+  if (!shard.ok()) return shard.status();
+  if (shard->parent_id.empty() || !IsTerminal(shard->state)) return absl::OkStatus();
+  if (shard->state == JobState::kSucceeded) {
+    absl::StatusOr<Statement> s = Prepare(
+        "UPDATE jobs SET shards_pending = shards_pending - 1 "
+        "WHERE id = ?1 AND shards_pending > 0");
+    if (!s.ok()) return s.status();
+    s->Bind(1, shard->parent_id);
+    return s->Run();
+  }
+  absl::StatusOr<JobRecord> parent = LoadExistingLocked(shard->parent_id);
+  if (!parent.ok()) return parent.status();
+  if (IsTerminal(parent->state)) return absl::OkStatus();
+  {
+    // The parent ends as its shard did, naming it.
+    absl::StatusOr<Statement> s = Prepare(
+        "UPDATE jobs SET state = ?1, end_time = ?2, error = ?3, error_code = ?4, "
+        "worker_id = '', lease_expiry = 0 WHERE id = ?5");
+    if (!s.ok()) return s.status();
+    s->Bind(1, shard->state).Bind(2, now);
+    s->Bind(3, BoundText(absl::StrCat("shard ", shard->shard_index, " of ", shard->shard_count,
+                                      ": ", shard->error),
+                         kMaxErrorBytes));
+    s->Bind(4, shard->error_code).Bind(5, parent->id);
+    if (absl::Status st = s->Run(); !st.ok()) return st;
+  }
+  return CancelShardsLocked(parent->id, now);
+}
+
+absl::StatusOr<std::vector<JobRecord>> SqliteJobStore::ListShards(const std::string& parent_id) {
+  std::lock_guard<std::mutex> lock(*read_mu_);
+  absl::StatusOr<JobRecord> parent = LoadExistingLocked(*r_, parent_id);
+  if (!parent.ok()) return parent.status();
+  absl::StatusOr<Statement> s = r_->Prepare(
+      "SELECT " NIMBUS_JOB_COLUMNS " FROM jobs WHERE parent_id = ?1 ORDER BY shard_index");
+  if (!s.ok()) return s.status();
+  s->Bind(1, parent_id);
+  std::vector<JobRecord> shards;
+  while (true) {
+    absl::StatusOr<bool> row = s->Step();
+    if (!row.ok()) return row.status();
+    if (!*row) break;
+    shards.push_back(RowToRecord(*s));
+  }
+  return shards;
+}
+
+absl::StatusOr<std::optional<JobRecord>> SqliteJobStore::FindCached(
+    const std::string& spec_sha256, const std::string& owner) {
+  if (spec_sha256.empty()) return std::optional<JobRecord>();
+  std::lock_guard<std::mutex> lock(*read_mu_);
+  absl::StatusOr<Statement> s = r_->Prepare(
+      "SELECT " NIMBUS_JOB_COLUMNS
+      " FROM jobs WHERE spec_sha256 = ?1 AND owner = ?2 AND state = 3 AND "
+      "result_expire_time = 0 AND parent_id = '' ORDER BY end_time DESC, rowid DESC LIMIT 1");
+  if (!s.ok()) return s.status();
+  s->Bind(1, spec_sha256).Bind(2, owner);
+  absl::StatusOr<bool> row = s->Step();
+  if (!row.ok()) return row.status();
+  if (!*row) return std::optional<JobRecord>();
+  return std::optional<JobRecord>(RowToRecord(*s));
 }
 
 absl::StatusOr<JobRecord> SqliteJobStore::Get(const std::string& id) {
@@ -688,7 +848,7 @@ absl::StatusOr<ListPage> SqliteJobStore::List(const ListOptions& options) {
   // Four fixed shapes rather than "?1 IS NULL OR ..." so each one can use an
   // index for both the filter and the order; the owner (?5, NULL for all)
   // only filters the rows the index walk yields.
-#define NIMBUS_OWNER_FILTER "(?5 IS NULL OR owner = ?5)"
+#define NIMBUS_OWNER_FILTER "(?5 IS NULL OR owner = ?5) AND (?6 <> 0 OR parent_id = '')"
   const char* sql;
   if (options.state.has_value()) {
     sql = has_cursor ? "SELECT " NIMBUS_JOB_COLUMNS
@@ -712,6 +872,7 @@ absl::StatusOr<ListPage> SqliteJobStore::List(const ListOptions& options) {
   if (options.state.has_value()) s->Bind(1, *options.state);
   if (has_cursor) s->Bind(2, cursor_time).Bind(3, cursor_id);
   if (options.owner.has_value()) s->Bind(5, *options.owner);
+  s->Bind(6, options.include_shards ? 1 : 0);
   // One extra row tells whether another page exists, so the last page never
   // hands out a token that leads to an empty page.
   s->Bind(4, page_size + 1);
@@ -740,8 +901,10 @@ absl::StatusOr<ListPage> SqliteJobStore::List(const ListOptions& options) {
 absl::StatusOr<std::optional<std::pair<TimeMs, std::string>>>
 SqliteJobStore::PickClaimableLocked(TimeMs now) {
   // Two index-friendly probes instead of one OR: the oldest QUEUED job and the
-  // oldest RUNNING job whose lease lapsed; the older of the two wins.
+  // oldest RUNNING job whose lease lapsed; the older of the two wins. Ties
+  // of create_time go by insertion order (rowid), so shards run in order.
   std::optional<std::pair<TimeMs, std::string>> best;
+  int64_t best_rowid = 0;
   auto consider = [&](const char* sql, bool bind_now) -> absl::Status {
     absl::StatusOr<Statement> s = Prepare(sql);
     if (!s.ok()) return s.status();
@@ -749,8 +912,12 @@ SqliteJobStore::PickClaimableLocked(TimeMs now) {
     absl::StatusOr<bool> row = s->Step();
     if (!row.ok()) return row.status();
     if (*row) {
-      std::pair<TimeMs, std::string> key(s->Int(0), s->Text(1));
-      if (!best.has_value() || key < *best) best = std::move(key);
+      const TimeMs t = s->Int(0);
+      const int64_t rowid = s->Int(1);
+      if (!best.has_value() || std::pair(t, rowid) < std::pair(best->first, best_rowid)) {
+        best.emplace(t, s->Text(2));
+        best_rowid = rowid;
+      }
     }
     return absl::OkStatus();
   };
@@ -758,15 +925,17 @@ SqliteJobStore::PickClaimableLocked(TimeMs now) {
   static_assert(static_cast<int>(JobState::kQueued) == 1);
   static_assert(static_cast<int>(JobState::kRunning) == 2);
   if (absl::Status s =
-          consider("SELECT create_time, id FROM jobs WHERE state = 1 AND cancel_requested = 0 "
-                   "ORDER BY create_time, id LIMIT 1",
+          consider("SELECT create_time, rowid, id FROM jobs WHERE state = 1 AND "
+                   "cancel_requested = 0 AND shards_pending = 0 "
+                   "ORDER BY create_time, rowid LIMIT 1",
                    false);
       !s.ok()) {
     return s;
   }
   if (absl::Status s =
-          consider("SELECT create_time, id FROM jobs WHERE state = 2 AND cancel_requested = 0 "
-                   "AND lease_expiry < ?1 ORDER BY create_time, id LIMIT 1",
+          consider("SELECT create_time, rowid, id FROM jobs WHERE state = 2 AND "
+                   "cancel_requested = 0 AND lease_expiry < ?1 "
+                   "ORDER BY create_time, rowid LIMIT 1",
                    true);
       !s.ok()) {
     return s;
@@ -816,6 +985,7 @@ absl::StatusOr<std::optional<JobRecord>> SqliteJobStore::ClaimNext(
     if (r->attempts < max_attempts) break;
     // Out of attempts: fail it and look again (each pass ends one job).
     if (absl::Status s = GiveUpLocked(best->second, r->attempts, now); !s.ok()) return s;
+    if (absl::Status s = ShardEndedLocked(best->second, now); !s.ok()) return s;
     if (given_up != nullptr) {
       absl::StatusOr<JobRecord> failed = LoadExistingLocked(best->second);
       if (!failed.ok()) return failed.status();
@@ -900,6 +1070,7 @@ absl::Status SqliteJobStore::Complete(const std::string& id, const std::string& 
     s->Bind(9, completion.error_code);
     if (absl::Status st = s->Run(); !st.ok()) return st;
   }
+  if (absl::Status st = ShardEndedLocked(id, now); !st.ok()) return st;
   return txn.Commit();
 }
 
@@ -936,6 +1107,7 @@ absl::Status SqliteJobStore::GiveBack(const std::string& id, const std::string& 
     s->Bind(8, attempt ? 1 : 0);
     if (absl::Status st = s->Run(); !st.ok()) return st;
   }
+  if (absl::Status st = ShardEndedLocked(id, WallClockMs()); !st.ok()) return st;
   return txn.Commit();
 }
 
@@ -962,6 +1134,11 @@ absl::StatusOr<JobRecord> SqliteJobStore::RequestCancel(const std::string& id, T
     s->Bind(4, id);
     if (absl::Status st = s->Run(); !st.ok()) return st;
   }
+  // A parent's cancel reaches its shards; a shard cancelled while queued
+  // ends its parent.
+  if (job->shard_count > 1 && job->parent_id.empty())
+    if (absl::Status st = CancelShardsLocked(id, now); !st.ok()) return st;
+  if (absl::Status st = ShardEndedLocked(id, now); !st.ok()) return st;
   job = LoadExistingLocked(id);
   if (!job.ok()) return job.status();
   if (absl::Status s = txn.Commit(); !s.ok()) return s;
@@ -1001,7 +1178,7 @@ absl::StatusOr<OwnerUsage> SqliteJobStore::Usage(const std::string& owner) {
   absl::StatusOr<Statement> s = r_->Prepare(
       "SELECT count(*) FILTER (WHERE state IN (1, 2)), "
       "coalesce(sum(result_size) FILTER (WHERE state = 3 AND result_expire_time = 0), 0) "
-      "FROM jobs WHERE owner = ?1");
+      "FROM jobs WHERE owner = ?1 AND parent_id = ''");
   if (!s.ok()) return s.status();
   s->Bind(1, owner);
   absl::StatusOr<bool> row = s->Step();
@@ -1040,7 +1217,19 @@ absl::Status SqliteJobStore::Delete(const std::string& id) {
     return absl::FailedPreconditionError(
         absl::StrCat("job ", id, " is ", StateName(job->state), "; cancel it before deleting it"));
   {
-    absl::StatusOr<Statement> s = Prepare("DELETE FROM jobs WHERE id = ?1");
+    absl::StatusOr<Statement> s =
+        Prepare("SELECT count(*) FROM jobs WHERE parent_id = ?1 AND state IN (1, 2)");
+    if (!s.ok()) return s.status();
+    s->Bind(1, id);
+    absl::StatusOr<bool> row = s->Step();
+    if (!row.ok()) return row.status();
+    if (*row && s->Int(0) > 0)
+      return absl::FailedPreconditionError(
+          absl::StrCat("job ", id, " still has ", s->Int(0), " active shards"));
+  }
+  {
+    // A parent goes with its shards.
+    absl::StatusOr<Statement> s = Prepare("DELETE FROM jobs WHERE id = ?1 OR parent_id = ?1");
     if (!s.ok()) return s.status();
     s->Bind(1, id);
     if (absl::Status st = s->Run(); !st.ok()) return st;
@@ -1053,7 +1242,8 @@ absl::StatusOr<std::vector<JobRecord>> SqliteJobStore::ListExpiring(TimeMs cutof
   absl::StatusOr<Statement> s =
       r_->Prepare("SELECT " NIMBUS_JOB_COLUMNS
                   " FROM jobs WHERE state = 3 AND pinned = 0 AND "
-                  "result_expire_time = 0 AND end_time < ?1 ORDER BY end_time LIMIT ?2");
+                  "result_expire_time = 0 AND end_time < ?1 AND parent_id = '' "
+                  "ORDER BY end_time LIMIT ?2");
   if (!s.ok()) return s.status();
   s->Bind(1, cutoff).Bind(2, limit);
   std::vector<JobRecord> jobs;

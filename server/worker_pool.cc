@@ -13,6 +13,7 @@
 #include "server/bounded_text.h"
 #include "server/job_runner.h"
 #include "server/job_view.h"
+#include "server/shard_runner.h"
 #include "server/untrusted_file.h"
 
 namespace nimbus::server {
@@ -89,6 +90,11 @@ class WorkerPool::Context : public JobContext {
     p->set_eta_seconds(rate > 0 && total > done ? double(total - done) / rate : 0);
     view_.set_state(v1::JOB_STATE_RUNNING);
     pool_->hub_->PublishJob(view_);
+    if (!record_.parent_id.empty() &&
+        Clock::now() - last_parent_publish_ >= std::chrono::milliseconds(500)) {
+      last_parent_publish_ = Clock::now();
+      pool_->PublishParent(record_.parent_id, record_.id, done);
+    }
     if (Clock::now() - last_heartbeat_ >= std::chrono::milliseconds(pool_->options_.heartbeat_ms)) {
       last_heartbeat_ = Clock::now();
       auto hb = pool_->store_->Heartbeat(record_.id, worker_id_, NowMs(), pool_->options_.lease_ms,
@@ -128,6 +134,36 @@ class WorkerPool::Context : public JobContext {
       preview.add_resolution(coarse_frame.resolution.z);
       preview.set_done(done);
       pool_->hub_->PublishPreview(record_.id, want.resolution, std::move(preview));
+    }
+    if (!record_.parent_id.empty()) PublishParentPreview(parts, frame, density, done);
+  }
+
+  // A shard's watchers-of-the-parent see the newest shard's partial counts.
+  void PublishParentPreview(const std::vector<const CountGrid*>& parts, const GridFrame& frame,
+                            const DensityOptions& density, uint64_t done) {
+    const std::string& parent = record_.parent_id;
+    for (const JobHub::PreviewWant& want : pool_->hub_->WantedPreviews(parent)) {
+      auto& last = last_parent_preview_[want.resolution];
+      if (last != Clock::time_point{} &&
+          Seconds(Clock::now() - last) < std::max(0.05, want.interval_seconds))
+        continue;
+      last = Clock::now();
+      const int factor = DownsampleFactor(frame.resolution, int(want.resolution));
+      const CountGrid coarse = DownsampleCounts(parts, factor);
+      const GridFrame coarse_frame = DownsampleFrame(frame, factor);
+      const uint64_t sequence = pool_->NextParentPreviewSequence(parent);
+      auto bytes = DensityVdbBytes(coarse, coarse_frame, density,
+                                   {{meta_key::kPreviewSequence, int64_t(sequence)},
+                                    {meta_key::kPreviewDone, int64_t(done)}});
+      if (!bytes.ok()) continue;
+      v1::Preview preview;
+      preview.set_sequence(sequence);
+      preview.set_vdb(std::move(*bytes));
+      preview.add_resolution(coarse_frame.resolution.x);
+      preview.add_resolution(coarse_frame.resolution.y);
+      preview.add_resolution(coarse_frame.resolution.z);
+      preview.set_done(done);
+      pool_->hub_->PublishPreview(parent, want.resolution, std::move(preview));
     }
   }
 
@@ -182,6 +218,8 @@ class WorkerPool::Context : public JobContext {
   Clock::time_point phase_start_;
   Clock::time_point last_heartbeat_;
   std::map<uint32_t, Clock::time_point> last_preview_;
+  std::map<uint32_t, Clock::time_point> last_parent_preview_;
+  Clock::time_point last_parent_publish_;
   uint64_t preview_sequence_ = 0;
   std::vector<std::string> warnings_;
 };
@@ -273,7 +311,7 @@ void WorkerPool::RunJob(const JobRecord& record, const std::string& worker_id) {
     // Core returns statuses, but an allocation can still throw; a poison
     // job must end as FAILED, not take the worker thread with it.
     try {
-      status = ConvertAndRun(spec, ctx);
+      status = ConvertAndRun(spec, record, ctx);
     } catch (const std::exception& e) {
       status = absl::InternalError(
           absl::StrCat("the job stopped on an exception: ", BoundText(e.what(), 512)));
@@ -325,7 +363,14 @@ void WorkerPool::RunJob(const JobRecord& record, const std::string& worker_id) {
     if (RecordEnd(id, worker_id, done))
       spdlog::info("job={} event=end state={} error=\"{}\"", id,
                    v1::JobState_Name(ToProto(done.state)), done.error);
+    // A merged job's partials are spent.
+    if (done.state == JobState::kSucceeded && record.shard_count > 1 &&
+        record.parent_id.empty())
+      if (auto shards = store_->ListShards(id); shards.ok())
+        for (const JobRecord& s : *shards) (void)results_->Delete(s.id);
   }
+  // The parent learns of its shard's end (it may have ended with it).
+  if (!record.parent_id.empty()) PublishParent(record.parent_id, "", 0);
   if (auto final_record = store_->Get(id); final_record.ok()) {
     v1::Job final_view = ToProto(*final_record, false);
     *final_view.mutable_stats() = ctx.view().stats();
@@ -373,7 +418,55 @@ void WorkerPool::PublishGivenUp(const std::vector<JobRecord>& jobs) {
   }
 }
 
-absl::Status WorkerPool::ConvertAndRun(const v1::JobSpec& spec, JobContext& ctx) {
+void WorkerPool::PublishParent(const std::string& parent_id, const std::string& shard_id,
+                               uint64_t live_done) {
+  auto parent = store_->Get(parent_id);
+  auto shards = store_->ListShards(parent_id);
+  if (!parent.ok() || !shards.ok()) return;
+  v1::Job view = ToProto(*parent, false);
+  AggregateShards(*shards, view, shard_id, live_done);
+  hub_->PublishJob(view);
+  if (IsTerminal(parent->state)) {
+    hub_->Forget(parent_id);
+    std::lock_guard<std::mutex> lock(mu_);
+    parent_preview_seq_.erase(parent_id);
+  }
+}
+
+uint64_t WorkerPool::NextParentPreviewSequence(const std::string& parent_id) {
+  std::lock_guard<std::mutex> lock(mu_);
+  return ++parent_preview_seq_[parent_id];
+}
+
+absl::Status WorkerPool::RunShardOrMerge(const JobPlan& plan, const JobRecord& record,
+                                         JobContext& ctx) {
+  if (!record.parent_id.empty())
+    return RunShard(plan, record.shard_index, record.shard_count, ctx);
+  auto shards = store_->ListShards(record.id);
+  if (!shards.ok()) return shards.status();
+  if (shards->size() != record.shard_count)
+    return absl::DataLossError(absl::StrCat("job ", record.id, " has ", shards->size(),
+                                            " shards, expected ", record.shard_count));
+  auto read = [&](uint32_t k) -> absl::StatusOr<std::string> {
+    const std::string& key = (*shards)[k].result_key;
+    auto size = results_->Size(key);
+    if (!size.ok()) return size.status();
+    std::string bytes;
+    bytes.reserve(*size);
+    while (bytes.size() < *size) {
+      const uint64_t left = *size - bytes.size();
+      auto piece = results_->Read(key, bytes.size(), std::min(left, uint64_t{64} << 20));
+      if (!piece.ok()) return piece.status();
+      if (piece->empty()) break;
+      bytes += *piece;
+    }
+    return bytes;
+  };
+  return RunMerge(plan, record.shard_count, read, ctx);
+}
+
+absl::Status WorkerPool::ConvertAndRun(const v1::JobSpec& spec, const JobRecord& record,
+                                       JobContext& ctx) {
   // The plan is rebuilt from the stored spec on purpose: the spec is the
   // durable, versioned record; conversion is deterministic and cheap next
   // to the run (meshes are parsed again, so a restarted job reads the same
@@ -392,7 +485,8 @@ absl::Status WorkerPool::ConvertAndRun(const v1::JobSpec& spec, JobContext& ctx)
   absl::Status status;
   arena.execute([&] {
     ctx.SetStat("arena_threads", uint64_t(tbb::this_task_arena::max_concurrency()));
-    status = RunJobPlan(*plan, ctx);
+    status = record.shard_count > 1 ? RunShardOrMerge(*plan, record, ctx)
+                                    : RunJobPlan(*plan, ctx);
   });
   return status;
 }

@@ -53,7 +53,15 @@ class WorkerPool {
   class Context;
   void Loop(int index);
   void RunJob(const JobRecord& job, const std::string& worker_id);
-  absl::Status ConvertAndRun(const v1::JobSpec& spec, JobContext& ctx);
+  absl::Status ConvertAndRun(const v1::JobSpec& spec, const JobRecord& record, JobContext& ctx);
+  // Sharded jobs (docs/sharding.md): the runner for a shard or a merge.
+  absl::Status RunShardOrMerge(const JobPlan& plan, const JobRecord& record, JobContext& ctx);
+  // Publishes a sharded job's parent view (its shards' progress summed)
+  // to the parent's watchers; `live_done` is shard `shard_id`'s progress.
+  void PublishParent(const std::string& parent_id, const std::string& shard_id,
+                     uint64_t live_done);
+  // The next preview sequence for a parent's watchers (shards share it).
+  uint64_t NextParentPreviewSequence(const std::string& parent_id);
   // Stores the end of an attempt; false when it could not (see
   // worker_pool.cc for what a failing store gets).
   bool RecordEnd(const std::string& id, const std::string& worker_id, const Completion& done);
@@ -71,6 +79,7 @@ class WorkerPool {
   bool stopping_ = false;
   uint64_t wake_generation_ = 0;
   std::map<std::string, std::shared_ptr<std::atomic<bool>>> running_;  // job id -> cancel flag
+  std::map<std::string, uint64_t> parent_preview_seq_;  // sharded parent -> last preview
   std::atomic<bool> shutdown_{false};
   std::vector<std::thread> threads_;
 };

@@ -93,7 +93,13 @@ absl::StatusOr<std::unique_ptr<ChaosGame>> ChaosGame::Create(ChaosGameParams par
   }
   if (p.color.mode != ColorMode::kNone && !(p.color.blend > 0 && p.color.blend <= 1))
     return absl::InvalidArgumentError("colour blend must be in (0, 1]");
-  game->num_chunks_ = (p.iterations + kChunkIterations - 1) / kChunkIterations;
+  game->num_chunks_ = NumChunks(p.iterations);
+  game->end_chunk_ = p.chunk_end == 0 ? game->num_chunks_ : p.chunk_end;
+  if (p.chunk_begin > game->end_chunk_ || game->end_chunk_ > game->num_chunks_)
+    return absl::InvalidArgumentError(absl::StrCat("chunk range [", p.chunk_begin, ", ",
+                                                   game->end_chunk_, ") is not within the run's ",
+                                                   game->num_chunks_, " chunks"));
+  game->begin_chunk_ = game->next_chunk_ = p.chunk_begin;
   game->fast_ = UsesFastPath(p);
   game->simd_ = std::min(p.simd.value_or(ActiveSimd()), DetectSimd());
   if (!game->fast_ && !p.chain) {
@@ -252,6 +258,7 @@ absl::StatusOr<TileCensus> ChaosGame::Pilot(const ChaosGameParams& params, uint6
   p.splat = false;
   p.convergence = {};
   p.memory_budget = 0;
+  p.chunk_begin = p.chunk_end = 0;
   auto game = Create(p, 1);
   if (!game.ok()) return game.status();
   if (auto st = (*game)->Run(interrupter); !st.ok()) return st;
@@ -322,7 +329,8 @@ ChaosGameStats ChaosGame::stats() const {
 bool ChaosGame::Stopping(uint64_t chunk) {
   if (!poll_stop_) return false;
   if (poll_stop_->load(std::memory_order_relaxed)) return true;
-  if (!OrNull(poll_intr_).WasInterrupted(chunk * kChunkIterations, params_.iterations))
+  if (!OrNull(poll_intr_).WasInterrupted((chunk - begin_chunk_) * kChunkIterations,
+                                         range_iterations()))
     return false;
   poll_stop_->store(true, std::memory_order_relaxed);
   return true;
@@ -756,8 +764,7 @@ void ChaosGame::RunChunkBatch(uint64_t chunk, Worker& w) {
 
 absl::Status ChaosGame::RunUntil(uint64_t iterations, Interrupter* interrupter) {
   Interrupter& intr = OrNull(interrupter);
-  const uint64_t target =
-      std::min(num_chunks_, (iterations + kChunkIterations - 1) / kChunkIterations);
+  const uint64_t target = std::min(end_chunk_, begin_chunk_ + NumChunks(iterations));
   if (next_chunk_ >= target) return absl::OkStatus();
   std::atomic<uint64_t> next{next_chunk_};
   std::atomic<bool> stop{false}, over_budget{false};
@@ -770,7 +777,8 @@ absl::Status ChaosGame::RunUntil(uint64_t iterations, Interrupter* interrupter) 
       if (c >= target) break;
       RunChunk(c, w);
       if (w.grid->overflowed()) over_budget = stop = true;
-      if (intr.WasInterrupted(c * kChunkIterations, params_.iterations)) stop = true;
+      if (intr.WasInterrupted((c - begin_chunk_) * kChunkIterations, range_iterations()))
+        stop = true;
     }
     w.Flush();
     if (w.grid->overflowed()) over_budget = stop = true;
@@ -820,6 +828,17 @@ double DensityChange(const std::vector<uint64_t>& a, const std::vector<uint64_t>
   double d = 0;
   for (size_t i = 0; i < a.size(); ++i) d += std::fabs(double(a[i]) / ta - double(b[i]) / tb);
   return d;
+}
+
+std::pair<uint64_t, uint64_t> ChaosGame::ShardChunks(uint64_t iterations, uint32_t shards,
+                                                     uint32_t index) {
+  const unsigned __int128 n = NumChunks(iterations), s = std::max<uint32_t>(shards, 1);
+  return {uint64_t(n * index / s), uint64_t(n * (index + 1) / s)};
+}
+
+uint64_t ChaosGame::range_iterations() const {
+  const uint64_t end = std::min(params_.iterations, end_chunk_ * kChunkIterations);
+  return end - begin_chunk_ * kChunkIterations;
 }
 
 CountGrid ChaosGame::TakeCounts() {

@@ -5,6 +5,7 @@
 #include <atomic>
 #include <cstdint>
 #include <optional>
+#include <utility>
 #include <vector>
 
 #include "absl/status/statusor.h"
@@ -103,6 +104,12 @@ struct ChaosGameParams {
   /// outgrow it stops with ResourceExhausted instead of exhausting the
   /// machine: the safety net behind EstimateMemory.
   uint64_t memory_budget = 0;
+  /// Run only the chunks [chunk_begin, chunk_end) of the whole run of
+  /// `iterations` (a shard, docs/sharding.md); chunk_end 0 means to the end.
+  /// Chunks draw their own random streams, so the counts of ranges that
+  /// tile the run add up to the full run's counts exactly.
+  uint64_t chunk_begin = 0;
+  uint64_t chunk_end = 0;
 };
 
 /// Count units per plotted point when splatting (4 x 4 x 4).
@@ -159,13 +166,26 @@ class ChaosGame {
   static absl::StatusOr<std::unique_ptr<ChaosGame>> Create(ChaosGameParams params, int threads);
   ~ChaosGame();
 
-  /// Runs chunks until at least `iterations` steps are done (whole chunks) or
-  /// the job is complete. Returns CancelledError if `interrupter` asks to stop.
+  /// Chunks of a run of `iterations` plotted steps.
+  static uint64_t NumChunks(uint64_t iterations) {
+    return (iterations + kChunkIterations - 1) / kChunkIterations;
+  }
+  /// @brief The chunk range [first, second) of shard `index` of `shards`:
+  /// floor(N k / S) to floor(N (k + 1) / S) for N chunks, so the shards
+  /// tile the run in order and differ in size by at most one chunk.
+  static std::pair<uint64_t, uint64_t> ShardChunks(uint64_t iterations, uint32_t shards,
+                                                   uint32_t index);
+
+  /// Runs chunks until at least `iterations` steps of this game's range are
+  /// done (whole chunks) or the range is complete. Returns CancelledError if
+  /// `interrupter` asks to stop.
   absl::Status RunUntil(uint64_t iterations, Interrupter* interrupter);
   /// Runs everything that is left.
   absl::Status Run(Interrupter* interrupter) { return RunUntil(params_.iterations, interrupter); }
 
-  bool done() const { return next_chunk_ == num_chunks_; }
+  bool done() const { return next_chunk_ == end_chunk_; }
+  /// Plotted steps of this game's chunk range (all of them without one).
+  uint64_t range_iterations() const;
   const ChaosGameParams& params() const { return params_; }
   ChaosGameStats stats() const;
 
@@ -219,6 +239,7 @@ class ChaosGame {
   ChaosGameParams params_;
   int threads_;
   uint64_t num_chunks_ = 0;
+  uint64_t begin_chunk_ = 0, end_chunk_ = 0;  // the range run (chunk_begin/end)
   uint64_t next_chunk_ = 0;
   std::vector<CountGrid> counts_;
   std::vector<std::unique_ptr<Worker>> workers_;

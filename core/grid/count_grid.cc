@@ -96,19 +96,21 @@ uint64_t CountGrid::GetColorSum(int x, int y, int z) const {
 void CountGrid::Merge(const CountGrid& other) {
   for (size_t t = 0; t < other.table_.size(); ++t) {
     if (!other.table_[t]) continue;
-    if (!table_[t]) Allocate(t);
-    if (with_color_ && other.with_color_) {
-      uint64_t* dst = color_[t].get();
-      const uint64_t* src = other.color_[t].get();
-      for (int i = 0; i < kTileVoxels; ++i) dst[i] += src[i];
-    }
-    uint32_t* dst = table_[t].get();
-    const uint32_t* src = other.table_[t].get();
-    for (int i = 0; i < kTileVoxels; ++i) {
-      const uint64_t s = uint64_t(dst[i]) + src[i];
-      dst[i] = s > std::numeric_limits<uint32_t>::max() ? std::numeric_limits<uint32_t>::max()
-                                                        : uint32_t(s);
-    }
+    AddTile(t, other.table_[t].get(), other.with_color_ ? other.color_[t].get() : nullptr);
+  }
+}
+
+void CountGrid::AddTile(uint64_t t, const uint32_t* src, const uint64_t* colors) {
+  if (!table_[t]) Allocate(t);
+  if (with_color_ && colors) {
+    uint64_t* dst = color_[t].get();
+    for (int i = 0; i < kTileVoxels; ++i) dst[i] += colors[i];
+  }
+  uint32_t* dst = table_[t].get();
+  for (int i = 0; i < kTileVoxels; ++i) {
+    const uint64_t s = uint64_t(dst[i]) + src[i];
+    dst[i] = s > std::numeric_limits<uint32_t>::max() ? std::numeric_limits<uint32_t>::max()
+                                                      : uint32_t(s);
   }
 }
 

@@ -96,6 +96,10 @@ class CountGrid {
 
   /// Adds every counter of `other` (same resolution), saturating at 2^32-1.
   void Merge(const CountGrid& other);
+  /// Adds one tile's counters (and colour sums, when both have them) to
+  /// tile `tile` (< TileCount()), saturating as Merge does.
+  void AddTile(uint64_t tile, const uint32_t* counts, const uint64_t* colors);
+  size_t TileCount() const { return table_.size(); }
   /// Sum of all counters and the largest counter.
   uint64_t Total() const;
   uint32_t Max() const;

@@ -15,6 +15,13 @@ const ChaosGameParams* JobPlan::point_run() const {
                     kind);
 }
 
+const ChaosGameParams* JobPlan::shardable_run() const {
+  // A component grid runs one game per component and keeps their labels.
+  if (const IfsMatrixPlan* m = ifs_matrix(); m && m->component_grid != ComponentGridType::kNone)
+    return nullptr;
+  return point_run();
+}
+
 std::string_view KindName(const JobKindPlan& kind) {
   return std::visit(Overloaded{[](const ChaosGamePlan&) { return "chaos_game"; },
                                [](const IfsMatrixPlan&) { return "ifs_matrix"; },

@@ -64,6 +64,9 @@ struct JobPlan {
   /// The chaos game of a point-IFS job (plain, or the whole matrix
   /// selection); null for set IFS, fractal fields and jelly.
   const ChaosGameParams* point_run() const;
+  /// The one chaos game a sharded job splits (docs/sharding.md): a plain
+  /// chaos game, or an IFS matrix without a component grid; null otherwise.
+  const ChaosGameParams* shardable_run() const;
 };
 
 /// "chaos_game", "ifs_matrix", "set_ifs", "fractal_field" or "jelly": for logs and messages.

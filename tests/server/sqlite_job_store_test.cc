@@ -740,7 +740,7 @@ int64_t QueryInt(const std::string& path, const char* sql) {
 
 TEST_F(SqliteJobStoreTest, SchemaIsVersionedWalAndIndexed) {
   const std::string path = db_path().string();
-  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 4);
+  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 5);
   // WAL is persistent in the file header, so a fresh connection reports it.
   EXPECT_EQ(QueryInt(path, "SELECT journal_mode = 'wal' FROM pragma_journal_mode"), 1);
   EXPECT_EQ(QueryInt(path,
@@ -821,7 +821,7 @@ TEST(SqliteJobStoreOpenTest, UpgradesAVersionOneFile) {
   ExecOnFile(path, kVersionOneSchema);
   std::unique_ptr<JobStore> store = OpenOrDie(path);
   ASSERT_NE(store, nullptr);
-  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 4);
+  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 5);
   // Old jobs keep everything and gain the code their end implies.
   const std::pair<const char*, int> expected[] = {{"queued", 0}, {"failed", 2}, {"cancelled", 1}};
   for (const auto& [id, code] : expected) {
@@ -841,7 +841,7 @@ TEST(SqliteJobStoreOpenTest, UpgradesAVersionOneFile) {
   store = OpenOrDie(path);
   ASSERT_NE(store, nullptr);
   EXPECT_EQ(store->Get("queued")->error_code, 8);
-  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 4);
+  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 5);
 }
 
 // Another connection holds the write lock, as a slow writer in another
@@ -1075,8 +1075,12 @@ TEST(SqliteJobStoreOpenTest, UpgradesAVersionTwoFileWithOwnersAndAPokesTable) {
                        "PRAGMA user_version=2;");
   std::unique_ptr<JobStore> store = OpenOrDie(path);
   ASSERT_NE(store, nullptr);
-  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 4);
+  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 5);
   EXPECT_EQ(QueryInt(path, "SELECT count(*) FROM pokes"), 0);
+  // Version 5: old jobs are top-level, unsharded and not in the cache.
+  EXPECT_EQ(QueryInt(path, "SELECT count(*) FROM jobs WHERE parent_id <> '' OR shard_count <> 0 "
+                           "OR spec_sha256 <> '' OR cached_from <> ''"),
+            0);
   EXPECT_EQ(store->Get("failed")->error, "diverged");
   ASSERT_TRUE(store->ClaimNext("w", kT0, 100).ok());
   EXPECT_TRUE(store->AddPoke("queued", Push(0, 1)).ok());
