@@ -5,12 +5,15 @@
 
 #include <chrono>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
 #include <vector>
 
+#include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "absl/strings/str_cat.h"
 
 namespace nimbus::server {
 
@@ -58,6 +61,15 @@ struct JobRecord {
   bool pinned = false;
   /// When the retention sweep deleted the result files (0: not expired).
   TimeMs result_expire_time = 0;
+  /// Set on a shard: the job it belongs to.
+  std::string parent_id;
+  uint32_t shard_index = 0;
+  /// On a parent and on each of its shards; 0 for an ordinary job.
+  uint32_t shard_count = 0;
+  /// On a parent: shards not yet SUCCEEDED. The parent is not claimable
+  /// (its merge cannot run) while this is > 0.
+  uint32_t shards_pending = 0;
+  std::string spec_sha256;
 };
 
 /// What a principal holds, for quotas.
@@ -77,6 +89,11 @@ struct NewJob {
   std::string warnings;
   uint64_t estimated_memory_bytes = 0;
   std::string owner;
+  /// > 1: a sharded job (docs/sharding.md). Create inserts the parent and its
+  /// shards in one transaction.
+  uint32_t shard_count = 0;
+  /// sha256 (hex) of the canonical spec, for the result cache; may be empty.
+  std::string spec_sha256;
 };
 
 struct ListOptions {
@@ -90,6 +107,8 @@ struct ListOptions {
   /// pass this many bytes, so a response stays far below gRPC's message
   /// limit; a page always holds at least one job.
   uint64_t max_bytes = uint64_t{1} << 20;
+  /// Shards are hidden from listings unless asked for.
+  bool include_shards = false;
 };
 
 struct ListPage {
@@ -124,6 +143,23 @@ struct PokeRecord {
   double drag_stiffness = 0;
   uint32_t drag_frames = 0;
 };
+
+/// @brief A change to a job on a shared store's feed, made by any replica.
+struct JobChange {
+  /// Empty: changes may have been missed (the feed reconnected).
+  std::string job_id;
+  /// The job may be claimable now (submitted, or given back): wake a worker.
+  bool claimable = false;
+  /// A new preview of the job was stored (PutPreview).
+  bool preview = false;
+};
+
+/// A preview resolution watchers on some replica want, and how often.
+struct PreviewWish {
+  uint32_t resolution = 0;
+  double interval_seconds = 1.0;
+};
+using JobChangeListener = std::function<void(const JobChange&)>;
 
 /// @brief Durable job records. All methods are thread-safe.
 class JobStore {
@@ -202,9 +238,60 @@ class JobStore {
   virtual absl::StatusOr<std::vector<PokeRecord>> TakePokes(const std::string& id,
                                                             const std::string& worker_id,
                                                             int64_t frame) = 0;
+  /// The shards of `parent_id` in shard order (NOT_FOUND for an unknown id).
+  virtual absl::StatusOr<std::vector<JobRecord>> ListShards(const std::string& parent_id) = 0;
+  /// The newest SUCCEEDED, unexpired, top-level job of `owner` with this
+  /// spec hash, or nullopt (result cache).
+  virtual absl::StatusOr<std::optional<JobRecord>> FindCached(const std::string& spec_sha256,
+                                                              const std::string& owner) = 0;
+
+  /// Cross-replica change feed: `listener` runs, on a thread of the
+  /// store's, after every committed change to any job by any process
+  /// sharing the store, including this one. Null stops the feed (call it
+  /// before whatever the listener uses goes away). A store only one process
+  /// uses has no feed: by default this does nothing.
+  virtual void SetChangeListener(JobChangeListener listener) { (void)listener; }
+
+  // Previews across replicas. A watcher's replica records what it wants
+  // (WishPreviews); the replica running the job reads the wishes at each
+  // heartbeat, makes those previews and stores the newest one per
+  // resolution (PutPreview, announced on the feed); watchers' replicas read
+  // it (LatestPreview). In a store only one process uses, the job hub
+  // carries previews in memory and these do nothing.
+  /// Wishes for `id`'s previews, valid until `until` unless renewed.
+  virtual absl::Status WishPreviews(const std::string& id, const std::vector<PreviewWish>& wishes,
+                                    TimeMs until) {
+    (void)id, (void)wishes, (void)until;
+    return absl::OkStatus();
+  }
+  /// Unexpired wishes for `id`'s previews, one per resolution.
+  virtual absl::StatusOr<std::vector<PreviewWish>> PreviewWishes(const std::string& id,
+                                                                 TimeMs now) {
+    (void)id, (void)now;
+    return std::vector<PreviewWish>();
+  }
+  /// Stores the newest preview (a serialised nimbus.v1.Preview) of `id` at
+  /// `resolution`; an older `sequence` than the stored one is ignored.
+  virtual absl::Status PutPreview(const std::string& id, uint32_t resolution, uint64_t sequence,
+                                  const std::string& preview) {
+    (void)id, (void)resolution, (void)sequence, (void)preview;
+    return absl::OkStatus();
+  }
+  /// The newest stored preview of `id` at `resolution`; NOT_FOUND if none.
+  virtual absl::StatusOr<std::string> LatestPreview(const std::string& id, uint32_t resolution) {
+    (void)resolution;
+    return absl::NotFoundError(absl::StrCat("no stored preview of job ", id));
+  }
 };
 
 /// Opens (creating if needed) the SQLite store at `path`, in WAL mode.
 absl::StatusOr<std::unique_ptr<JobStore>> OpenSqliteJobStore(const std::string& path);
+
+/// True for a postgresql:// or postgres:// URL (a libpq connection URI).
+bool IsPostgresUrl(const std::string& url);
+/// Connects to the PostgreSQL database at `url` and migrates its schema
+/// (safe when several replicas start at once). Shared by every replica
+/// given the same URL (docs/operator_guide.md "Several replicas").
+absl::StatusOr<std::unique_ptr<JobStore>> OpenPostgresJobStore(const std::string& url);
 
 }  // namespace nimbus::server

@@ -76,6 +76,13 @@ class CompleteFailsStore final : public JobStore {
                                                     int64_t frame) override {
     return inner_->TakePokes(id, w, frame);
   }
+  absl::StatusOr<std::vector<JobRecord>> ListShards(const std::string& id) override {
+    return inner_->ListShards(id);
+  }
+  absl::StatusOr<std::optional<JobRecord>> FindCached(const std::string& sha,
+                                                      const std::string& owner) override {
+    return inner_->FindCached(sha, owner);
+  }
 
   std::atomic<int> completes{0};
 
