@@ -520,12 +520,15 @@ int RunJobs(const Options& o) {
   }
   auto list = conn->client->List(req);
   if (!list.ok()) return ExitFor(list.status());
-  std::cout << absl::StrFormat("%-20s %-10s %7s %-24s %s\n", "ID", "STATE", "DONE", "NAME",
-                               "ERROR");
+  // WORKER: who holds a running job ("REPLICA/wN"), so an operator sees
+  // which replica runs what.
+  std::cout << absl::StrFormat("%-20s %-10s %7s %-24s %-20s %s\n", "ID", "STATE", "DONE", "NAME",
+                               "WORKER", "ERROR");
   for (const auto& j : list->jobs()) {
     const double f = j.progress().total() ? 100.0 * j.progress().done() / j.progress().total() : 0;
-    std::cout << absl::StrFormat("%-20s %-10s %6.1f%% %-24s %s\n", j.id(), StateName(j.state()), f,
-                                 j.name(), j.error());
+    std::cout << absl::StrFormat("%-20s %-10s %6.1f%% %-24s %-20s %s\n", j.id(),
+                                 StateName(j.state()), f, j.name(),
+                                 j.worker().empty() ? "-" : j.worker(), j.error());
   }
   return 0;
 }

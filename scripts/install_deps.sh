@@ -8,6 +8,11 @@ PACKAGES=(
   libgrpc++-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
   libopenvdb-dev libboost-iostreams-dev libtbb-dev libblosc-dev
   libspdlog-dev libcli11-dev libsqlite3-dev libssl-dev libabsl-dev
+  # The shared job store of several replicas (libpqxx), and the throwaway
+  # server its tests start (initdb, pg_ctl).
+  libpqxx-dev postgresql
+  # The deploy/ manifest check (tests/deploy/validate_deploy.py).
+  python3-yaml
   libgtest-dev libgmock-dev libbenchmark-dev
   # Fractal fields: 16-bit PNG height maps; libnoise only for the benchmark's
   # comparison (bench/fractal_field_bench.cc).

@@ -1,5 +1,7 @@
 #include "server/asset_store.h"
 
+#include <unistd.h>
+
 #include <atomic>
 #include <fstream>
 
@@ -79,7 +81,8 @@ absl::Status AssetStore::RememberLine(const std::filesystem::path& path, const s
   text += line + "\n";
   // Rewritten whole and renamed, so a reader never sees half a line.
   const std::filesystem::path tmp =
-      dir_ / "incoming" / absl::StrCat(sha256, ".sidecar.", g_upload_counter++, ".partial");
+      dir_ / "incoming" /
+      absl::StrCat(sha256, ".sidecar.", ::getpid(), ".", g_upload_counter++, ".partial");
   std::ofstream out(tmp, std::ios::trunc);
   out << text;
   out.close();
@@ -165,7 +168,9 @@ absl::StatusOr<std::unique_ptr<AssetStore::Upload>> AssetStore::Begin(const std:
   u->name_ = CleanAssetName(file_name);
   u->owner_ = owner;
   u->expected_ = size;
-  u->tmp_ = dir_ / "incoming" / absl::StrCat(sha256, ".", g_upload_counter++, ".partial");
+  // The pid keeps replicas sharing the folder apart.
+  u->tmp_ = dir_ / "incoming" /
+            absl::StrCat(sha256, ".", ::getpid(), ".", g_upload_counter++, ".partial");
   u->out_.open(u->tmp_, std::ios::binary | std::ios::trunc);
   if (!u->out_) return absl::InternalError(absl::StrCat("cannot write ", u->tmp_.string()));
   return u;

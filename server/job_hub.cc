@@ -87,6 +87,12 @@ std::vector<JobHub::PreviewWant> JobHub::WantedPreviews(const std::string& job_i
   return out;
 }
 
+bool JobHub::Watched(const std::string& job_id) {
+  std::lock_guard<std::mutex> lock(mu_);
+  auto it = jobs_.find(job_id);
+  return it != jobs_.end() && !it->second.subscribers.empty();
+}
+
 std::shared_ptr<const v1::Job> JobHub::Latest(const std::string& job_id) {
   std::lock_guard<std::mutex> lock(mu_);
   auto it = jobs_.find(job_id);

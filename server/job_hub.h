@@ -53,6 +53,8 @@ class JobHub {
   /// The preview resolutions watchers of `job_id` want, with the shortest
   /// interval asked for each.
   std::vector<PreviewWant> WantedPreviews(const std::string& job_id);
+  /// Whether anyone watches `job_id` here.
+  bool Watched(const std::string& job_id);
   /// The newest job view, or null.
   std::shared_ptr<const v1::Job> Latest(const std::string& job_id);
 

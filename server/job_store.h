@@ -5,11 +5,13 @@
 
 #include <chrono>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
 #include <vector>
 
+#include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "absl/strings/str_cat.h"
 
@@ -150,6 +152,23 @@ struct PokeRecord {
   uint32_t drag_frames = 0;
 };
 
+/// @brief A change to a job on a shared store's feed, made by any replica.
+struct JobChange {
+  /// Empty: changes may have been missed (the feed reconnected).
+  std::string job_id;
+  /// The job may be claimable now (submitted, or given back): wake a worker.
+  bool claimable = false;
+  /// A new preview of the job was stored (PutPreview).
+  bool preview = false;
+};
+
+/// A preview resolution watchers on some replica want, and how often.
+struct PreviewWish {
+  uint32_t resolution = 0;
+  double interval_seconds = 1.0;
+};
+using JobChangeListener = std::function<void(const JobChange&)>;
+
 /// @brief Durable job records. All methods are thread-safe.
 class JobStore {
  public:
@@ -233,6 +252,44 @@ class JobStore {
   /// spec hash, or nullopt (result cache).
   virtual absl::StatusOr<std::optional<JobRecord>> FindCached(const std::string& spec_sha256,
                                                               const std::string& owner) = 0;
+
+  /// Cross-replica change feed: `listener` runs, on a thread of the
+  /// store's, after every committed change to any job by any process
+  /// sharing the store, including this one. Null stops the feed (call it
+  /// before whatever the listener uses goes away). A store only one process
+  /// uses has no feed: by default this does nothing.
+  virtual void SetChangeListener(JobChangeListener listener) { (void)listener; }
+
+  // Previews across replicas. A watcher's replica records what it wants
+  // (WishPreviews); the replica running the job reads the wishes at each
+  // heartbeat, makes those previews and stores the newest one per
+  // resolution (PutPreview, announced on the feed); watchers' replicas read
+  // it (LatestPreview). In a store only one process uses, the job hub
+  // carries previews in memory and these do nothing.
+  /// Wishes for `id`'s previews, valid until `until` unless renewed.
+  virtual absl::Status WishPreviews(const std::string& id, const std::vector<PreviewWish>& wishes,
+                                    TimeMs until) {
+    (void)id, (void)wishes, (void)until;
+    return absl::OkStatus();
+  }
+  /// Unexpired wishes for `id`'s previews, one per resolution.
+  virtual absl::StatusOr<std::vector<PreviewWish>> PreviewWishes(const std::string& id,
+                                                                 TimeMs now) {
+    (void)id, (void)now;
+    return std::vector<PreviewWish>();
+  }
+  /// Stores the newest preview (a serialised nimbus.v1.Preview) of `id` at
+  /// `resolution`; an older `sequence` than the stored one is ignored.
+  virtual absl::Status PutPreview(const std::string& id, uint32_t resolution, uint64_t sequence,
+                                  const std::string& preview) {
+    (void)id, (void)resolution, (void)sequence, (void)preview;
+    return absl::OkStatus();
+  }
+  /// The newest stored preview of `id` at `resolution`; NOT_FOUND if none.
+  virtual absl::StatusOr<std::string> LatestPreview(const std::string& id, uint32_t resolution) {
+    (void)resolution;
+    return absl::NotFoundError(absl::StrCat("no stored preview of job ", id));
+  }
 };
 
 /// Id of shard `index` of `parent_id`: "<parent id>.shard-<index>".
@@ -242,5 +299,12 @@ inline std::string ShardJobId(const std::string& parent_id, uint32_t index) {
 
 /// Opens (creating if needed) the SQLite store at `path`, in WAL mode.
 absl::StatusOr<std::unique_ptr<JobStore>> OpenSqliteJobStore(const std::string& path);
+
+/// True for a postgresql:// or postgres:// URL (a libpq connection URI).
+bool IsPostgresUrl(const std::string& url);
+/// Connects to the PostgreSQL database at `url` and migrates its schema
+/// (safe when several replicas start at once). Shared by every replica
+/// given the same URL (docs/operator_guide.md "Several replicas").
+absl::StatusOr<std::unique_ptr<JobStore>> OpenPostgresJobStore(const std::string& url);
 
 }  // namespace nimbus::server

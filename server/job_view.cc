@@ -74,6 +74,7 @@ v1::Job ToProto(const JobRecord& r, bool with_spec) {
     j.mutable_result()->set_file_name(name + ".vdb");
   }
   j.set_attempts(r.attempts);
+  if (r.state == JobState::kRunning) j.set_worker(r.worker_id);
   const std::string warnings = BoundText(r.warnings, kMaxWarningsBytes);
   for (auto w : absl::StrSplit(warnings, '\n', absl::SkipEmpty())) j.add_warnings(std::string(w));
   j.set_estimated_memory_bytes(r.estimated_memory_bytes);

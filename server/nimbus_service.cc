@@ -718,10 +718,11 @@ grpc::Status NimbusServiceImpl::Cancel(const Principal& caller, const std::strin
     hub_->Forget(job_id);
   }
   if (rec->state != JobState::kRunning) return grpc::Status::OK;
-  // Only a job this process runs can be awaited: its worker publishes the
-  // end to our hub. One on another replica is answered as it is now.
+  // A job this process runs publishes its end to our hub; one another
+  // replica runs reaches it through the shared store's feed once that
+  // worker sees the cancel at its next heartbeat.
   auto live = hub_->Latest(job_id);
-  if (!live || live->state() != v1::JOB_STATE_RUNNING) return grpc::Status::OK;
+  if (live && live->state() != v1::JOB_STATE_RUNNING) return grpc::Status::OK;
   if (auto stopped = AwaitStop(job_id)) out = *stopped;
   return grpc::Status::OK;
 }

@@ -13,6 +13,8 @@
 #include <ctime>
 #include <thread>
 
+#include "absl/strings/str_cat.h"
+#include "server/job_store.h"
 #include "server/server.h"
 
 namespace {
@@ -119,9 +121,26 @@ int main(int argc, char** argv) {
                  "attempts a job gets before it fails with its last error (0: no limit)")
       ->capture_default_str();
   AddSecurityFlags(app, o, retention_hours, retention_seconds);
+  // Several replicas on one queue (docs/operator_guide.md "Several replicas").
+  app.add_option("--store", o.store_url,
+                 "job store: a postgresql://USER@HOST/DB URL shared by replicas; default SQLite "
+                 "in --data-dir (also $NIMBUS_STORE_URL)");
+  app.add_option("--replica-id", o.replica_id,
+                 "this replica's name in leases and logs (default: hostname-pid)");
+  app.add_option("--results-dir", o.results_dir,
+                 "results folder; replicas on one store must share it (default: "
+                 "DATA_DIR/results)");
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error")->capture_default_str();
   CLI11_PARSE(app, argc, argv);
   o.data_dir = data_dir;
+  // A URL with a password is better kept out of the process list.
+  if (o.store_url.empty())
+    if (const char* env = std::getenv("NIMBUS_STORE_URL")) o.store_url = env;
+  if (!o.store_url.empty() && !nimbus::server::IsPostgresUrl(o.store_url)) {
+    std::fprintf(stderr, "--store: expected a postgresql:// or postgres:// URL\n");
+    return 2;
+  }
+  if (o.replica_id.empty()) o.replica_id = nimbus::server::DefaultReplicaId();
   o.retention_ms =
       int64_t(retention_seconds > 0 ? retention_seconds * 1000 : retention_hours * 3600 * 1000);
   // Tokens as text in the environment, for containers whose secrets arrive
@@ -129,7 +148,9 @@ int main(int argc, char** argv) {
   if (const char* env = std::getenv("NIMBUS_AUTH_TOKENS")) o.auth_tokens_text = env;
   o.limits.max_memory_bytes = uint64_t(max_memory_gib * double(1ull << 30));
   spdlog::set_level(spdlog::level::from_str(log_level));
-  spdlog::set_pattern("%Y-%m-%dT%H:%M:%S.%e %^%l%$ nimbusd %v");
+  // Every line names the replica, so merged logs of several stay readable.
+  spdlog::set_pattern(
+      absl::StrCat("%Y-%m-%dT%H:%M:%S.%e %^%l%$ nimbusd replica=", o.replica_id, " %v"));
 
   // Block the stop signals before any thread exists, so every thread
   // inherits the mask and sigwait below is the one place they arrive.

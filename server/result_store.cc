@@ -5,6 +5,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cerrno>
 #include <cstring>
 #include <fstream>
@@ -76,8 +77,11 @@ void SyncDir(const std::filesystem::path& dir) {
 
 class LocalResultStore : public ResultStore {
  public:
-  LocalResultStore(std::filesystem::path dir, uint64_t min_free_bytes)
-      : dir_(std::move(dir)), min_free_bytes_(min_free_bytes) {}
+  // `writer` empty: this process is the folder's only writer. Otherwise
+  // the folder is shared (OpenSharedResultStore) and `writer` names this
+  // replica's scratch files.
+  LocalResultStore(std::filesystem::path dir, uint64_t min_free_bytes, std::string writer = "")
+      : dir_(std::move(dir)), min_free_bytes_(min_free_bytes), writer_(std::move(writer)) {}
 
   absl::Status CheckFreeSpace() override {
     if (min_free_bytes_ == 0) return absl::OkStatus();
@@ -91,7 +95,10 @@ class LocalResultStore : public ResultStore {
   }
 
   std::filesystem::path ScratchPath(const std::string& key) override {
-    return dir_ / "scratch" / (key + ".partial.vdb");
+    if (writer_.empty()) return dir_ / "scratch" / (key + ".partial.vdb");
+    // Two attempts of one job (a replica presumed dead still writing) never
+    // share a scratch file.
+    return dir_ / "scratch" / (key + "." + writer_ + ".partial.vdb");
   }
 
   absl::StatusOr<StoredResult> Commit(const std::string& key,
@@ -102,6 +109,15 @@ class LocalResultStore : public ResultStore {
     const uint64_t size = std::filesystem::file_size(scratch, ec);
     if (ec) return absl::InternalError(absl::StrCat("stat ", scratch.string(), ": ", ec.message()));
     StoredResult result{key, size, *sha, {}};
+    if (!writer_.empty()) {
+      // The hash goes in first, by rename, so a reader never sees a result
+      // without it; attempts of one spec write identical bytes, so either
+      // writer's pair is right.
+      const std::filesystem::path tmp = dir_ / "scratch" / (key + "." + writer_ + ".sha256");
+      if (auto st = WriteSmallFile(tmp, *sha); !st.ok()) return st;
+      std::filesystem::rename(tmp, ShaPath(key), ec);
+      if (ec) return DiskError(absl::StrCat("commit the hash of ", key), ec.value());
+    }
     const std::filesystem::path extra = ExtraFilesDir(scratch);
     const bool has_files = std::filesystem::is_directory(extra, ec);
     if (has_files) {
@@ -154,6 +170,11 @@ class LocalResultStore : public ResultStore {
 
   absl::StatusOr<std::string> Read(const std::string& key, uint64_t offset,
                                    uint64_t max_bytes) override {
+    if (!writer_.empty() && offset == 0) {
+      // Another replica wrote it: check it whole before serving the first
+      // chunk (a torn or foreign file on a shared volume is caught here).
+      if (auto st = VerifyHash(key); !st.ok()) return st;
+    }
     return ReadRange(Path(key), offset, max_bytes, absl::StrCat("result ", key));
   }
 
@@ -168,7 +189,7 @@ class LocalResultStore : public ResultStore {
     if (!IsPlainName(key)) return absl::InvalidArgumentError("bad result key");
     uint64_t freed = 0;
     std::error_code ec;
-    for (const std::filesystem::path& p : {Path(key), FilesDir(key)}) {
+    for (const std::filesystem::path& p : {Path(key), FilesDir(key), ShaPath(key)}) {
       for (std::filesystem::recursive_directory_iterator it(p, ec), end; !ec && it != end;
            it.increment(ec))
         if (it->is_regular_file(ec)) freed += it->file_size(ec);
@@ -180,7 +201,7 @@ class LocalResultStore : public ResultStore {
   }
 
   std::vector<StoredFile> ListFiles(const std::string& key, bool running) override {
-    if (running) return Scan(ExtraFilesDir(ScratchPath(key)));
+    if (running) return Scan(RunningFilesDir(key));
     std::vector<StoredFile> files;
     std::ifstream m(FilesDir(key) / kManifest);
     StoredFile f;
@@ -192,7 +213,7 @@ class LocalResultStore : public ResultStore {
                                        bool running, uint64_t offset, uint64_t max_bytes) override {
     const std::string what = absl::StrCat("file ", name, " of result ", key);
     if (!IsPlainName(name)) return absl::NotFoundError(absl::StrCat(what, " does not exist"));
-    const std::filesystem::path folder = running ? ExtraFilesDir(ScratchPath(key)) : FilesDir(key);
+    const std::filesystem::path folder = running ? RunningFilesDir(key) : FilesDir(key);
     std::error_code ec;
     if (!std::filesystem::is_regular_file(folder / name, ec))
       return absl::NotFoundError(absl::StrCat(what, " does not exist"));
@@ -201,6 +222,40 @@ class LocalResultStore : public ResultStore {
 
  private:
   std::filesystem::path Path(const std::string& key) const { return dir_ / (key + ".vdb"); }
+  std::filesystem::path ShaPath(const std::string& key) const {
+    return dir_ / (key + ".vdb.sha256");
+  }
+
+  absl::Status VerifyHash(const std::string& key) {
+    std::ifstream in(ShaPath(key));
+    std::string want;
+    if (!(in >> want)) return absl::OkStatus();  // Written before hashes were kept.
+    auto got = Sha256File(Path(key));
+    if (!got.ok())
+      return absl::NotFoundError(absl::StrCat("result ", key, " is missing from the store"));
+    if (*got != want)
+      return absl::DataLossError(absl::StrCat("result ", key, " does not match its sha256 (", want,
+                                              "): the shared results folder holds a damaged copy"));
+    return absl::OkStatus();
+  }
+
+  // The further files a running job has written so far. In a shared folder
+  // the job may run on any replica: the newest attempt's folder wins.
+  std::filesystem::path RunningFilesDir(const std::string& key) {
+    if (writer_.empty()) return ExtraFilesDir(ScratchPath(key));
+    std::filesystem::path best;
+    std::filesystem::file_time_type best_time{};
+    const std::string prefix = key + ".", suffix = ".partial.vdb.files";
+    std::error_code ec;
+    for (std::filesystem::directory_iterator it(dir_ / "scratch", ec), end; !ec && it != end;
+         it.increment(ec)) {
+      const std::string name = it->path().filename().string();
+      if (!name.starts_with(prefix) || !name.ends_with(suffix)) continue;
+      const auto t = it->last_write_time(ec);
+      if (best.empty() || t > best_time) best = it->path(), best_time = t;
+    }
+    return best.empty() ? ExtraFilesDir(ScratchPath(key)) : best;
+  }
   std::filesystem::path FilesDir(const std::string& key) const { return dir_ / (key + ".files"); }
 
   // Finished files of a folder in name order, hashed once per (name, size,
@@ -239,6 +294,7 @@ class LocalResultStore : public ResultStore {
 
   std::filesystem::path dir_;
   uint64_t min_free_bytes_;
+  std::string writer_;
   std::mutex mu_;
   std::map<std::string, std::string> sha_cache_;
 };
@@ -291,6 +347,20 @@ absl::StatusOr<std::unique_ptr<ResultStore>> OpenLocalResultStore(const std::fil
   if (ec)
     return absl::InternalError(absl::StrCat("cannot create ", dir.string(), ": ", ec.message()));
   return std::unique_ptr<ResultStore>(new LocalResultStore(dir, min_free_bytes));
+}
+
+absl::StatusOr<std::unique_ptr<ResultStore>> OpenSharedResultStore(
+    const std::filesystem::path& dir, const std::string& writer, uint64_t min_free_bytes) {
+  // The writer's name becomes part of file names: keep it plain.
+  std::string tag = writer.empty() ? std::string("replica") : writer;
+  for (char& c : tag)
+    if (!std::isalnum(static_cast<unsigned char>(c)) && c != '-' && c != '_') c = '_';
+  std::error_code ec;
+  if (!std::filesystem::is_directory(dir / "scratch", ec))
+    std::filesystem::create_directories(dir / "scratch", ec);
+  if (ec)
+    return absl::InternalError(absl::StrCat("cannot create ", dir.string(), ": ", ec.message()));
+  return std::unique_ptr<ResultStore>(new LocalResultStore(dir, min_free_bytes, tag));
 }
 
 }  // namespace nimbus::server

@@ -82,4 +82,13 @@ class ResultStore {
 absl::StatusOr<std::unique_ptr<ResultStore>> OpenLocalResultStore(const std::filesystem::path& dir,
                                                                   uint64_t min_free_bytes = 0);
 
+/// Results in a folder several replicas share (a volume or NFS mount):
+/// each writer (`writer`: its replica id) has scratch files of its own, a
+/// result appears by atomic rename with its sha256 beside it, and a read
+/// from the start of a result checks the content against that hash
+/// (DATA_LOSS on a mismatch). Running jobs' files are found whichever
+/// replica writes them.
+absl::StatusOr<std::unique_ptr<ResultStore>> OpenSharedResultStore(
+    const std::filesystem::path& dir, const std::string& writer, uint64_t min_free_bytes = 0);
+
 }  // namespace nimbus::server

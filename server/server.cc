@@ -6,6 +6,7 @@
 #include <spdlog/spdlog.h>
 #include <unistd.h>
 
+#include <cstring>
 #include <fstream>
 #include <sstream>
 
@@ -14,6 +15,7 @@
 #include "server/auth.h"
 #include "server/job_hub.h"
 #include "server/job_store.h"
+#include "server/job_view.h"
 #include "server/nimbus_service.h"
 #include "server/result_store.h"
 #include "server/retention.h"
@@ -38,6 +40,12 @@ struct NimbusServer::Impl {
 };
 
 NimbusServer::NimbusServer(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+
+std::string DefaultReplicaId() {
+  char host[256] = {};
+  if (::gethostname(host, sizeof(host) - 1) != 0 || host[0] == '\0') std::strcpy(host, "nimbusd");
+  return absl::StrCat(host, "-", ::getpid());
+}
 
 namespace {
 
@@ -107,6 +115,44 @@ absl::Status CheckExposure(const ServerOptions& o, const TokenTable& tokens) {
 
 }  // namespace
 
+// The shared store's change feed: a submit on any replica wakes an idle
+// worker here at once, and watchers here of a job another replica runs get
+// its state and progress (as of its last heartbeat).
+void NimbusServer::FollowOtherReplicas(Impl& impl) {
+  JobStore* store = impl.store.get();
+  JobHub* hub = &impl.hub;
+  WorkerPool* pool = impl.pool.get();
+  store->SetChangeListener([store, hub, pool](const JobChange& change) {
+    if (change.claimable) pool->Wake();
+    // A job running here publishes richer views itself.
+    const std::string& id = change.job_id;
+    if (id.empty() || pool->IsRunning(id)) return;
+    // Unwatched: drop whatever its last watcher here left in the hub.
+    if (!hub->Watched(id)) return hub->Forget(id);
+    const std::vector<JobHub::PreviewWant> wants = hub->WantedPreviews(id);
+    if (change.preview) {
+      for (const JobHub::PreviewWant& want : wants) {
+        auto bytes = store->LatestPreview(id, want.resolution);
+        v1::Preview preview;
+        if (bytes.ok() && preview.ParseFromString(*bytes))
+          hub->PublishPreview(id, want.resolution, std::move(preview));
+      }
+      return;
+    }
+    auto record = store->Get(id);
+    if (!record.ok()) return;
+    // Each heartbeat of the running replica renews our watchers' wishes.
+    if (!wants.empty() && record->state == JobState::kRunning) {
+      std::vector<PreviewWish> wishes;
+      for (const JobHub::PreviewWant& w : wants)
+        wishes.push_back({w.resolution, w.interval_seconds});
+      (void)store->WishPreviews(id, wishes, NowMs() + 10'000);
+    }
+    hub->PublishJob(ToProto(*record, false));
+    if (IsTerminal(record->state)) hub->Forget(id);
+  });
+}
+
 NimbusServer::~NimbusServer() { Shutdown(); }
 
 absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOptions& options) {
@@ -122,14 +168,28 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
   if (ec)
     return absl::InvalidArgumentError(
         absl::StrCat("--data-dir ", options.data_dir.string(), ": ", ec.message()));
-  auto store = OpenSqliteJobStore((options.data_dir / "jobs.db").string());
+  // Replicas: the job store, result folder and replica id (see server.h).
+  const bool shared_store = !options.store_url.empty();
+  const std::string replica_id =
+      options.replica_id.empty() ? DefaultReplicaId() : options.replica_id;
+  auto store = shared_store ? OpenPostgresJobStore(options.store_url)
+                            : OpenSqliteJobStore((options.data_dir / "jobs.db").string());
   if (!store.ok()) return store.status();
   impl->store = std::move(*store);
-  auto results =
-      OpenLocalResultStore(options.data_dir / "results", options.min_free_disk_mib << 20);
+  const std::filesystem::path results_dir =
+      options.results_dir.empty() ? options.data_dir / "results" : options.results_dir;
+  // A shared store means other replicas may write the same folder: each
+  // attempt writes its own scratch file and reads check the content hash.
+  auto results = shared_store || !options.results_dir.empty()
+                     ? OpenSharedResultStore(results_dir, replica_id,
+                                             options.min_free_disk_mib << 20)
+                     : OpenLocalResultStore(results_dir, options.min_free_disk_mib << 20);
   if (!results.ok()) return results.status();
   impl->results = std::move(*results);
-  auto assets = AssetStore::Open(options.data_dir / "assets");
+  // Replicas sharing results share uploaded assets too: a job may run on
+  // another replica than the one its mesh was uploaded to.
+  auto assets = AssetStore::Open(options.results_dir.empty() ? options.data_dir / "assets"
+                                                             : results_dir / "assets");
   if (!assets.ok()) return assets.status();
   impl->assets = std::move(*assets);
   // Specs name uploaded assets by hash; only an in-process server (the CLI's
@@ -142,7 +202,9 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
   // RUNNING belonged to a process that died: run it again.
   // Not fatal: on a full disk the server must still start and serve
   // reads, and a RUNNING job whose lease lapsed is claimed again anyway.
-  auto requeued = impl->store->RequeueRunning();
+  // With a shared store, RUNNING jobs may be other replicas' live claims:
+  // only lease expiry hands them on.
+  auto requeued = shared_store ? absl::StatusOr<int>(0) : impl->store->RequeueRunning();
   if (!requeued.ok())
     spdlog::error("event=requeue_failed error=\"{}\"", requeued.status().ToString());
   else if (*requeued > 0)
@@ -157,7 +219,7 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
   wo.lease_ms = options.lease_ms;
   wo.heartbeat_ms = options.heartbeat_ms;
   wo.max_attempts = options.max_attempts;
-  wo.instance_id = absl::StrCat("nimbusd-", ::getpid());
+  wo.instance_id = replica_id;
   impl->pool = std::make_unique<WorkerPool>(impl->store.get(), impl->results.get(), &impl->hub, wo);
   impl->service = std::make_unique<NimbusServiceImpl>(
       impl->store.get(), impl->results.get(), impl->assets.get(), &impl->hub, impl->pool.get(),
@@ -194,12 +256,14 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
     const size_t colon = options.listen.rfind(':');
     impl->address = absl::StrCat(options.listen.substr(0, colon), ":", impl->port);
   }
+  if (shared_store) FollowOtherReplicas(*impl);
   impl->pool->Start();
   impl->sweeper->Start();
   spdlog::info(
-      "event=started listen={} port={} data_dir={} workers={} threads_per_job={} tls={} "
-      "mtls={} auth_tokens={} retention_s={}",
-      options.listen, impl->port, options.data_dir.string(), options.workers,
+      "event=started listen={} port={} data_dir={} store={} replica={} workers={} "
+      "threads_per_job={} tls={} mtls={} auth_tokens={} retention_s={}",
+      options.listen, impl->port, options.data_dir.string(),
+      shared_store ? "postgresql" : "sqlite", replica_id, options.workers,
       impl->pool->threads_per_job(), !options.tls_cert_file.empty(),
       !options.tls_client_ca_file.empty(), auth ? principals : 0, options.retention_ms / 1000);
   return std::unique_ptr<NimbusServer>(new NimbusServer(std::move(impl)));
@@ -226,6 +290,8 @@ void NimbusServer::Shutdown() {
   if (auto* health = impl_->server->GetHealthCheckService()) health->SetServingStatus(false);
   // Stop workers first so watchers see jobs go back to the queue, then
   // close the streams.
+  // The feed's listener uses the pool and the hub: stop it first.
+  impl_->store->SetChangeListener(nullptr);
   impl_->pool->Stop();
   impl_->sweeper->Stop();
   impl_->server->Shutdown(std::chrono::system_clock::now() +

@@ -16,6 +16,9 @@ class Channel;
 
 namespace nimbus::server {
 
+/// hostname-pid: a replica name unique among live processes.
+std::string DefaultReplicaId();
+
 struct ServerOptions {
   /// host:port to listen on; empty for in-process use only.
   std::string listen = "127.0.0.1:50051";
@@ -52,6 +55,19 @@ struct ServerOptions {
   std::string auth_tokens_text;
   /// Allows listening beyond loopback without tokens.
   bool insecure = false;
+  // Several replicas (docs/operator_guide.md "Several replicas").
+  /// The job store: empty for SQLite in data_dir; a postgresql:// (or
+  /// postgres://) URL for a queue shared by every replica given it.
+  std::string store_url;
+  /// This replica's name: the prefix of its workers' ids in leases (so
+  /// `nimbus jobs` shows who runs what) and in its log lines. Empty:
+  /// hostname-pid.
+  std::string replica_id;
+  /// Where results (and, when set, uploaded assets, in its `assets`
+  /// folder) live; empty: data_dir/results. Replicas that share a store
+  /// must share this folder too (a volume or NFS mount).
+  std::filesystem::path results_dir;
+
   /// Per-principal limits; 0 = none.
   uint64_t quota_jobs = 0;
   uint64_t quota_asset_bytes = 0;
@@ -64,8 +80,10 @@ struct ServerOptions {
   uint64_t auto_shard_iterations = 0;
 };
 
-/// @brief A running server. Jobs left RUNNING by a previous process are
-/// requeued at start; Shutdown() gives running jobs back to the queue.
+/// @brief A running server. With its own SQLite store, jobs left RUNNING by
+/// a previous process are requeued at start; with a shared store they are
+/// claimed again once their lease lapses (another replica may hold them).
+/// Shutdown() gives running jobs back to the queue.
 class NimbusServer {
  public:
   static absl::StatusOr<std::unique_ptr<NimbusServer>> Start(const ServerOptions& options);
@@ -86,6 +104,7 @@ class NimbusServer {
  private:
   struct Impl;
   explicit NimbusServer(std::unique_ptr<Impl> impl);
+  static void FollowOtherReplicas(Impl& impl);
   std::unique_ptr<Impl> impl_;
 };
 

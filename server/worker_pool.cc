@@ -104,13 +104,16 @@ class WorkerPool::Context : public JobContext {
         return absl::AbortedError("lost the job's claim");
       }
       if (*hb) *cancel_ = true;
+      // Watchers on other replicas (a shared store only).
+      if (auto wishes = pool_->store_->PreviewWishes(record_.id, NowMs()); wishes.ok())
+        remote_wishes_ = std::move(*wishes);
     }
     return absl::OkStatus();
   }
 
   void MaybePublishPreview(const std::vector<const CountGrid*>& parts, const GridFrame& frame,
                            const DensityOptions& density, uint64_t done) override {
-    for (const JobHub::PreviewWant& want : pool_->hub_->WantedPreviews(record_.id)) {
+    for (const PreviewTarget& want : Wanted()) {
       auto& last = last_preview_[want.resolution];
       if (last != Clock::time_point{} &&
           Seconds(Clock::now() - last) < std::max(0.05, want.interval_seconds))
@@ -133,6 +136,12 @@ class WorkerPool::Context : public JobContext {
       preview.add_resolution(coarse_frame.resolution.y);
       preview.add_resolution(coarse_frame.resolution.z);
       preview.set_done(done);
+      if (want.remote) {
+        auto st = pool_->store_->PutPreview(record_.id, want.resolution, sequence,
+                                            preview.SerializeAsString());
+        if (!st.ok()) spdlog::warn("job={} event=put_preview_failed reason=\"{}\"", record_.id,
+                                   st.ToString());
+      }
       pool_->hub_->PublishPreview(record_.id, want.resolution, std::move(preview));
     }
     if (!record_.parent_id.empty()) PublishParentPreview(parts, frame, density, done);
@@ -203,6 +212,32 @@ class WorkerPool::Context : public JobContext {
     return {{"nimbus_spec_hash", spec_hash_}, {"nimbus_version", std::string(NIMBUS_VERSION)}};
   }
 
+ private:
+  struct PreviewTarget {
+    uint32_t resolution;
+    double interval_seconds;
+    bool remote;  // also wanted by watchers on other replicas: store it
+  };
+  // This process's watchers' wants and other replicas' wishes, merged.
+  std::vector<PreviewTarget> Wanted() const {
+    std::vector<PreviewTarget> out;
+    for (const JobHub::PreviewWant& w : pool_->hub_->WantedPreviews(record_.id))
+      out.push_back({w.resolution, w.interval_seconds, false});
+    for (const PreviewWish& w : remote_wishes_) {
+      auto it = std::find_if(out.begin(), out.end(),
+                             [&](const PreviewTarget& t) { return t.resolution == w.resolution; });
+      if (it == out.end()) {
+        out.push_back({w.resolution, w.interval_seconds, true});
+      } else {
+        it->remote = true;
+        it->interval_seconds = std::min(it->interval_seconds, w.interval_seconds);
+      }
+    }
+    return out;
+  }
+  std::vector<PreviewWish> remote_wishes_;
+
+ public:
   const v1::Job& view() const { return view_; }
   const std::vector<std::string>& warnings() const { return warnings_; }
   bool cancelled() const { return *cancel_; }
@@ -257,6 +292,11 @@ void WorkerPool::Wake() {
     ++wake_generation_;
   }
   wake_.notify_one();
+}
+
+bool WorkerPool::IsRunning(const std::string& job_id) {
+  std::lock_guard<std::mutex> lock(mu_);
+  return running_.count(job_id) > 0;
 }
 
 void WorkerPool::Cancel(const std::string& job_id) {

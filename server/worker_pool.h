@@ -45,6 +45,8 @@ class WorkerPool {
   void Stop();
   /// A job was queued: wake an idle worker.
   void Wake();
+  /// Whether `job_id` runs in this process.
+  bool IsRunning(const std::string& job_id);
   /// Fast path for cancellation of a job running in this process.
   void Cancel(const std::string& job_id);
   int threads_per_job() const { return threads_per_job_; }

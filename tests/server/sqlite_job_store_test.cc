@@ -18,11 +18,15 @@
 
 #include "absl/status/status.h"
 #include "server/job_store.h"
+#include "tests/support/job_store_factory.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus::server {
 namespace {
 
+using ::nimbus::testing::StoreKind;
+using ::nimbus::testing::StoreKindName;
+using ::nimbus::testing::StoreLocation;
 using ::nimbus::testing::TempDir;
 
 constexpr TimeMs kT0 = 1'700'000'000'000;
@@ -91,7 +95,37 @@ class SqliteJobStoreTest : public ::testing::Test {
   std::unique_ptr<JobStore> store_;
 };
 
-TEST_F(SqliteJobStoreTest, CreateAndGetRoundTripEveryField) {
+// The JobStore contract, run against every store kind: SQLite and
+// PostgreSQL (a private server; skipped only when it is not installed).
+class JobStoreTest : public ::testing::TestWithParam<StoreKind> {
+ protected:
+  void SetUp() override {
+    absl::StatusOr<StoreLocation> where = StoreLocation::Fresh(GetParam(), dir_.path());
+    if (absl::IsUnavailable(where.status())) GTEST_SKIP() << where.status().message();
+    ASSERT_TRUE(where.ok()) << where.status();
+    where_ = *where;
+    store_ = Reopen();
+    ASSERT_NE(store_, nullptr);
+  }
+  // Another handle on the same store: a second replica, or a restart.
+  std::unique_ptr<JobStore> Reopen() const {
+    absl::StatusOr<std::unique_ptr<JobStore>> store = where_.Open();
+    EXPECT_TRUE(store.ok()) << store.status();
+    return store.ok() ? std::move(*store) : nullptr;
+  }
+
+  TempDir dir_;
+  StoreLocation where_;
+  std::unique_ptr<JobStore> store_;
+};
+
+INSTANTIATE_TEST_SUITE_P(Stores, JobStoreTest,
+                         ::testing::Values(StoreKind::kSqlite, StoreKind::kPostgres),
+                         [](const ::testing::TestParamInfo<StoreKind>& info) {
+                           return StoreKindName(info.param);
+                         });
+
+TEST_P(JobStoreTest, CreateAndGetRoundTripEveryField) {
   NewJob job;
   job.id = "job-1";
   job.name = "fern";
@@ -159,7 +193,7 @@ TEST_F(SqliteJobStoreTest, CreateAndGetRoundTripEveryField) {
   ExpectSameRecord(*got, expected);
 }
 
-TEST_F(SqliteJobStoreTest, EmptySpecAndStringsRoundTrip) {
+TEST_P(JobStoreTest, EmptySpecAndStringsRoundTrip) {
   NewJob job;
   job.id = "bare";
   ASSERT_TRUE(store_->Create(job, kT0).ok());
@@ -170,13 +204,13 @@ TEST_F(SqliteJobStoreTest, EmptySpecAndStringsRoundTrip) {
   EXPECT_EQ(got->request_id, "");
 }
 
-TEST_F(SqliteJobStoreTest, GetUnknownIsNotFoundNamingTheId) {
+TEST_P(JobStoreTest, GetUnknownIsNotFoundNamingTheId) {
   absl::StatusOr<JobRecord> got = store_->Get("no-such-job");
   EXPECT_EQ(got.status().code(), absl::StatusCode::kNotFound);
   EXPECT_NE(got.status().message().find("no-such-job"), std::string::npos) << got.status();
 }
 
-TEST_F(SqliteJobStoreTest, CreateIsIdempotentByRequestId) {
+TEST_P(JobStoreTest, CreateIsIdempotentByRequestId) {
   absl::StatusOr<JobRecord> first = store_->Create(MakeJob("a", "req", "s"), kT0);
   ASSERT_TRUE(first.ok()) << first.status();
   // A retry carries a fresh id (the server mints one per call) but the same
@@ -200,7 +234,7 @@ TEST_F(SqliteJobStoreTest, CreateIsIdempotentByRequestId) {
   EXPECT_EQ(Ids(page->jobs), (std::vector<std::string>{"d", "c", "a"}));
 }
 
-TEST_F(SqliteJobStoreTest, DuplicateIdIsAlreadyExists) {
+TEST_P(JobStoreTest, DuplicateIdIsAlreadyExists) {
   ASSERT_TRUE(store_->Create(MakeJob("a"), kT0).ok());
   absl::StatusOr<JobRecord> dup = store_->Create(MakeJob("a"), kT0 + 1);
   EXPECT_EQ(dup.status().code(), absl::StatusCode::kAlreadyExists) << dup.status();
@@ -208,7 +242,7 @@ TEST_F(SqliteJobStoreTest, DuplicateIdIsAlreadyExists) {
   EXPECT_TRUE(store_->Create(MakeJob("b"), kT0 + 2).ok());
 }
 
-TEST_F(SqliteJobStoreTest, ListIsNewestFirstWithIdTieBreak) {
+TEST_P(JobStoreTest, ListIsNewestFirstWithIdTieBreak) {
   CreateOrDie(*store_, "x", kT0 + 1);
   CreateOrDie(*store_, "b", kT0 + 2);
   CreateOrDie(*store_, "c", kT0 + 2);
@@ -219,7 +253,7 @@ TEST_F(SqliteJobStoreTest, ListIsNewestFirstWithIdTieBreak) {
   EXPECT_EQ(page->next_page_token, "");
 }
 
-TEST_F(SqliteJobStoreTest, ListPagesThroughSevenJobs) {
+TEST_P(JobStoreTest, ListPagesThroughSevenJobs) {
   // Two share a create_time so the cursor's id tie-break is exercised.
   const std::vector<TimeMs> times = {1, 2, 3, 4, 4, 5, 6};
   for (size_t i = 0; i < times.size(); ++i) {
@@ -242,7 +276,7 @@ TEST_F(SqliteJobStoreTest, ListPagesThroughSevenJobs) {
                                             "job-0"}));
 }
 
-TEST_F(SqliteJobStoreTest, PageTokenStaysValidWhileNewJobsArrive) {
+TEST_P(JobStoreTest, PageTokenStaysValidWhileNewJobsArrive) {
   for (int i = 0; i < 4; ++i) CreateOrDie(*store_, "old-" + std::to_string(i), kT0 + i);
   ListOptions options;
   options.page_size = 2;
@@ -255,7 +289,7 @@ TEST_F(SqliteJobStoreTest, PageTokenStaysValidWhileNewJobsArrive) {
   EXPECT_EQ(Ids(second->jobs), (std::vector<std::string>{"old-1", "old-0"}));
 }
 
-TEST_F(SqliteJobStoreTest, ListFiltersByState) {
+TEST_P(JobStoreTest, ListFiltersByState) {
   for (int i = 0; i < 5; ++i) CreateOrDie(*store_, "j" + std::to_string(i), kT0 + i);
   absl::StatusOr<std::optional<JobRecord>> claimed = store_->ClaimNext("w", kT0 + 10, 1000);
   ASSERT_TRUE(claimed.ok() && claimed->has_value());  // j0
@@ -293,7 +327,7 @@ TEST_F(SqliteJobStoreTest, ListFiltersByState) {
   EXPECT_TRUE(failed->jobs.empty());
 }
 
-TEST_F(SqliteJobStoreTest, ListClampsPageSize) {
+TEST_P(JobStoreTest, ListClampsPageSize) {
   for (int i = 0; i < 501; ++i) CreateOrDie(*store_, "j" + std::to_string(i), kT0 + i);
   auto count = [&](int page_size) -> size_t {
     ListOptions options;
@@ -309,7 +343,7 @@ TEST_F(SqliteJobStoreTest, ListClampsPageSize) {
   EXPECT_EQ(count(10000), 500u);
 }
 
-TEST_F(SqliteJobStoreTest, ListRejectsGarbageToken) {
+TEST_P(JobStoreTest, ListRejectsGarbageToken) {
   ListOptions options;
   options.page_token = "not a token!";
   EXPECT_EQ(store_->List(options).status().code(), absl::StatusCode::kInvalidArgument);
@@ -317,7 +351,7 @@ TEST_F(SqliteJobStoreTest, ListRejectsGarbageToken) {
   EXPECT_EQ(store_->List(options).status().code(), absl::StatusCode::kInvalidArgument);
 }
 
-TEST_F(SqliteJobStoreTest, ClaimTakesOldestFirst) {
+TEST_P(JobStoreTest, ClaimTakesOldestFirst) {
   CreateOrDie(*store_, "second", kT0 + 2);
   CreateOrDie(*store_, "first", kT0 + 1);
   CreateOrDie(*store_, "third", kT0 + 3);
@@ -343,8 +377,8 @@ TEST_F(SqliteJobStoreTest, ClaimTakesOldestFirst) {
   EXPECT_FALSE(c->has_value());
 }
 
-TEST_F(SqliteJobStoreTest, TwoStoresOnOneFileNeverDoubleClaim) {
-  std::unique_ptr<JobStore> other = OpenOrDie(db_path());
+TEST_P(JobStoreTest, TwoStoresOnOneFileNeverDoubleClaim) {
+  std::unique_ptr<JobStore> other = Reopen();
   ASSERT_NE(other, nullptr);
   CreateOrDie(*store_, "j1", kT0 + 1);
   CreateOrDie(*other, "j2", kT0 + 2);
@@ -366,8 +400,8 @@ TEST_F(SqliteJobStoreTest, TwoStoresOnOneFileNeverDoubleClaim) {
   EXPECT_EQ(j1->worker_id, "replica-a");
 }
 
-TEST_F(SqliteJobStoreTest, LapsedLeaseIsReclaimedAndOldWorkerLosesIt) {
-  std::unique_ptr<JobStore> other = OpenOrDie(db_path());
+TEST_P(JobStoreTest, LapsedLeaseIsReclaimedAndOldWorkerLosesIt) {
+  std::unique_ptr<JobStore> other = Reopen();
   ASSERT_NE(other, nullptr);
   CreateOrDie(*store_, "j", kT0);
   absl::StatusOr<std::optional<JobRecord>> a = store_->ClaimNext("old", kT0 + 10, 100);
@@ -404,14 +438,14 @@ TEST_F(SqliteJobStoreTest, LapsedLeaseIsReclaimedAndOldWorkerLosesIt) {
             absl::StatusCode::kFailedPrecondition);
 }
 
-TEST_F(SqliteJobStoreTest, HeartbeatAndCompleteOnUnknownJobAreNotFound) {
+TEST_P(JobStoreTest, HeartbeatAndCompleteOnUnknownJobAreNotFound) {
   EXPECT_EQ(store_->Heartbeat("nope", "w", kT0, 100, 0, 0).status().code(),
             absl::StatusCode::kNotFound);
   EXPECT_EQ(store_->Complete("nope", "w", Completion{}, kT0).code(), absl::StatusCode::kNotFound);
   EXPECT_EQ(store_->Release("nope", "w").code(), absl::StatusCode::kNotFound);
 }
 
-TEST_F(SqliteJobStoreTest, HeartbeatExtendsLeaseRecordsProgressAndReportsCancel) {
+TEST_P(JobStoreTest, HeartbeatExtendsLeaseRecordsProgressAndReportsCancel) {
   CreateOrDie(*store_, "j", kT0);
   ASSERT_TRUE(store_->ClaimNext("w", kT0 + 1, 100).ok());
   absl::StatusOr<bool> hb = store_->Heartbeat("j", "w", kT0 + 50, 100, 3, 10);
@@ -433,7 +467,7 @@ TEST_F(SqliteJobStoreTest, HeartbeatExtendsLeaseRecordsProgressAndReportsCancel)
   EXPECT_TRUE(*hb);
 }
 
-TEST_F(SqliteJobStoreTest, CancelQueuedJobFinishesItAtOnce) {
+TEST_P(JobStoreTest, CancelQueuedJobFinishesItAtOnce) {
   CreateOrDie(*store_, "j", kT0);
   absl::StatusOr<JobRecord> r = store_->RequestCancel("j", kT0 + 5);
   ASSERT_TRUE(r.ok()) << r.status();
@@ -446,7 +480,7 @@ TEST_F(SqliteJobStoreTest, CancelQueuedJobFinishesItAtOnce) {
   EXPECT_FALSE(c->has_value());
 }
 
-TEST_F(SqliteJobStoreTest, CancelRunningJobOnlyFlagsIt) {
+TEST_P(JobStoreTest, CancelRunningJobOnlyFlagsIt) {
   CreateOrDie(*store_, "j", kT0);
   ASSERT_TRUE(store_->ClaimNext("w", kT0 + 1, 100).ok());
   absl::StatusOr<JobRecord> r = store_->RequestCancel("j", kT0 + 5);
@@ -468,7 +502,7 @@ TEST_F(SqliteJobStoreTest, CancelRunningJobOnlyFlagsIt) {
   EXPECT_EQ(j->worker_id, "");
 }
 
-TEST_F(SqliteJobStoreTest, CancelRequestedJobWithLapsedLeaseIsNeverReclaimed) {
+TEST_P(JobStoreTest, CancelRequestedJobWithLapsedLeaseIsNeverReclaimed) {
   CreateOrDie(*store_, "j", kT0);
   ASSERT_TRUE(store_->ClaimNext("dead", kT0 + 1, 100).ok());
   ASSERT_TRUE(store_->RequestCancel("j", kT0 + 5).ok());
@@ -483,7 +517,7 @@ TEST_F(SqliteJobStoreTest, CancelRequestedJobWithLapsedLeaseIsNeverReclaimed) {
   EXPECT_EQ(j->error_code, static_cast<int>(absl::StatusCode::kCancelled));
 }
 
-TEST_F(SqliteJobStoreTest, CancelFinishedJobLeavesItUnchanged) {
+TEST_P(JobStoreTest, CancelFinishedJobLeavesItUnchanged) {
   CreateOrDie(*store_, "j", kT0);
   ASSERT_TRUE(store_->ClaimNext("w", kT0 + 1, 100).ok());
   Completion failed;
@@ -499,7 +533,7 @@ TEST_F(SqliteJobStoreTest, CancelFinishedJobLeavesItUnchanged) {
   EXPECT_FALSE(after->cancel_requested);
 }
 
-TEST_F(SqliteJobStoreTest, FailedJobKeepsItsStatusCodeAcrossReopen) {
+TEST_P(JobStoreTest, FailedJobKeepsItsStatusCodeAcrossReopen) {
   CreateOrDie(*store_, "j", kT0);
   ASSERT_TRUE(store_->ClaimNext("w", kT0 + 1, 100).ok());
   Completion failed;
@@ -508,7 +542,7 @@ TEST_F(SqliteJobStoreTest, FailedJobKeepsItsStatusCodeAcrossReopen) {
   failed.error_code = static_cast<int>(absl::StatusCode::kInvalidArgument);
   ASSERT_TRUE(store_->Complete("j", "w", failed, kT0 + 2).ok());
   store_.reset();
-  store_ = OpenOrDie(db_path());
+  store_ = Reopen();
   absl::StatusOr<JobRecord> j = store_->Get("j");
   ASSERT_TRUE(j.ok()) << j.status();
   EXPECT_EQ(j->state, JobState::kFailed);
@@ -516,13 +550,13 @@ TEST_F(SqliteJobStoreTest, FailedJobKeepsItsStatusCodeAcrossReopen) {
   EXPECT_EQ(j->error_code, 3);
 }
 
-TEST_F(SqliteJobStoreTest, CancelUnknownJobIsNotFound) {
+TEST_P(JobStoreTest, CancelUnknownJobIsNotFound) {
   absl::StatusOr<JobRecord> r = store_->RequestCancel("ghost", kT0);
   EXPECT_EQ(r.status().code(), absl::StatusCode::kNotFound);
   EXPECT_NE(r.status().message().find("ghost"), std::string::npos);
 }
 
-TEST_F(SqliteJobStoreTest, CompleteRejectsNonTerminalState) {
+TEST_P(JobStoreTest, CompleteRejectsNonTerminalState) {
   CreateOrDie(*store_, "j", kT0);
   ASSERT_TRUE(store_->ClaimNext("w", kT0 + 1, 100).ok());
   Completion c;
@@ -530,7 +564,7 @@ TEST_F(SqliteJobStoreTest, CompleteRejectsNonTerminalState) {
   EXPECT_EQ(store_->Complete("j", "w", c, kT0 + 2).code(), absl::StatusCode::kInvalidArgument);
 }
 
-TEST_F(SqliteJobStoreTest, CompleteKeepsWarningsWhenNoneGiven) {
+TEST_P(JobStoreTest, CompleteKeepsWarningsWhenNoneGiven) {
   NewJob job = MakeJob("j");
   job.warnings = "from submit";
   ASSERT_TRUE(store_->Create(job, kT0).ok());
@@ -541,7 +575,7 @@ TEST_F(SqliteJobStoreTest, CompleteKeepsWarningsWhenNoneGiven) {
   EXPECT_EQ(j->warnings, "from submit");
 }
 
-TEST_F(SqliteJobStoreTest, ReleaseRequeuesAndKeepsAttempts) {
+TEST_P(JobStoreTest, ReleaseRequeuesAndKeepsAttempts) {
   CreateOrDie(*store_, "j", kT0);
   ASSERT_TRUE(store_->ClaimNext("w", kT0 + 1, 100).ok());
   ASSERT_TRUE(store_->Release("j", "w").ok());
@@ -556,7 +590,7 @@ TEST_F(SqliteJobStoreTest, ReleaseRequeuesAndKeepsAttempts) {
   EXPECT_EQ((*c)->attempts, 2u);
 }
 
-TEST_F(SqliteJobStoreTest, PersistsAcrossReopen) {
+TEST_P(JobStoreTest, PersistsAcrossReopen) {
   NewJob job = MakeJob("keep", "req-keep", "keep");
   job.progress_total = 9;
   ASSERT_TRUE(store_->Create(job, kT0).ok());
@@ -573,7 +607,7 @@ TEST_F(SqliteJobStoreTest, PersistsAcrossReopen) {
   }
 
   store_.reset();
-  store_ = OpenOrDie(db_path());
+  store_ = Reopen();
   ASSERT_NE(store_, nullptr);
   for (const JobRecord& b : before) {
     absl::StatusOr<JobRecord> r = store_->Get(b.id);
@@ -586,13 +620,13 @@ TEST_F(SqliteJobStoreTest, PersistsAcrossReopen) {
   EXPECT_EQ(again->id, "keep");
 }
 
-TEST_F(SqliteJobStoreTest, AcceptedJobSurvivesKillNine) {
+TEST_P(JobStoreTest, AcceptedJobSurvivesKillNine) {
   store_.reset();
   const pid_t pid = fork();
   ASSERT_GE(pid, 0);
   if (pid == 0) {
     // Child: accept a job and die without closing or checkpointing anything.
-    absl::StatusOr<std::unique_ptr<JobStore>> s = OpenSqliteJobStore(db_path().string());
+    absl::StatusOr<std::unique_ptr<JobStore>> s = where_.Open();
     if (!s.ok() || !(*s)->Create(MakeJob("survivor"), kT0).ok()) _exit(3);
     kill(getpid(), SIGKILL);
     _exit(4);
@@ -602,14 +636,14 @@ TEST_F(SqliteJobStoreTest, AcceptedJobSurvivesKillNine) {
   ASSERT_TRUE(WIFSIGNALED(status)) << "child exited with " << WEXITSTATUS(status);
   EXPECT_EQ(WTERMSIG(status), SIGKILL);
 
-  store_ = OpenOrDie(db_path());
+  store_ = Reopen();
   ASSERT_NE(store_, nullptr);
   absl::StatusOr<JobRecord> r = store_->Get("survivor");
   ASSERT_TRUE(r.ok()) << r.status();
   EXPECT_EQ(r->state, JobState::kQueued);
 }
 
-TEST_F(SqliteJobStoreTest, RequeueRunningPutsEveryRunningJobBack) {
+TEST_P(JobStoreTest, RequeueRunningPutsEveryRunningJobBack) {
   for (int i = 0; i < 4; ++i) CreateOrDie(*store_, "j" + std::to_string(i), kT0 + i);
   ASSERT_TRUE(store_->ClaimNext("w1", kT0 + 10, 100000).ok());  // j0
   ASSERT_TRUE(store_->ClaimNext("w2", kT0 + 10, 100000).ok());  // j1
@@ -642,7 +676,7 @@ TEST_F(SqliteJobStoreTest, RequeueRunningPutsEveryRunningJobBack) {
   EXPECT_EQ(*n, 0);
 }
 
-TEST_F(SqliteJobStoreTest, CancelRequestedJobsAreCancelledNotRequeued) {
+TEST_P(JobStoreTest, CancelRequestedJobsAreCancelledNotRequeued) {
   // Requeued with cancel_requested set they could never be claimed again, so
   // both recovery paths finish the cancel instead.
   CreateOrDie(*store_, "released", kT0);
@@ -700,14 +734,14 @@ void ClaimConcurrently(const std::vector<JobStore*>& stores, int total) {
   EXPECT_EQ(unique.size(), static_cast<size_t>(total));
 }
 
-TEST_F(SqliteJobStoreTest, ConcurrentClaimsFromFourThreadsClaimEachJobOnce) {
+TEST_P(JobStoreTest, ConcurrentClaimsFromFourThreadsClaimEachJobOnce) {
   constexpr int kJobs = 50;
   for (int i = 0; i < kJobs; ++i) CreateOrDie(*store_, "j" + std::to_string(i), kT0);
   ClaimConcurrently({store_.get(), store_.get(), store_.get(), store_.get()}, kJobs);
 }
 
-TEST_F(SqliteJobStoreTest, ConcurrentClaimsAcrossTwoConnectionsClaimEachJobOnce) {
-  std::unique_ptr<JobStore> other = OpenOrDie(db_path());
+TEST_P(JobStoreTest, ConcurrentClaimsAcrossTwoConnectionsClaimEachJobOnce) {
+  std::unique_ptr<JobStore> other = Reopen();
   ASSERT_NE(other, nullptr);
   constexpr int kJobs = 50;
   for (int i = 0; i < kJobs; ++i) CreateOrDie(*store_, "j" + std::to_string(i), kT0);
@@ -883,7 +917,7 @@ TEST_F(SqliteJobStoreTest, ReadsDoNotWaitForABlockedWrite) {
 
 // ---- Poison input: bounded text, byte-bounded pages, capped attempts ----
 
-TEST_F(SqliteJobStoreTest, ErrorOfManyMegabytesIsStoredTruncated) {
+TEST_P(JobStoreTest, ErrorOfManyMegabytesIsStoredTruncated) {
   CreateOrDie(*store_, "big-error", kT0);
   ASSERT_TRUE(store_->ClaimNext("w", kT0 + 1, 1000).ok());
   Completion done;
@@ -899,7 +933,7 @@ TEST_F(SqliteJobStoreTest, ErrorOfManyMegabytesIsStoredTruncated) {
   EXPECT_NE(got->error.find("[truncated, 8388608 bytes]"), std::string::npos) << got->error;
 }
 
-TEST_F(SqliteJobStoreTest, HugeNameIsRefusedAndHugeIdIsNotEchoedWhole) {
+TEST_P(JobStoreTest, HugeNameIsRefusedAndHugeIdIsNotEchoedWhole) {
   NewJob job = MakeJob("named");
   job.name = std::string(10 << 20, 'n');
   absl::StatusOr<JobRecord> r = store_->Create(job, kT0);
@@ -913,7 +947,7 @@ TEST_F(SqliteJobStoreTest, HugeNameIsRefusedAndHugeIdIsNotEchoedWhole) {
   EXPECT_LT(missing.status().message().size(), 200u);
 }
 
-TEST_F(SqliteJobStoreTest, ListPagesStayUnderTheByteBound) {
+TEST_P(JobStoreTest, ListPagesStayUnderTheByteBound) {
   // 400 failed jobs with errors of 1 MB each, stored as 4 KiB.
   for (int i = 0; i < 400; ++i) {
     const std::string id = "j" + std::to_string(1000 + i);
@@ -947,7 +981,7 @@ TEST_F(SqliteJobStoreTest, ListPagesStayUnderTheByteBound) {
   EXPECT_GT(pages, 2);
 }
 
-TEST_F(SqliteJobStoreTest, AbandonedAttemptsEndFailedWithTheLastError) {
+TEST_P(JobStoreTest, AbandonedAttemptsEndFailedWithTheLastError) {
   CreateOrDie(*store_, "poison", kT0);
   CreateOrDie(*store_, "fine", kT0 + 1);
   for (int attempt = 1; attempt <= 3; ++attempt) {
@@ -979,7 +1013,7 @@ TEST_F(SqliteJobStoreTest, AbandonedAttemptsEndFailedWithTheLastError) {
   EXPECT_EQ(poison->error_code, static_cast<int>(absl::StatusCode::kInternal));
 }
 
-TEST_F(SqliteJobStoreTest, LapsedLeasesCountAsAttempts) {
+TEST_P(JobStoreTest, LapsedLeasesCountAsAttempts) {
   CreateOrDie(*store_, "crashy", kT0);
   for (int attempt = 1; attempt <= 2; ++attempt) {
     absl::StatusOr<std::optional<JobRecord>> c =
@@ -1010,7 +1044,7 @@ PokeRecord Push(int32_t body, double x) {
   return p;
 }
 
-TEST_F(SqliteJobStoreTest, PokesNeedARunningJob) {
+TEST_P(JobStoreTest, PokesNeedARunningJob) {
   EXPECT_EQ(store_->AddPoke("nope", Push(0, 1)).status().code(), absl::StatusCode::kNotFound);
   CreateOrDie(*store_, "a", kT0);
   auto queued = store_->AddPoke("a", Push(0, 1));
@@ -1023,7 +1057,7 @@ TEST_F(SqliteJobStoreTest, PokesNeedARunningJob) {
   EXPECT_GT(ok->seq, 0);
 }
 
-TEST_F(SqliteJobStoreTest, TakingPokesFixesTheirFrameForEveryLaterAttempt) {
+TEST_P(JobStoreTest, TakingPokesFixesTheirFrameForEveryLaterAttempt) {
   CreateOrDie(*store_, "a", kT0);
   ASSERT_TRUE(store_->ClaimNext("w1", kT0, 1000).ok());
   PokeRecord drag = Push(2, 0.5);

@@ -1,0 +1,52 @@
+// The job store kinds the JobStore contract tests run against: a fresh,
+// empty store of each kind, and a way to open it again (a second replica,
+// or a restart). PostgreSQL stores live in a database of their own on the
+// test process's private server (tests/support/postgres_server.h).
+// Header-only: the server library comes from the test executable.
+#pragma once
+
+#include <filesystem>
+#include <memory>
+#include <ostream>
+#include <string>
+
+#include "absl/status/statusor.h"
+#include "server/job_store.h"
+#include "tests/support/postgres_server.h"
+
+namespace nimbus::testing {
+
+enum class StoreKind { kSqlite, kPostgres };
+
+inline std::string StoreKindName(StoreKind kind) {
+  return kind == StoreKind::kSqlite ? "Sqlite" : "Postgres";
+}
+/// For GoogleTest's names of parameterized tests (and so ctest's).
+inline void PrintTo(StoreKind kind, std::ostream* os) { *os << StoreKindName(kind); }
+
+/// @brief Where one test's store lives: a SQLite file or a PostgreSQL URL.
+struct StoreLocation {
+  StoreKind kind = StoreKind::kSqlite;
+  /// The SQLite file, or the postgresql:// URL.
+  std::string where;
+
+  /// A fresh location; SQLite files go in `dir`. UNAVAILABLE (the reason
+  /// in the message) when PostgreSQL is not installed.
+  static absl::StatusOr<StoreLocation> Fresh(StoreKind kind, const std::filesystem::path& dir) {
+    if (kind == StoreKind::kSqlite) return StoreLocation{kind, (dir / "jobs.db").string()};
+    std::string why;
+    PostgresServer* server = PostgresServer::Shared(&why);
+    if (server == nullptr) return absl::UnavailableError(why);
+    absl::StatusOr<std::string> url = server->NewDatabase();
+    if (!url.ok()) return url.status();
+    return StoreLocation{kind, *url};
+  }
+
+  /// Opens (another handle on) the store.
+  absl::StatusOr<std::unique_ptr<server::JobStore>> Open() const {
+    return kind == StoreKind::kSqlite ? server::OpenSqliteJobStore(where)
+                                      : server::OpenPostgresJobStore(where);
+  }
+};
+
+}  // namespace nimbus::testing
