@@ -1,6 +1,6 @@
 // Contract tests of the JobStore additions for sharded jobs and the result
-// cache (docs/sharding.md, docs/result_cache.md). Written against a plain
-// JobStore& from OpenStore(), so the same tests can run on any backend.
+// cache (docs/sharding.md, docs/result_cache.md), written against a plain
+// JobStore&, run against every store kind (SQLite and PostgreSQL).
 #include <gtest/gtest.h>
 
 #include <memory>
@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "server/job_store.h"
+#include "tests/support/job_store_factory.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus::server {
@@ -16,13 +17,6 @@ namespace {
 
 constexpr TimeMs kT0 = 1'700'000'000'000;
 constexpr TimeMs kLease = 10'000;
-
-// The one place that names the backend.
-std::unique_ptr<JobStore> OpenStore(const testing::TempDir& dir) {
-  auto store = OpenSqliteJobStore((dir / "jobs.db").string());
-  EXPECT_TRUE(store.ok()) << store.status();
-  return store.ok() ? std::move(*store) : nullptr;
-}
 
 NewJob MakeJob(const std::string& id, uint32_t shards = 0, const std::string& sha = "") {
   NewJob job;
@@ -43,11 +37,16 @@ std::vector<std::string> Ids(const std::vector<JobRecord>& jobs) {
   return ids;
 }
 
-class JobStoreShardTest : public ::testing::Test {
+// Run against every store kind, like the rest of the JobStore contract.
+class JobStoreShardTest : public ::testing::TestWithParam<testing::StoreKind> {
  protected:
   void SetUp() override {
-    store_ = OpenStore(dir_);
-    ASSERT_NE(store_, nullptr);
+    auto where = testing::StoreLocation::Fresh(GetParam(), dir_.path());
+    if (absl::IsUnavailable(where.status())) GTEST_SKIP() << where.status().message();
+    ASSERT_TRUE(where.ok()) << where.status();
+    auto store = where->Open();
+    ASSERT_TRUE(store.ok()) << store.status();
+    store_ = std::move(*store);
   }
   JobStore& store() { return *store_; }
 
@@ -70,7 +69,7 @@ class JobStoreShardTest : public ::testing::Test {
   std::unique_ptr<JobStore> store_;
 };
 
-TEST_F(JobStoreShardTest, CreateInsertsTheParentAndItsShards) {
+TEST_P(JobStoreShardTest, CreateInsertsTheParentAndItsShards) {
   auto parent = store().Create(MakeJob("p", 3, "hash"), kT0);
   ASSERT_TRUE(parent.ok()) << parent.status();
   EXPECT_EQ(parent->state, JobState::kQueued);
@@ -102,7 +101,7 @@ TEST_F(JobStoreShardTest, CreateInsertsTheParentAndItsShards) {
   EXPECT_EQ(store().Get("plain")->shard_count, 0u);
 }
 
-TEST_F(JobStoreShardTest, ShardIdsAreNotZeroPaddedAndClaimInShardOrder) {
+TEST_P(JobStoreShardTest, ShardIdsAreNotZeroPaddedAndClaimInShardOrder) {
   ASSERT_TRUE(store().Create(MakeJob("p", 12), kT0).ok());
   std::vector<std::string> claimed;
   for (int i = 0; i < 12; ++i) claimed.push_back(Claim("w"));
@@ -112,7 +111,7 @@ TEST_F(JobStoreShardTest, ShardIdsAreNotZeroPaddedAndClaimInShardOrder) {
   EXPECT_EQ(Claim("w"), "");
 }
 
-TEST_F(JobStoreShardTest, IdempotentSubmitReturnsTheParent) {
+TEST_P(JobStoreShardTest, IdempotentSubmitReturnsTheParent) {
   NewJob job = MakeJob("p", 2);
   job.request_id = "req";
   ASSERT_TRUE(store().Create(job, kT0).ok());
@@ -124,7 +123,7 @@ TEST_F(JobStoreShardTest, IdempotentSubmitReturnsTheParent) {
   EXPECT_EQ(store().ListShards("p")->size(), 2u);
 }
 
-TEST_F(JobStoreShardTest, TheLastShardToSucceedMakesTheParentClaimable) {
+TEST_P(JobStoreShardTest, TheLastShardToSucceedMakesTheParentClaimable) {
   ASSERT_TRUE(store().Create(MakeJob("p", 2), kT0).ok());
   ASSERT_TRUE(store().Create(MakeJob("later"), kT0 + 1).ok());
   EXPECT_EQ(Claim("w0"), "p.shard-0");
@@ -140,7 +139,7 @@ TEST_F(JobStoreShardTest, TheLastShardToSucceedMakesTheParentClaimable) {
   EXPECT_EQ(StateOf("p"), JobState::kSucceeded);
 }
 
-TEST_F(JobStoreShardTest, AFailedShardFailsTheParentAndCancelsItsSiblings) {
+TEST_P(JobStoreShardTest, AFailedShardFailsTheParentAndCancelsItsSiblings) {
   ASSERT_TRUE(store().Create(MakeJob("p", 3), kT0).ok());
   EXPECT_EQ(Claim("w0"), "p.shard-0");
   EXPECT_EQ(Claim("w1"), "p.shard-1");
@@ -161,7 +160,7 @@ TEST_F(JobStoreShardTest, AFailedShardFailsTheParentAndCancelsItsSiblings) {
   EXPECT_EQ(Claim("w2"), "");
 }
 
-TEST_F(JobStoreShardTest, AShardGivenUpByClaimNextFailsTheParent) {
+TEST_P(JobStoreShardTest, AShardGivenUpByClaimNextFailsTheParent) {
   ASSERT_TRUE(store().Create(MakeJob("p", 2), kT0).ok());
   EXPECT_EQ(Claim("w0", kT0, 1), "p.shard-0");
   ASSERT_TRUE(store().AbandonAttempt("p.shard-0", "w0", "crashed", 13).ok());
@@ -177,7 +176,7 @@ TEST_F(JobStoreShardTest, AShardGivenUpByClaimNextFailsTheParent) {
   EXPECT_EQ(StateOf("p.shard-1"), JobState::kCancelled);
 }
 
-TEST_F(JobStoreShardTest, ACancelledShardCancelsTheParent) {
+TEST_P(JobStoreShardTest, ACancelledShardCancelsTheParent) {
   ASSERT_TRUE(store().Create(MakeJob("p", 2), kT0).ok());
   EXPECT_EQ(Claim("w0"), "p.shard-0");
   Completion cancelled;
@@ -190,7 +189,7 @@ TEST_F(JobStoreShardTest, ACancelledShardCancelsTheParent) {
   EXPECT_EQ(StateOf("p.shard-1"), JobState::kCancelled);
 }
 
-TEST_F(JobStoreShardTest, CancellingTheParentCascades) {
+TEST_P(JobStoreShardTest, CancellingTheParentCascades) {
   ASSERT_TRUE(store().Create(MakeJob("p", 3), kT0).ok());
   EXPECT_EQ(Claim("w0"), "p.shard-0");
   auto after = store().RequestCancel("p", kT0 + 1);
@@ -209,7 +208,7 @@ TEST_F(JobStoreShardTest, CancellingTheParentCascades) {
   EXPECT_EQ(StateOf("p"), JobState::kCancelled);
 }
 
-TEST_F(JobStoreShardTest, ListingsAndUsageHideShards) {
+TEST_P(JobStoreShardTest, ListingsAndUsageHideShards) {
   ASSERT_TRUE(store().Create(MakeJob("p", 3), kT0).ok());
   ASSERT_TRUE(store().Create(MakeJob("q"), kT0 + 1).ok());
   ListOptions options;
@@ -223,7 +222,7 @@ TEST_F(JobStoreShardTest, ListingsAndUsageHideShards) {
   EXPECT_EQ(store().Usage("alice")->active_jobs, 2u);
 }
 
-TEST_F(JobStoreShardTest, DeleteTakesTheShardsAndWaitsForThem) {
+TEST_P(JobStoreShardTest, DeleteTakesTheShardsAndWaitsForThem) {
   ASSERT_TRUE(store().Create(MakeJob("p", 2), kT0).ok());
   EXPECT_EQ(Claim("w0"), "p.shard-0");
   ASSERT_TRUE(store().RequestCancel("p", kT0 + 1).ok());
@@ -237,7 +236,7 @@ TEST_F(JobStoreShardTest, DeleteTakesTheShardsAndWaitsForThem) {
   EXPECT_EQ(store().Get("p.shard-1").status().code(), absl::StatusCode::kNotFound);
 }
 
-TEST_F(JobStoreShardTest, ExpiringAndUsageCountTopLevelJobsOnly) {
+TEST_P(JobStoreShardTest, ExpiringAndUsageCountTopLevelJobsOnly) {
   ASSERT_TRUE(store().Create(MakeJob("p", 2), kT0).ok());
   for (int i = 0; i < 2; ++i) {
     const std::string id = Claim("w");
@@ -251,7 +250,7 @@ TEST_F(JobStoreShardTest, ExpiringAndUsageCountTopLevelJobsOnly) {
   EXPECT_EQ(store().Usage("alice")->result_bytes, 10u);
 }
 
-TEST_F(JobStoreShardTest, FindCachedFindsTheNewestSucceededTopLevelJob) {
+TEST_P(JobStoreShardTest, FindCachedFindsTheNewestSucceededTopLevelJob) {
   EXPECT_FALSE(store().FindCached("h", "alice")->has_value());
   ASSERT_TRUE(store().Create(MakeJob("old", 0, "h"), kT0).ok());
   ASSERT_TRUE(store().Create(MakeJob("new", 0, "h"), kT0 + 1).ok());
@@ -273,14 +272,14 @@ TEST_F(JobStoreShardTest, FindCachedFindsTheNewestSucceededTopLevelJob) {
   EXPECT_EQ((*store().FindCached("h", "alice"))->id, "old");
 }
 
-TEST_F(JobStoreShardTest, FindCachedIgnoresShards) {
+TEST_P(JobStoreShardTest, FindCachedIgnoresShards) {
   ASSERT_TRUE(store().Create(MakeJob("p", 2, "h"), kT0).ok());
   const std::string first = Claim("w");
   Succeed(first, "w");
   EXPECT_FALSE(store().FindCached("h", "alice")->has_value());
 }
 
-TEST_F(JobStoreShardTest, ACacheHitIsCreatedSucceeded) {
+TEST_P(JobStoreShardTest, ACacheHitIsCreatedSucceeded) {
   NewJob hit = MakeJob("copy", 0, "h");
   hit.cached_from = "orig";
   hit.cached_result.result_key = "copy";
@@ -299,6 +298,13 @@ TEST_F(JobStoreShardTest, ACacheHitIsCreatedSucceeded) {
   // It is itself a cache entry.
   EXPECT_EQ((*store().FindCached("h", "alice"))->id, "copy");
 }
+
+INSTANTIATE_TEST_SUITE_P(Stores, JobStoreShardTest,
+                         ::testing::Values(testing::StoreKind::kSqlite,
+                                           testing::StoreKind::kPostgres),
+                         [](const ::testing::TestParamInfo<testing::StoreKind>& info) {
+                           return testing::StoreKindName(info.param);
+                         });
 
 }  // namespace
 }  // namespace nimbus::server
