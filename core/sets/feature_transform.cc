@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <cstring>
 #include <limits>
 
 #include "absl/strings/str_cat.h"
@@ -32,13 +33,24 @@ struct LineScratch {
 
 // Lower envelope of the parabolas g_i + w (q - pos_i)^2 for m sites in
 // increasing position, then the winning feature for every position q in
-// [q0, q0 + n), written to out[(q - q0) * stride]. Positions are lattice
+// [q0 + lo, q0 + hi), written to out[(q - q0) * stride]. Positions are lattice
 // coordinates, not box-relative ones, so a line computed inside any box
 // does the same floating-point operations and breaks ties the same way. Works on c_i = g_i + w
 // pos_i^2 and cross-multiplied intersection tests (no divisions: they dominated the pass). Equal
 // curvatures mean the rightmost site always wins far enough right, so each new site is pushed after
 // popping the ones it hides.
-void EnvelopeLine(LineScratch& s, int m, double w, int q0, int n, PackedVoxel* out, size_t stride) {
+// Copies one tile row: a fixed-size copy for whole blocks, so the compiler
+// emits two vector moves instead of a library call.
+template <int kBlock>
+inline void CopyRow(const PackedVoxel* from, int n, PackedVoxel* to) {
+  if (n == kBlock)
+    std::memcpy(to, from, sizeof(PackedVoxel) * kBlock);
+  else
+    std::copy_n(from, n, to);
+}
+
+void EnvelopeLine(LineScratch& s, int m, double w, int q0, int lo, int hi, PackedVoxel* out,
+                  size_t stride) {
   double* c = s.g.data();
   const int* p = s.pos.data();
   for (int i = 0; i < m; ++i) c[i] += w * double(p[i]) * p[i];
@@ -55,17 +67,82 @@ void EnvelopeLine(LineScratch& s, int m, double w, int q0, int n, PackedVoxel* o
     }
     hull[++k] = i;
   }
-  int h = 0;
-  for (int i = 0; i < n; ++i) {
-    const int q = q0 + i;
-    // Advance while the next parabola is strictly lower at q.
-    while (h < k && c[hull[h + 1]] - c[hull[h]] < 2.0 * w * q * double(p[hull[h + 1]] - p[hull[h]]))
-      ++h;
-    out[size_t(i) * stride] = s.f[hull[h]];
+  // Only positions [q0 + lo, q0 + hi) are written. Starting the walk at
+  // q0 + lo instead of q0 changes nothing: whether the next parabola is
+  // lower only ever turns from false to true as q grows (the rounded
+  // products are monotone in q too), so the walk stops where it would have.
+  // The current pair's differences stay in registers; once the last
+  // parabola is reached it wins every remaining position.
+  int h = 0, i = lo;
+  while (h < k && i < hi) {
+    const int u = hull[h], v = hull[h + 1];
+    const double dc = c[v] - c[u], dp = double(p[v] - p[u]);
+    // Positions where the next parabola is not strictly lower stay with u.
+    for (; i < hi && !(dc < 2.0 * w * (q0 + i) * dp); ++i) out[size_t(i) * stride] = s.f[u];
+    if (i < hi) ++h;
   }
+  const PackedVoxel last = s.f[hull[h]];
+  for (; i < hi; ++i) out[size_t(i) * stride] = last;
 }
 
 int Square(int v) { return v * v; }
+
+// Box-relative ranges of the last two passes that queries need: rows
+// [ylo[x], yhi[x]) of each x column in every slice (pass 2) and slices
+// [zlo, zhi) of each (x, y) column (pass 3, indexed y * size.x + x). An
+// empty range (lo >= hi) means the column is not needed.
+struct NeedRanges {
+  std::vector<int> ylo, yhi, zlo, zhi;
+};
+
+void AllRanges(Int3 b, NeedRanges& need) {
+  need.ylo.assign(size_t(b.x), 0);
+  need.yhi.assign(size_t(b.x), b.y);
+  need.zlo.assign(size_t(b.x) * b.y, 0);
+  need.zhi.assign(size_t(b.x) * b.y, b.z);
+}
+
+// The ranges from the query voxels inside `box`. Two word-level sweeps
+// along z (up, then down) find each column's first and last query, so the
+// bit-level work is per (x, y) column rather than per query voxel.
+void QueryRanges(const VoxelSet& q, const VoxelBox& box, NeedRanges& need) {
+  const Int3 b = box.Size();
+  const int w0 = box.min.x >> 6, w1 = box.max.x >> 6, nw = w1 - w0 + 1;
+  need.zlo.assign(size_t(b.x) * b.y, 0);
+  need.zhi.assign(size_t(b.x) * b.y, 0);
+  std::vector<uint64_t> inside(size_t(nw), ~uint64_t{0});  // bits of a row inside the box
+  inside[0] &= ~uint64_t{0} << (box.min.x & 63);
+  if ((box.max.x & 63) != 63) inside[size_t(nw - 1)] &= (uint64_t{2} << (box.max.x & 63)) - 1;
+  std::vector<uint64_t> seen(size_t(b.y) * nw);
+  auto sweep = [&](int z_first, int z_step, std::vector<int>& bound, int offset) {
+    std::fill(seen.begin(), seen.end(), 0);
+    for (int zi = z_first; zi >= 0 && zi < b.z; zi += z_step)
+      for (int yi = 0; yi < b.y; ++yi) {
+        const uint64_t* row = q.Row(box.min.y + yi, box.min.z + zi) + w0;
+        uint64_t* s = seen.data() + size_t(yi) * nw;
+        for (int w = 0; w < nw; ++w) {
+          const uint64_t fresh = row[w] & inside[size_t(w)] & ~s[w];
+          if (!fresh) continue;
+          s[w] |= fresh;
+          for (uint64_t bits = fresh; bits; bits &= bits - 1) {
+            const int xi = ((w0 + w) << 6) + std::countr_zero(bits) - box.min.x;
+            bound[size_t(yi) * b.x + xi] = zi + offset;
+          }
+        }
+      }
+  };
+  sweep(0, 1, need.zlo, 0);
+  sweep(b.z - 1, -1, need.zhi, 1);
+  need.ylo.assign(size_t(b.x), 0);
+  need.yhi.assign(size_t(b.x), 0);
+  for (int yi = 0; yi < b.y; ++yi)
+    for (int xi = 0; xi < b.x; ++xi) {
+      const size_t i = size_t(yi) * b.x + xi;
+      if (need.zlo[i] >= need.zhi[i]) continue;
+      if (need.ylo[xi] >= need.yhi[xi]) need.ylo[xi] = yi;
+      need.yhi[xi] = yi + 1;
+    }
+}
 
 }  // namespace
 
@@ -86,6 +163,8 @@ absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
   out.box = box;
   const Int3 b = box.Size();
   const size_t total = size_t(b.x) * b.y * b.z;
+  // Growing through clear() copies nothing: pass 1 writes every entry.
+  if (out.nearest.capacity() < total) out.nearest.clear();
   out.nearest.resize(total);
   if (!members) {
     std::fill(out.nearest.begin(), out.nearest.end(), kNoVoxel);
@@ -97,25 +176,12 @@ absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
   const size_t plane = size_t(b.x) * b.y;
   PackedVoxel* const F = out.nearest.data();
 
-  // Which lines the last two passes must produce. need_x: x columns any
-  // query uses; need_xy[y][x]: (x, y) columns along z holding a query.
-  std::vector<uint8_t> need_x, need_xy;
-  if (options.queries) {
-    need_x.assign(b.x, 0);
-    need_xy.assign(size_t(b.x) * b.y, 0);
-    const VoxelSet& q = *options.queries;
-    for (int z = box.min.z; z <= box.max.z; ++z)
-      for (int y = box.min.y; y <= box.max.y; ++y) {
-        const uint64_t* row = q.Row(y, z);
-        for (int w = x0 >> 6; w <= box.max.x >> 6; ++w)
-          for (uint64_t bits = row[w]; bits; bits &= bits - 1) {
-            const int x = (w << 6) + std::countr_zero(bits);
-            if (x < x0 || x > box.max.x) continue;
-            need_x[x - x0] = 1;
-            need_xy[size_t(y - y0) * b.x + (x - x0)] = 1;
-          }
-      }
-  }
+  // Which parts of the last two passes the queries need.
+  NeedRanges need;
+  if (options.queries)
+    QueryRanges(*options.queries, box, need);
+  else
+    AllRanges(b, need);
 
   Interrupter& intr = OrNull(interrupter);
   std::atomic<bool> cancelled{false};
@@ -168,37 +234,56 @@ absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
   });
   if (cancelled) return absl::CancelledError("feature transform interrupted");
 
-  // Pass 2, along y: combine rows within each z slice.
+  // Pass 2, along y: combine rows within each z slice. Pass 3 reads rows
+  // [ylo, yhi) of column x only, so only those are written. Columns are
+  // gathered kBlock at a time into a contiguous tile (one cache line per
+  // row) instead of being walked a row stride apart.
+  constexpr int kBlock = 16;
   tbb::parallel_for(tbb::blocked_range<int>(0, b.z, 2), [&](const tbb::blocked_range<int>& r) {
     if (cancelled) return;
     LineScratch s;
     s.Reserve(b.y);
+    std::vector<PackedVoxel> tile(size_t(b.y) * kBlock);
     for (int zi = r.begin(); zi < r.end() && keep_going(); ++zi) {
       PackedVoxel* slice = F + size_t(zi) * plane;
-      for (int xi = 0; xi < b.x; ++xi) {
-        if (!need_x.empty() && !need_x[xi]) continue;
-        const int x = x0 + xi;
-        PackedVoxel* col = slice + xi;
-        int m = 0;
-        for (int yi = 0; yi < b.y; ++yi) {
-          const PackedVoxel f = col[size_t(yi) * b.x];
-          if (f == kNoVoxel) continue;
-          s.pos[m] = y0 + yi;
-          s.g[m] = wx * Square(int(f & 1023u) - x);
-          s.f[m] = f;
-          ++m;
+      for (int xb = 0; xb < b.x; xb += kBlock) {
+        const int nb = std::min(kBlock, b.x - xb);
+        int lo = b.y, hi = 0;  // rows some column of the block needs
+        for (int j = 0; j < nb; ++j)
+          if (need.ylo[xb + j] < need.yhi[xb + j]) {
+            lo = std::min(lo, need.ylo[xb + j]);
+            hi = std::max(hi, need.yhi[xb + j]);
+          }
+        if (lo >= hi) continue;
+        for (int yi = 0; yi < b.y; ++yi)
+          CopyRow<kBlock>(slice + size_t(yi) * b.x + xb, nb, tile.data() + size_t(yi) * kBlock);
+        for (int j = 0; j < nb; ++j) {
+          if (need.ylo[xb + j] >= need.yhi[xb + j]) continue;
+          const int x = x0 + xb + j;
+          PackedVoxel* col = tile.data() + j;
+          int m = 0;
+          for (int yi = 0; yi < b.y; ++yi) {
+            const PackedVoxel f = col[size_t(yi) * kBlock];
+            if (f == kNoVoxel) continue;
+            s.pos[m] = y0 + yi;
+            s.g[m] = wx * Square(int(f & 1023u) - x);
+            s.f[m] = f;
+            ++m;
+          }
+          if (m == 0) continue;  // the column stays kNoVoxel
+          EnvelopeLine(s, m, wy, y0, need.ylo[xb + j], need.yhi[xb + j], col, kBlock);
         }
-        if (m == 0) continue;  // the column stays kNoVoxel
-        EnvelopeLine(s, m, wy, y0, b.y, col, b.x);
+        for (int yi = lo; yi < hi; ++yi)
+          CopyRow<kBlock>(tile.data() + size_t(yi) * kBlock, nb, slice + size_t(yi) * b.x + xb);
       }
     }
   });
   if (cancelled) return absl::CancelledError("feature transform interrupted");
 
-  // Pass 3, along z: combine slices within each y layer. Columns are
-  // gathered kBlock at a time into a contiguous tile, so each slice row read
-  // brings in a whole cache line instead of one value per far-apart page.
-  constexpr int kBlock = 16;
+  // Pass 3, along z: combine slices within each y layer, writing only the
+  // z range each column's queries need. Columns are gathered as in pass 2,
+  // so each slice row read brings in a whole cache line instead of one value
+  // per far-apart page.
   tbb::parallel_for(tbb::blocked_range<int>(0, b.y, 2), [&](const tbb::blocked_range<int>& r) {
     if (cancelled) return;
     LineScratch s;
@@ -207,15 +292,21 @@ absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
     for (int yi = r.begin(); yi < r.end() && keep_going(); ++yi) {
       const int y = y0 + yi;
       PackedVoxel* layer = F + size_t(yi) * b.x;
+      const int* zlo = need.zlo.data() + size_t(yi) * b.x;
+      const int* zhi = need.zhi.data() + size_t(yi) * b.x;
       for (int xb = 0; xb < b.x; xb += kBlock) {
         const int nb = std::min(kBlock, b.x - xb);
-        bool any = need_xy.empty();
-        for (int j = 0; j < nb && !any; ++j) any = need_xy[size_t(yi) * b.x + xb + j];
-        if (!any) continue;
+        int lo = b.z, hi = 0;  // slices some column of the block needs
+        for (int j = 0; j < nb; ++j)
+          if (zlo[xb + j] < zhi[xb + j]) {
+            lo = std::min(lo, zlo[xb + j]);
+            hi = std::max(hi, zhi[xb + j]);
+          }
+        if (lo >= hi) continue;
         for (int zi = 0; zi < b.z; ++zi)
-          std::copy_n(layer + size_t(zi) * plane + xb, nb, tile.data() + size_t(zi) * kBlock);
+          CopyRow<kBlock>(layer + size_t(zi) * plane + xb, nb, tile.data() + size_t(zi) * kBlock);
         for (int j = 0; j < nb; ++j) {
-          if (!need_xy.empty() && !need_xy[size_t(yi) * b.x + xb + j]) continue;
+          if (zlo[xb + j] >= zhi[xb + j]) continue;
           const int x = x0 + xb + j;
           PackedVoxel* col = tile.data() + j;
           int m = 0;
@@ -227,10 +318,10 @@ absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
             s.f[m] = f;
             ++m;
           }
-          if (m > 0) EnvelopeLine(s, m, wz, z0, b.z, col, kBlock);
+          if (m > 0) EnvelopeLine(s, m, wz, z0, zlo[xb + j], zhi[xb + j], col, kBlock);
         }
-        for (int zi = 0; zi < b.z; ++zi)
-          std::copy_n(tile.data() + size_t(zi) * kBlock, nb, layer + size_t(zi) * plane + xb);
+        for (int zi = lo; zi < hi; ++zi)
+          CopyRow<kBlock>(tile.data() + size_t(zi) * kBlock, nb, layer + size_t(zi) * plane + xb);
       }
     }
   });

@@ -9,6 +9,7 @@
 #include <cmath>
 #include <cstdlib>
 #include <optional>
+#include <vector>
 
 #include "absl/strings/str_cat.h"
 #include "core/base/random.h"
@@ -123,15 +124,19 @@ absl::Status CheckPair(const VoxelSet& a, const VoxelSet& b, const GridFrame& fr
 // voxel cube spanned from `a` is filled as six tetrahedra.
 absl::Status AddMidpoints(const VoxelSet& moving, const VoxelSet& source, const FeatureField& field,
                           const MedianOptions& options, uint64_t seed,
-                          std::vector<PackedVoxel>& images, VoxelSet& out, Interrupter& intr) {
+                          const VoxelBox& moving_box, decltype(SetMapWorkspace::images)& images,
+                          VoxelSet& out, Interrupter& intr) {
   const Int3 res = moving.resolution();
   const unsigned round_up = unsigned(Mix64(seed) >> 61);
   const int jump = options.bridge_max_jump;
-  const std::optional<VoxelBox> mbox = moving.BoundingBox();
-  if (!mbox) return absl::OkStatus();
+  const VoxelBox* const mbox = &moving_box;  // the caller's, from SplitPair
   // Images of the moving voxels, kept for the neighbour checks below.
   const FeatureField image_index{*mbox, {}};
-  if (jump > 0) images.resize(size_t(mbox->Volume()));
+  if (jump > 0) {
+    // Only moving voxels' entries are written and read: no fill, no copy.
+    if (images.capacity() < size_t(mbox->Volume())) images.clear();
+    images.resize(size_t(mbox->Volume()));
+  }
   std::atomic<bool> cancelled{false};
   std::atomic<uint64_t> done{0};
   const uint64_t work = uint64_t(res.z) * (jump > 0 ? 2 : 1);
@@ -261,15 +266,79 @@ absl::Status AddMidpoints(const VoxelSet& moving, const VoxelSet& source, const 
 
 // ws.field = `target`'s feature transform, computed only over the box the
 // voxels of `moving` need and queried there; timed as nearest-point work.
-absl::Status NearestFieldFor(const VoxelSet& target, const VoxelSet& moving, Vec3 h,
-                             SetMapWorkspace& ws) {
+absl::Status NearestFieldFor(const VoxelSet& target, const VoxelSet& moving,
+                             const VoxelBox& moving_box, Vec3 h, SetMapWorkspace& ws) {
   const auto t0 = Clock::now();
   FeatureTransformOptions fo;
-  fo.box = moving.BoundingBox();
+  fo.box = moving_box;
   fo.queries = &moving;
   NIMBUS_RETURN_IF_ERROR(ComputeFeatureTransform(target, h, fo, ws.field, ws.interrupter));
   ws.stats.nearest_seconds += SecondsSince(t0);
   return absl::OkStatus();
+}
+
+// Bounding box of the members of the rows added so far (rows of one slab,
+// then slab boxes merged); `any` is false while no member has been seen.
+struct BoxAccumulator {
+  bool any = false;
+  VoxelBox box{{0, 0, 0}, {0, 0, 0}};
+  void AddRow(const uint64_t* row, int words, int y, int z) {
+    int first = 0;
+    while (first < words && !row[first]) ++first;
+    if (first == words) return;
+    int last = words - 1;
+    while (!row[last]) --last;
+    const int x0 = (first << 6) + std::countr_zero(row[first]);
+    const int x1 = (last << 6) + 63 - std::countl_zero(row[last]);
+    Add({{x0, y, z}, {x1, y, z}});
+  }
+  void Add(const VoxelBox& b) {
+    box = any ? VoxelBox::Hull(box, b) : b;
+    any = true;
+  }
+  std::optional<VoxelBox> Get() const { return any ? std::optional<VoxelBox>(box) : std::nullopt; }
+};
+
+// The one pass of set algebra a median needs: out = a ∩ b, moving_a =
+// a \ b and (when `both_sides`) moving_b = b \ a, with the bounding boxes of
+// the two differences. Buffers are reused; slabs of slices run in parallel.
+struct SplitBoxes {
+  std::optional<VoxelBox> a, b;
+};
+SplitBoxes SplitPair(const VoxelSet& a, const VoxelSet& b, bool both_sides, VoxelSet& out,
+                     VoxelSet& moving_a, VoxelSet& moving_b) {
+  const Int3 res = a.resolution();
+  for (VoxelSet* s : {&out, &moving_a, &moving_b})
+    if (!(s->resolution() == res) || s->words().size() != a.words().size()) *s = VoxelSet(res);
+  const int words = a.words_per_row();
+  constexpr int kSlab = 8;
+  const int slabs = (res.z + kSlab - 1) / kSlab;
+  std::vector<BoxAccumulator> box_a(static_cast<size_t>(slabs)), box_b(box_a);
+  tbb::parallel_for(tbb::blocked_range<int>(0, slabs), [&](const tbb::blocked_range<int>& r) {
+    for (int sl = r.begin(); sl < r.end(); ++sl)
+      for (int z = sl * kSlab; z < std::min(res.z, (sl + 1) * kSlab); ++z)
+        for (int y = 0; y < res.y; ++y) {
+          const uint64_t* ra = a.Row(y, z);
+          const uint64_t* rb = b.Row(y, z);
+          uint64_t* o = out.MutableRow(y, z);
+          uint64_t* ma = moving_a.MutableRow(y, z);
+          uint64_t* mb = moving_b.MutableRow(y, z);
+          for (int w = 0; w < words; ++w) {
+            o[w] = ra[w] & rb[w];
+            ma[w] = ra[w] & ~rb[w];
+          }
+          box_a[size_t(sl)].AddRow(ma, words, y, z);
+          if (!both_sides) continue;
+          for (int w = 0; w < words; ++w) mb[w] = rb[w] & ~ra[w];
+          box_b[size_t(sl)].AddRow(mb, words, y, z);
+        }
+  });
+  BoxAccumulator all_a, all_b;
+  for (int sl = 0; sl < slabs; ++sl) {
+    if (box_a[size_t(sl)].any) all_a.Add(box_a[size_t(sl)].box);
+    if (box_b[size_t(sl)].any) all_b.Add(box_b[size_t(sl)].box);
+  }
+  return {all_a.Get(), all_b.Get()};
 }
 
 // out = D_a(b) (left only) or M(a, b). `b_field`, when given, is b's
@@ -282,26 +351,21 @@ absl::Status MedianInto(const VoxelSet& a, const VoxelSet& b, const FeatureField
                         SetMapWorkspace& ws, VoxelSet& out) {
   Interrupter& intr = OrNull(ws.interrupter);
   const uint64_t seed = options.seed ^ ws.seed;
-  out = a;
-  out &= b;
-  ws.moving_a = a;
-  ws.moving_a -= b;
-  if (!ws.moving_a.Empty()) {
+  const SplitBoxes boxes = SplitPair(a, b, both_sides, out, ws.moving_a, ws.moving_b);
+  if (boxes.a) {
     const FeatureField* field = b_field;
     if (!field) {
-      NIMBUS_RETURN_IF_ERROR(NearestFieldFor(b, ws.moving_a, h, ws));
+      NIMBUS_RETURN_IF_ERROR(NearestFieldFor(b, ws.moving_a, *boxes.a, h, ws));
       field = &ws.field;
     }
     NIMBUS_RETURN_IF_ERROR(
-        AddMidpoints(ws.moving_a, a, *field, options, seed, ws.images, out, intr));
+        AddMidpoints(ws.moving_a, a, *field, options, seed, *boxes.a, ws.images, out, intr));
   }
   if (!both_sides) return absl::OkStatus();
-  ws.moving_b = b;
-  ws.moving_b -= a;
-  if (!ws.moving_b.Empty()) {
-    NIMBUS_RETURN_IF_ERROR(NearestFieldFor(a, ws.moving_b, h, ws));
+  if (boxes.b) {
+    NIMBUS_RETURN_IF_ERROR(NearestFieldFor(a, ws.moving_b, *boxes.b, h, ws));
     NIMBUS_RETURN_IF_ERROR(
-        AddMidpoints(ws.moving_b, b, ws.field, options, seed, ws.images, out, intr));
+        AddMidpoints(ws.moving_b, b, ws.field, options, seed, *boxes.b, ws.images, out, intr));
   }
   return absl::OkStatus();
 }

@@ -98,7 +98,7 @@ struct SetMapWorkspace {
   // Internal buffers.
   VoxelSet moving_a, moving_b, shifted, staged;
   FeatureField field;
-  std::vector<PackedVoxel> images;
+  std::vector<PackedVoxel, BigBufferAllocator<PackedVoxel>> images;  // written before read
 };
 
 enum class SetMapKind { kMedian, kRotatedMedian, kConstant, kPoint };
