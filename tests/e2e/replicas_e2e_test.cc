@@ -38,6 +38,8 @@ v1::JobSpec Tetrahedron(int resolution, uint64_t iterations) {
   EXPECT_TRUE(spec.ok());
   spec->mutable_grid()->set_resolution(0, resolution);
   spec->mutable_chaos_game()->set_iterations(iterations);
+  // Every job here must really run, never be answered from the result cache.
+  spec->set_no_cache(true);
   return *spec;
 }
 
@@ -229,6 +231,37 @@ TEST_F(ReplicasE2E, KilledReplicasJobIsFinishedByAnotherWithIdenticalBytes) {
   EXPECT_EQ(FetchSha(*clients_[survivor], job->id(), "failover.vdb"), ref_done.result().sha256());
   EXPECT_EQ(FetchSha(*clients_[survivor], reference->id(), "reference.vdb"),
             ref_done.result().sha256());
+}
+
+TEST_F(ReplicasE2E, AShardedJobOverThreeReplicasEqualsTheUnshardedResult) {
+  v1::JobSpec spec = Tetrahedron(32, 60'000'000);
+  spec.mutable_chaos_game()->mutable_color()->set_mode(v1::COLOR_MODE_ADDRESS);
+  auto whole = clients_[0]->Submit(spec);
+  ASSERT_TRUE(whole.ok()) << whole.status();
+  const v1::Job whole_done = AwaitEnd(whole->id(), *clients_[0]);
+  ASSERT_EQ(whole_done.state(), v1::JOB_STATE_SUCCEEDED) << whole_done.error();
+  const std::string expected = FetchSha(*clients_[0], whole->id(), "whole.vdb");
+  EXPECT_EQ(expected, whole_done.result().sha256());
+  for (uint32_t shards : {1u, 3u, 8u}) {
+    SCOPED_TRACE(shards);
+    spec.set_shards(shards);
+    NimbusClient& submitter = *clients_[shards % kReplicas];
+    auto job = submitter.Submit(spec);
+    ASSERT_TRUE(job.ok()) << job.status();
+    const v1::Job done = AwaitEnd(job->id(), submitter);
+    ASSERT_EQ(done.state(), v1::JOB_STATE_SUCCEEDED) << done.error();
+    // Fetched from a replica other than the submitter's.
+    EXPECT_EQ(FetchSha(*clients_[(shards + 1) % kReplicas], job->id(),
+                       "sharded-" + std::to_string(shards) + ".vdb"),
+              expected);
+    if (shards < 8) continue;
+    // The shards were claimed independently: more than one replica ran some.
+    int replicas_with_shards = 0;
+    for (int i = 0; i < kReplicas; ++i)
+      if (ReadText(LogPath(i)).find(job->id() + ".shard-") != std::string::npos)
+        ++replicas_with_shards;
+    EXPECT_GE(replicas_with_shards, 2);
+  }
 }
 
 TEST_F(ReplicasE2E, WatcherOnOneReplicaSeesProgressAndPreviewsOfAJobOnAnother) {
