@@ -248,6 +248,8 @@ absl::StatusOr<JobPlan> ConvertSpec(const v1::JobSpec& spec, const Limits& limit
       return Invalid("generator", "set one of: chaos_game, set_ifs, fractal_field, jelly");
   }
   if (spec.has_detail()) NIMBUS_RETURN_IF_ERROR(ConvertFieldDetail(spec.detail(), job));
+  NIMBUS_RETURN_IF_ERROR(ConvertImage(spec, job));
+  NIMBUS_RETURN_IF_ERROR(ConvertAutoFrame(spec, job));
   return job;
 }
 
