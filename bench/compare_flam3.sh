@@ -83,15 +83,21 @@ timed() {
   echo "$best $best_kb"
 }
 
-printf "%-14s %12s %10s %10s %10s %10s %10s %10s %8s\n" genome samples flam3_s flam3_M/s \
+printf "%-20s %12s %10s %10s %10s %10s %10s %10s %8s\n" genome samples flam3_s flam3_M/s \
   flam3_MB nimbus_s nimbus_M/s nimbus_MB speedup
-for g in sierpinski_2d:209715200 flame6_2d:104857600; do
-  name=${g%%:*} samples=${g##*:}
+# genome:nimbus spec:samples. sierpinski_2d_image draws the same genome as a
+# 1024x1024 PNG (docs/images.md) instead of a 1024x1024x1 volume.
+for g in sierpinski_2d:sierpinski_2d:209715200 sierpinski_2d:sierpinski_2d_image:209715200 \
+  flame6_2d:flame6_2d:104857600; do
+  name=${g%%:*} samples=${g##*:} spec=${g#*:}
+  spec=${spec%%:*}
+  out="$work/$spec.vdb"
+  case "$spec" in *_image) out="$work/$spec.png" ;; esac
   read -r fs fkb < <(timed env nthreads="$flam3_threads" verbose=0 format=png \
     out="$work/$name.png" flam3-render <"$work/$name.flam3")
   read -r ns nkb < <(timed "$nimbus" --data-dir "$work/data" --threads "$threads" \
-    render --no-cache "$here/flam3/$name.json" -o "$work/$name.vdb")
-  printf "%-14s %12s %10.2f %10.1f %10.0f %10.2f %10.1f %10.0f %7.2fx\n" "$name" "$samples" \
+    render --no-cache "$here/flam3/$spec.json" -o "$out")
+  printf "%-20s %12s %10.2f %10.1f %10.0f %10.2f %10.1f %10.0f %7.2fx\n" "$spec" "$samples" \
     "$fs" "$(echo "$samples / $fs / 1000000" | bc -l)" "$(echo "$fkb / 1024" | bc -l)" \
     "$ns" "$(echo "$samples / $ns / 1000000" | bc -l)" "$(echo "$nkb / 1024" | bc -l)" \
     "$(echo "$fs / $ns" | bc -l)"

@@ -620,7 +620,8 @@ void AddGlobalFlags(CLI::App& app, GlobalOptions& g) {
 }
 
 void AddWatchFlags(CLI::App* c, WatchArgs& w) {
-  c->add_option("--previews", w.previews, "save preview grids in this folder");
+  c->add_option("--previews", w.previews,
+                 "save preview grids (and pictures, for jobs with an image) in this folder");
   c->add_option("--preview-resolution", w.preview_resolution, "largest preview axis, voxels")
       ->capture_default_str();
   c->add_option("--preview-interval", w.preview_interval, "seconds between previews")

@@ -19,6 +19,11 @@ namespace nimbus::client {
 /// "NAME.preview.0007.vdb" for index 7 (1-based); "nimbus" for an empty name.
 std::string PreviewFileName(const std::string& job_name, uint64_t index);
 
+/// The preview picture saved beside a preview grid: NAME.preview.0007.png.
+std::filesystem::path PreviewPngPath(const std::filesystem::path& vdb_path);
+
+/// Saves each preview's grid, and its PNG when it carries one (jobs with
+/// an image) beside it with the same number.
 class PreviewSaver {
  public:
   explicit PreviewSaver(std::filesystem::path dir) : dir_(std::move(dir)) {}

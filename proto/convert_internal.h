@@ -66,5 +66,9 @@ absl::Status ConvertFractalField(const v1::FractalField& f, const Limits& limits
 /// JobSpec.detail: a static 3D field that multiplies the density.
 absl::Status ConvertFieldDetail(const v1::FieldDetail& d, JobPlan& plan);
 absl::Status ConvertJelly(const v1::Jelly& j, const Limits& limits, JobPlan& plan);
+/// JobSpec.image, after the kind's converter: a chaos game's picture.
+absl::Status ConvertImage(const v1::JobSpec& spec, JobPlan& plan);
+/// grid.auto_frame, after the kind's converter.
+absl::Status ConvertAutoFrame(const v1::JobSpec& spec, JobPlan& plan);
 
 }  // namespace nimbus::spec::internal

@@ -221,6 +221,9 @@ absl::Status CheckShards(const v1::JobSpec& spec, const JobPlan& job) {
   if (s > kMaxShards) return Invalid("shards", StrCat("must be at most ", kMaxShards, ", got ", s));
   const ChaosGameParams* run = job.shardable_run();
   if (run == nullptr) {
+    if (spec.has_image()) return Invalid("shards", "cannot be combined with image");
+    if (spec.grid().has_auto_frame())
+      return Invalid("shards", "cannot be combined with grid.auto_frame");
     if (job.ifs_matrix())
       return Invalid("shards", "cannot be combined with chaos_game.matrices.component_grid");
     return Invalid("shards", StrCat("applies to chaos_game jobs only, not ",
@@ -272,6 +275,8 @@ absl::StatusOr<JobPlan> ConvertSpec(const v1::JobSpec& spec, const Limits& limit
   }
   if (spec.has_detail()) NIMBUS_RETURN_IF_ERROR(ConvertFieldDetail(spec.detail(), job));
   NIMBUS_RETURN_IF_ERROR(CheckShards(spec, job));
+  NIMBUS_RETURN_IF_ERROR(ConvertImage(spec, job));
+  NIMBUS_RETURN_IF_ERROR(ConvertAutoFrame(spec, job));
   return job;
 }
 

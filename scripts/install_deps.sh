@@ -14,9 +14,9 @@ PACKAGES=(
   # The deploy/ manifest check (tests/deploy/validate_deploy.py).
   python3-yaml
   libgtest-dev libgmock-dev libbenchmark-dev
-  # Fractal fields: 16-bit PNG height maps; libnoise only for the benchmark's
-  # comparison (bench/fractal_field_bench.cc).
-  libpng-dev libnoise-dev
+  # Fractal fields: 16-bit PNG height maps; pictures (PNG, OpenEXR); libnoise
+  # only for the benchmark's comparison (bench/fractal_field_bench.cc).
+  libpng-dev libnoise-dev libopenexr-dev
   # SLEEF: vector sin, cos, atan2, exp, pow ... for the flame kernels.
   libsleef-dev
   # flam3-render: the flam3 agreement test and bench/compare_flam3.sh.

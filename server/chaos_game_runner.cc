@@ -74,11 +74,17 @@ JobDriver::Rounds ChaosRounds(ChaosGame& game, JobDriver& driver, uint64_t offse
 
 absl::Status RunChaosGameParams(const JobPlan& plan, ChaosGameParams params, JobContext& ctx) {
   JobDriver d(plan, ctx);
+  NIMBUS_RETURN_IF_ERROR(d.BeginPhase(JobPhase::kIterating, plan.work.total, plan.work.unit));
+  return RunChaosVolume(d, std::move(params), 0, ctx);
+}
+
+absl::Status RunChaosVolume(JobDriver& d, ChaosGameParams params, uint64_t offset,
+                            JobContext& ctx) {
+  const JobPlan& plan = d.plan();
   params.memory_budget = ctx.memory_budget();
   NIMBUS_ASSIGN_OR_RETURN(auto game, ChaosGame::Create(std::move(params), ctx.threads()));
-  NIMBUS_RETURN_IF_ERROR(d.BeginPhase(JobPhase::kIterating, plan.work.total, plan.work.unit));
   uint64_t peak_bytes = 0;
-  JobDriver::Rounds rounds = ChaosRounds(*game, d, 0, {}, &peak_bytes);
+  JobDriver::Rounds rounds = ChaosRounds(*game, d, offset, {}, &peak_bytes);
   ConvergenceCheck conv;
   conv.tolerance = game->params().convergence.tolerance;
   if (conv.tolerance > 0) {
@@ -118,7 +124,8 @@ absl::Status FinishChaosGame(const JobPlan& plan, JobDriver& d, const ChaosGameP
 }
 
 absl::Status RunKind(const JobPlan& plan, const ChaosGamePlan& kind, JobContext& ctx) {
-  return RunChaosGameParams(plan, kind.params, ctx);
+  if (!kind.image && !kind.auto_frame) return RunChaosGameParams(plan, kind.params, ctx);
+  return RunChaosPicture(plan, kind, ctx);
 }
 
 }  // namespace nimbus::server

@@ -34,5 +34,12 @@ absl::Status FinishChaosGame(const JobPlan& plan, JobDriver& d, const ChaosGameP
 
 /// Runs one chaos game as the whole job and writes its density.
 absl::Status RunChaosGameParams(const JobPlan& plan, ChaosGameParams params, JobContext& ctx);
+/// The same inside the iterating phase of `driver`, whose progress starts
+/// at `offset` units.
+absl::Status RunChaosVolume(JobDriver& driver, ChaosGameParams params, uint64_t offset,
+                            JobContext& ctx);
+/// A chaos game with grid.auto_frame or an image (chaos_image_runner.cc):
+/// fits the box, counts the picture, then the volume unless image_only.
+absl::Status RunChaosPicture(const JobPlan& plan, const ChaosGamePlan& kind, JobContext& ctx);
 
 }  // namespace nimbus::server

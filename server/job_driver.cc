@@ -99,7 +99,10 @@ absl::Status JobDriver::RunRounds(const Rounds& r) {
       next_check += r.checkpoint_every;
       if (r.at_checkpoint && r.at_checkpoint(done)) break;
     }
-    if (r.parts) Preview(r.parts(), r.offset + done);
+    if (r.preview)
+      r.preview(r.offset + done);
+    else if (r.parts)
+      Preview(r.parts(), r.offset + done);
   }
   return absl::OkStatus();
 }

@@ -78,6 +78,8 @@ class JobDriver {
     std::function<bool()> finished;
     std::function<bool(uint64_t done)> at_checkpoint;  // true: stop now
     std::function<std::vector<const CountGrid*>()> parts;  // preview source
+    /// Publishes a preview itself instead (pictures); gets the units done.
+    std::function<void(uint64_t done)> preview;
   };
   absl::Status RunRounds(const Rounds& rounds);
 

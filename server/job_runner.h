@@ -8,6 +8,7 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -53,6 +54,20 @@ class JobContext {
   virtual void MaybePublishPreview(const std::vector<const CountGrid*>& parts,
                                    const GridFrame& frame, const DensityOptions& density,
                                    uint64_t done) = 0;
+  /// @brief A picture job's preview: a 2D density grid (one voxel per
+  /// preview pixel) and its PNG.
+  struct PicturePreview {
+    CountGrid counts{Int3{1, 1, 1}};
+    GridFrame frame;
+    std::string png;
+  };
+  /// Like MaybePublishPreview for a picture: `make(resolution)` builds the
+  /// preview for a watcher that asked for grids of at most `resolution`
+  /// voxels per axis. Only called when one is due. Default: none.
+  virtual void MaybePublishPicturePreview(
+      const std::function<absl::StatusOr<PicturePreview>(int resolution)>& make, uint64_t done) {
+    (void)make, (void)done;
+  }
   virtual void SetStat(const std::string& key, uint64_t value) = 0;
   virtual void AddWarning(const std::string& warning) = 0;
   /// Where the job's main result (one .vdb) must be written; further files

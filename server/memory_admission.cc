@@ -139,6 +139,22 @@ absl::StatusOr<MemoryAdmission> AdmitPointRun(const JobPlan& plan, const ChaosGa
   return CheckChaos(e, extra, threads, limits);
 }
 
+// A picture's pass: its counters (every tile of the supersampled picture
+// on every thread at worst) and the developed picture's float arrays.
+uint64_t PictureBytes(const JobPlan& plan, const ChaosGamePlan& k, int threads) {
+  if (!k.image) return 0;
+  const ImageJob& im = *k.image;
+  const int h =
+      im.height > 0 ? im.height : DefaultImageHeight(im.view, plan.frame.bounds, im.width);
+  ChaosGameParams p = k.params;
+  p.image.emplace();
+  p.image->width = im.width * im.supersample;
+  p.image->height = h * im.supersample;
+  const uint64_t pixels = uint64_t(im.width) * uint64_t(h);
+  // Density and colour, RGB, the glow's copy: 32 bytes per output pixel.
+  return ChaosGame::EstimateMemory(p, threads, 0).peak() + pixels * 32;
+}
+
 }  // namespace
 
 absl::StatusOr<MemoryAdmission> AdmitMemory(const JobPlan& plan, const spec::Limits& limits,
@@ -147,7 +163,8 @@ absl::StatusOr<MemoryAdmission> AdmitMemory(const JobPlan& plan, const spec::Lim
   return std::visit(
       Overloaded{
           [&](const ChaosGamePlan& k) {
-            return AdmitPointRun(plan, k.params, 0, limits, threads, interrupter);
+            return AdmitPointRun(plan, k.params, PictureBytes(plan, k, threads), limits,
+                                 threads, interrupter);
           },
           [&](const IfsMatrixPlan& k) {
             const uint64_t extra = k.component_grid == ComponentGridType::kNone

@@ -176,6 +176,34 @@ class WorkerPool::Context : public JobContext {
     }
   }
 
+  void MaybePublishPicturePreview(
+      const std::function<absl::StatusOr<PicturePreview>(int resolution)>& make,
+      uint64_t done) override {
+    for (const JobHub::PreviewWant& want : pool_->hub_->WantedPreviews(record_.id)) {
+      auto& last = last_preview_[want.resolution];
+      if (last != Clock::time_point{} &&
+          Seconds(Clock::now() - last) < std::max(0.05, want.interval_seconds))
+        continue;
+      last = Clock::now();
+      auto pic = make(int(want.resolution));
+      if (!pic.ok()) continue;
+      const uint64_t sequence = ++preview_sequence_;
+      DensityOptions density;
+      density.mapping = DensityMapping::kSqrt;
+      auto bytes = DensityVdbBytes(pic->counts, pic->frame, density,
+                                   {{meta_key::kPreviewSequence, int64_t(sequence)},
+                                    {meta_key::kPreviewDone, int64_t(done)}});
+      if (!bytes.ok()) continue;
+      v1::Preview preview;
+      preview.set_sequence(sequence);
+      preview.set_vdb(std::move(*bytes));
+      for (int a = 0; a < 3; ++a) preview.add_resolution(pic->frame.resolution[a]);
+      preview.set_done(done);
+      preview.set_png(std::move(pic->png));
+      pool_->hub_->PublishPreview(record_.id, want.resolution, std::move(preview));
+    }
+  }
+
   void SetStat(const std::string& key, uint64_t value) override {
     (*view_.mutable_stats())[key] = value;
   }

@@ -61,6 +61,9 @@ struct AffineWalk {
   double res[3] = {0, 0, 0};        // resolution, as doubles
   uint32_t tiles_y = 0, tiles_z = 0;
   uint32_t bin_shift = 0;
+  /// Image rows folded into the tile's depth (ImagePlane): voxel y becomes
+  /// (y >> fold_shift, z + (y & fold_mask)). 0 and 0 for a volume.
+  uint32_t fold_mask = 0, fold_shift = 0;
   BinCursor* bins = nullptr;
   void* owner = nullptr;
   /// bins[bin] is full (or has no block yet): give it room for one entry.

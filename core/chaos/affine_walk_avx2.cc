@@ -68,6 +68,8 @@ void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
   const __m128i three = _mm_set1_epi32(3), seven = _mm_set1_epi32(7);
   const __m128i in_bin = _mm_set1_epi32(int((1u << k.bin_shift) - 1));
   const __m128i bin_shift = _mm_cvtsi32_si128(int(k.bin_shift));
+  const __m128i fold_mask = _mm_set1_epi32(int(k.fold_mask));
+  const __m128i fold_shift = _mm_cvtsi32_si128(int(k.fold_shift));
 
   for (uint64_t s = 0; s < steps; ++s) {
     for (int g = 0; g < kLanes; g += 4) {
@@ -186,8 +188,9 @@ void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
         finite = _mm256_movemask_pd(f);
       }
 
-      const __m128i ix = _mm256_cvttpd_epi32(fx), iy = _mm256_cvttpd_epi32(fy),
-                    iz = _mm256_cvttpd_epi32(fz);
+      const __m128i ix = _mm256_cvttpd_epi32(fx), iy0 = _mm256_cvttpd_epi32(fy);
+      const __m128i iy = _mm_srl_epi32(iy0, fold_shift),
+                    iz = _mm_add_epi32(_mm256_cvttpd_epi32(fz), _mm_and_si128(iy0, fold_mask));
       const __m128i tile = _mm_add_epi32(
           _mm_mullo_epi32(
               _mm_add_epi32(_mm_mullo_epi32(_mm_srli_epi32(ix, 5), tiles_y), _mm_srli_epi32(iy, 5)),

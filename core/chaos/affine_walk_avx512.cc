@@ -64,6 +64,8 @@ void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
   const __m256i three = _mm256_set1_epi32(3), seven = _mm256_set1_epi32(7);
   const __m256i in_bin = _mm256_set1_epi32(int((1u << k.bin_shift) - 1));
   const __m128i bin_shift = _mm_cvtsi32_si128(int(k.bin_shift));
+  const __m256i fold_mask = _mm256_set1_epi32(int(k.fold_mask));
+  const __m128i fold_shift = _mm_cvtsi32_si128(int(k.fold_shift));
 
   for (uint64_t s = 0; s < steps; ++s) {
     for (int g = 0; g < kLanes; g += 8) {
@@ -149,8 +151,10 @@ void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
                  _mm512_cmp_pd_mask(_mm512_sub_pd(nz, nz), zero, _CMP_EQ_OQ);
       }
 
-      const __m256i ix = _mm512_cvttpd_epi32(fx), iy = _mm512_cvttpd_epi32(fy),
-                    iz = _mm512_cvttpd_epi32(fz);
+      const __m256i ix = _mm512_cvttpd_epi32(fx), iy0 = _mm512_cvttpd_epi32(fy);
+      const __m256i iy = _mm256_srl_epi32(iy0, fold_shift),
+                    iz = _mm256_add_epi32(_mm512_cvttpd_epi32(fz),
+                                          _mm256_and_si256(iy0, fold_mask));
       const __m256i tile = _mm256_add_epi32(
           _mm256_mullo_epi32(_mm256_add_epi32(_mm256_mullo_epi32(_mm256_srli_epi32(ix, 5), tiles_y),
                                               _mm256_srli_epi32(iy, 5)),

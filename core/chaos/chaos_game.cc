@@ -91,6 +91,8 @@ absl::StatusOr<std::unique_ptr<ChaosGame>> ChaosGame::Create(ChaosGameParams par
     if (!(total > 0)) return absl::InvalidArgumentError("probabilities must not all be 0");
     game->map_table_ = AliasTable(ifs.probabilities);
   }
+  if (p.image && (p.splat || p.image->width <= 0 || p.image->height <= 0))
+    return absl::InvalidArgumentError("an image needs a positive size and no splatting");
   if (p.color.mode != ColorMode::kNone && !(p.color.blend > 0 && p.color.blend <= 1))
     return absl::InvalidArgumentError("colour blend must be in (0, 1]");
   game->num_chunks_ = NumChunks(p.iterations);
@@ -107,9 +109,13 @@ absl::StatusOr<std::unique_ptr<ChaosGame>> ChaosGame::Create(ChaosGameParams par
     if (ifs.final_map) game->final_program_.emplace(std::vector<PointMap>{*ifs.final_map});
     game->apply_maps_ = FlameKernel(game->simd_);
   }
-  for (const PointMap& m : ifs.maps)
-    for (const auto& row : m.pre.m)
+  for (const PointMap& m : ifs.maps) {
+    // Walking in pixel space: one affine map per step, no projection.
+    const Affine3 a = p.image ? p.image->view * m.pre * Inverse(p.image->view) : m.pre;
+    game->fast_maps_.push_back(a);
+    for (const auto& row : a.m)
       game->affine_coef_.insert(game->affine_coef_.end(), row.begin(), row.end());
+  }
   if (game->fast_ && p.chain) {
     FlatChain& f = game->flat_chain_.emplace();
     const std::vector<ChainState>& states = p.chain->states;
@@ -125,7 +131,7 @@ absl::StatusOr<std::unique_ptr<ChaosGame>> ChaosGame::Create(ChaosGameParams par
     }
   }
   const bool color = p.color.mode != ColorMode::kNone;
-  for (int t = 0; t < game->threads_; ++t) game->counts_.emplace_back(r, color);
+  for (int t = 0; t < game->threads_; ++t) game->counts_.emplace_back(p.CountResolution(), color);
   // Buffers sized once, so memory stays as estimated.
   const size_t entries = BufferEntries(p, ReachableTiles(p));
   for (int t = 0; t < game->threads_; ++t) {
@@ -159,9 +165,10 @@ namespace {
 // largest singular value. Walkers enter it to within s_max^warmup times
 // their starting distance before they plot. Otherwise: the whole grid.
 uint64_t ReachableTiles(const ChaosGameParams& p) {
-  const Int3 r = p.frame.resolution;
+  const Int3 r = p.CountResolution();
   const uint64_t all = uint64_t((r.x + 31) / 32) * ((r.y + 31) / 32) * ((r.z + 31) / 32);
-  if (p.ifs.final_map || p.ifs.arcs || !p.ifs.AllAffine() || p.ifs.maps.empty()) return all;
+  if (p.image || p.ifs.final_map || p.ifs.arcs || !p.ifs.AllAffine() || p.ifs.maps.empty())
+    return all;
   Vec3 c;
   double s_max = 0;
   for (const PointMap& m : p.ifs.maps) {
@@ -214,13 +221,13 @@ size_t BufferEntries(const ChaosGameParams& p, uint64_t reachable_tiles) {
 
 bool ChaosGame::UsesFastPath(const ChaosGameParams& p) {
   return !p.ifs.final_map && !p.ifs.arcs && !p.splat && p.color.mode == ColorMode::kNone &&
-         p.ifs.AllAffine();
+         p.ifs.AllAffine() && !(p.image && p.image->perspective);
 }
 
 ChaosGameMemory ChaosGame::EstimateMemory(const ChaosGameParams& p, int threads,
                                           uint64_t output_bytes_per_voxel, uint64_t tiles_hint) {
   threads = std::max(1, threads);
-  const Int3 r = p.frame.resolution;
+  const Int3 r = p.CountResolution();
   const bool color = p.color.mode != ColorMode::kNone;
   const uint64_t reachable = ReachableTiles(p);
   const uint64_t tiles = tiles_hint > 0 ? std::min(reachable, tiles_hint) : reachable;
@@ -246,6 +253,7 @@ ChaosGameMemory ChaosGame::EstimateMemory(const ChaosGameParams& p, int threads,
 absl::StatusOr<TileCensus> ChaosGame::Pilot(const ChaosGameParams& params, uint64_t samples,
                                             Interrupter* interrupter) {
   ChaosGameParams p = params;
+  p.image.reset();  // a census of the volume grid's tiles
   const Int3 r = params.frame.resolution;
   const Vec3 vs = params.frame.VoxelSize();
   constexpr int kT = CountGrid::kTileDim;
@@ -359,6 +367,7 @@ struct ChaosGame::FastChunk {
   const ChaosGameParams* p = nullptr;
   const AliasTable* table = nullptr;
   const std::vector<AliasTable>* state_tables = nullptr;  // with a chain
+  const std::vector<Affine3>* maps = nullptr;             // ChaosGame::fast_maps_
   uint64_t outside = 0, reseeded = 0;
   Poll* poll = nullptr;
 
@@ -371,9 +380,13 @@ struct ChaosGame::FastChunk {
     lanes.x[l] = pos.x, lanes.y[l] = pos.y, lanes.z[l] = pos.z;
   }
   // RunChunk's warm_up for this case, draw for draw.
+  Vec3 Start(Rng& rng) const {
+    const Vec3 q = RandomPoint(rng, p->frame.bounds);
+    return p->image ? p->image->view.Apply(q) : q;
+  }
   void WarmUp(int l) {
     Rng rng = LoadRng(l);
-    Vec3 pos = RandomPoint(rng, p->frame.bounds);
+    Vec3 pos = Start(rng);
     const MarkovChain* chain = p->chain ? &*p->chain : nullptr;
     uint32_t state = chain ? chain->start_state : 0;
     for (uint32_t i = 0; i < p->warmup; ++i) {
@@ -389,9 +402,9 @@ struct ChaosGame::FastChunk {
       } else {
         map = table->Sample(rng.Next());
       }
-      pos = p->ifs.maps[map].pre.Apply(pos);
+      pos = (*maps)[map].Apply(pos);
       if (!IsFinite(pos)) {
-        pos = RandomPoint(rng, p->frame.bounds);
+        pos = Start(rng);
         ++reseeded;
       }
     }
@@ -423,6 +436,7 @@ void ChaosGame::RunChunkFast(uint64_t chunk, Worker& w) {
   c.p = &p;
   c.table = &map_table_;
   c.state_tables = &state_tables_;
+  c.maps = &fast_maps_;
   for (int l = 0; l < kWalkers; ++l) {
     c.Store(l, Rng(p.seed, chunk * kWalkers + uint64_t(l)), {});
     c.WarmUp(l);
@@ -440,11 +454,12 @@ void ChaosGame::RunChunkFast(uint64_t chunk, Worker& w) {
   }
   const Vec3 vs = p.frame.VoxelSize();
   for (int a = 0; a < 3; ++a) {
-    k.min[a] = p.frame.bounds.min[a];
-    k.inv_voxel[a] = 1.0 / vs[a];
+    k.min[a] = p.image ? 0.0 : p.frame.bounds.min[a];
+    k.inv_voxel[a] = p.image ? 1.0 : 1.0 / vs[a];
   }
-  const Int3 res = p.frame.resolution;
+  const Int3 res = p.image ? Int3{p.image->width, p.image->height, 1} : p.frame.resolution;
   k.res[0] = res.x, k.res[1] = res.y, k.res[2] = res.z;
+  if (p.image) k.fold_mask = ImagePlane::kFoldMask, k.fold_shift = ImagePlane::kFoldShift;
   k.tiles_y = uint32_t(w.grid->tiles().y);
   k.tiles_z = uint32_t(w.grid->tiles().z);
   k.bin_shift = c.bins->bin_shift();
@@ -521,7 +536,8 @@ struct ChaosGame::General {
   Worker& w;
   const ChaosGameParams& p = game.params_;
   const Bounds& b = p.frame.bounds;
-  const Int3 res = p.frame.resolution;
+  const ImagePlane* image = p.image ? &*p.image : nullptr;
+  const Int3 res = image ? Int3{image->width, image->height, 1} : p.frame.resolution;
   const Vec3 inv = {1.0 / p.frame.VoxelSize().x, 1.0 / p.frame.VoxelSize().y,
                     1.0 / p.frame.VoxelSize().z};
   const std::vector<PointMap>& maps = p.ifs.maps;
@@ -604,14 +620,23 @@ struct ChaosGame::General {
       ++outside;
       return;
     }
-    const double fx = (q.x - b.min.x) * inv.x, fy = (q.y - b.min.y) * inv.y,
-                 fz = (q.z - b.min.z) * inv.z;
+    double fx = (q.x - b.min.x) * inv.x, fy = (q.y - b.min.y) * inv.y,
+           fz = (q.z - b.min.z) * inv.z;
+    if (image) {
+      fz = 0;
+      if (!image->Project(q, &fx, &fy)) fx = -1;  // off the picture
+    }
     // Written so NaN fails the test and counts as outside.
     if (!(fx >= 0 && fx < res.x && fy >= 0 && fy < res.y && fz >= 0 && fz < res.z)) {
       ++outside;
       return;
     }
     const uint64_t color_bits = color_mode == ColorMode::kNone ? 0 : ColorBits(col);
+    if (image) {
+      const Int3 v = ImagePlane::Voxel(int(fx), int(fy));
+      keys[n_keys++] = w.grid->Key(v.x, v.y, v.z) | color_bits;
+      return;
+    }
     if (!p.splat) {
       keys[n_keys++] = w.grid->Key(int(fx), int(fy), int(fz)) | color_bits;
       return;
@@ -847,7 +872,7 @@ CountGrid ChaosGame::TakeCounts() {
   CountGrid out = std::move(counts_[0]);
   for (size_t t = 1; t < counts_.size(); ++t) {
     out.Merge(counts_[t]);
-    counts_[t] = CountGrid(params_.frame.resolution);  // release memory early
+    counts_[t] = CountGrid(params_.CountResolution());  // release memory early
   }
   counts_.clear();
   workers_.clear();

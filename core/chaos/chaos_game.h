@@ -14,6 +14,7 @@
 #include "core/base/geometry.h"
 #include "core/base/interrupter.h"
 #include "core/chaos/flame_program.h"
+#include "core/chaos/image_plane.h"
 #include "core/chaos/point_map.h"
 
 namespace nimbus {
@@ -110,6 +111,13 @@ struct ChaosGameParams {
   /// tile the run add up to the full run's counts exactly.
   uint64_t chunk_begin = 0;
   uint64_t chunk_end = 0;
+  /// When set, points are counted on this image's pixels instead of the
+  /// voxels of `frame` (which still gives the walkers' starting box); the
+  /// counts come in ImagePlane's folded layout. Not with splat.
+  std::optional<ImagePlane> image;
+
+  /// The resolution of the counters: the grid's, or the folded image's.
+  Int3 CountResolution() const { return image ? image->folded_resolution() : frame.resolution; }
 };
 
 /// Count units per plotted point when splatting (4 x 4 x 4).
@@ -249,6 +257,9 @@ class ChaosGame {
   bool fast_ = false;
   SimdLevel simd_ = SimdLevel::kScalar;
   std::vector<double> affine_coef_;  // 12 per map, for the fast path
+  // The fast path's maps: the IFS's own, or conjugated into pixel space
+  // (view * map * view^-1) for an orthographic image.
+  std::vector<Affine3> fast_maps_;
   // The maps and the final map for RunChunkBatch, and its kernel.
   FlameProgram program_;
   std::optional<FlameProgram> final_program_;

@@ -19,6 +19,9 @@ const ChaosGameParams* JobPlan::shardable_run() const {
   // A component grid runs one game per component and keeps their labels.
   if (const IfsMatrixPlan* m = ifs_matrix(); m && m->component_grid != ComponentGridType::kNone)
     return nullptr;
+  // Pictures and auto-framing run extra passes the shard runner does not.
+  if (const ChaosGamePlan* c = std::get_if<ChaosGamePlan>(&kind); c && (c->image || c->auto_frame))
+    return nullptr;
   return point_run();
 }
 

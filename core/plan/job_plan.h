@@ -19,7 +19,11 @@
 #include <vector>
 
 #include "core/base/geometry.h"
+#include "core/chaos/auto_frame.h"
 #include "core/chaos/chaos_game.h"
+#include "core/chaos/image_plane.h"
+#include "core/grid/image_look.h"
+#include "core/io/image_io.h"
 #include "core/field/field_plan.h"
 #include "core/io/vdb_io.h"
 #include "core/jelly/jelly_plan.h"
@@ -28,9 +32,25 @@
 
 namespace nimbus {
 
+/// @brief A picture of a chaos game (docs/images.md).
+struct ImageJob {
+  int width = 0, height = 0;  // output pixels; height 0: DefaultImageHeight
+  int supersample = 1;
+  ImageView view;
+  ImageFormat format = ImageFormat::kPng8;
+  LookParams look;
+  bool image_only = false;
+  int preview_size = 256;
+  /// The glow radius was left to its default (1 % of the larger side).
+  bool default_glow_radius = true;
+};
+
 /// @brief A plain (or nonlinear) IFS run by the chaos game.
 struct ChaosGamePlan {
   ChaosGameParams params;
+  std::optional<ImageJob> image;
+  /// Fit params.frame.bounds to the attractor before running.
+  std::optional<AutoFrameParams> auto_frame;
 };
 
 /// One alternative per job kind.

@@ -130,6 +130,9 @@ class PreviewFile:
     resolution: List[int]
     vdb: bytes = field(repr=False)
     path: Optional[Path] = None
+    # Jobs with an image: the preview picture (8-bit PNG) and where it went.
+    png: bytes = field(default=b"", repr=False)
+    png_path: Optional[Path] = None
 
 
 class PreviewSaver:
@@ -164,15 +167,20 @@ class PreviewSaver:
         preview = PreviewFile(
             index=len(self.entries) + 1, sequence=p.sequence, done=p.done,
             total=job.progress.total, unit=job.progress.unit,
-            resolution=list(p.resolution), vdb=p.vdb)
+            resolution=list(p.resolution), vdb=p.vdb, png=p.png)
         if self.dir is None:
             self.entries.append(None)
             return preview
         preview.path = self.dir / f"{name}.preview.{preview.index:04d}.vdb"
+        entry = {"file": preview.path.name, "sequence": p.sequence,
+                 "done": p.done, "total": preview.total, "unit": preview.unit,
+                 "resolution": preview.resolution}
+        if p.png:
+            preview.png_path = preview.path.with_suffix(".png")
+            _write_atomic(preview.png_path, p.png)
+            entry["png"] = preview.png_path.name
         _write_atomic(preview.path, p.vdb)
-        self.entries.append({"file": preview.path.name, "sequence": p.sequence,
-                             "done": p.done, "total": preview.total, "unit": preview.unit,
-                             "resolution": preview.resolution})
+        self.entries.append(entry)
         _write_atomic(self.manifest, json.dumps(
             {"job_id": self.job_id, "previews": self.entries}, indent=1).encode())
         return preview

@@ -342,6 +342,20 @@ class PreviewSaverTest(unittest.TestCase):
         again = nimbus.PreviewSaver(tmp, "j-1").add(job, nimbus.pb2.Preview(sequence=13))
         self.assertEqual(again.path.name, "tree.preview.0005.vdb")
 
+    def test_preview_pictures_are_saved_beside_their_grids(self):
+        tmp = Path(tempfile.mkdtemp(prefix="nimbus-saver-"))
+        self.addCleanup(shutil.rmtree, tmp, True)
+        job = nimbus.pb2.Job(id="j-2", name="arcs")
+        saver = nimbus.PreviewSaver(tmp, "j-2")
+        first = saver.add(job, nimbus.pb2.Preview(sequence=1, vdb=b"v1", png=b"\x89PNG1"))
+        second = saver.add(job, nimbus.pb2.Preview(sequence=2, vdb=b"v2"))
+        self.assertEqual(first.png_path.name, "arcs.preview.0001.png")
+        self.assertEqual(first.png_path.read_bytes(), b"\x89PNG1")
+        self.assertIsNone(second.png_path)  # a volume preview has no picture
+        manifest = json.loads((tmp / "arcs.previews.json").read_text())
+        self.assertEqual(manifest["previews"][0]["png"], "arcs.preview.0001.png")
+        self.assertNotIn("png", manifest["previews"][1])
+
 
 class FieldPathTest(unittest.TestCase):
     def test_parse(self):

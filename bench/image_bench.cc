@@ -1,0 +1,134 @@
+// Picture throughput (docs/images.md): examples/poster.json (6000 x 9000,
+// 2 x 2 supersampling, colour by address, arcs) counted into its picture,
+// against the same walk counted into a plain grid, and the look's cost
+// (box filter, tone mapping, palette, desaturation, glow, PNG write).
+// Also the 2D Sierpinski triangle of bench/compare_flam3.sh as a 1024^2
+// picture on the fast path. Prints figures; asserts nothing.
+//
+// Usage: image_bench [ITERATIONS [THREADS]]   (default 2^28 and 2; the
+// issue's figure is 10^9)
+#include <tbb/global_control.h>
+
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+
+#include "core/chaos/auto_frame.h"
+#include "core/chaos/chaos_game.h"
+#include "core/grid/image_look.h"
+#include "core/io/image_io.h"
+#include "proto/spec_convert.h"
+#include "proto/spec_io.h"
+
+namespace nimbus {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double Since(Clock::time_point t) {
+  return std::chrono::duration<double>(Clock::now() - t).count();
+}
+
+// Runs `p` and returns the seconds; keeps the counts in `out`.
+double RunGame(const ChaosGameParams& p, int threads, CountGrid* out) {
+  const auto t = Clock::now();
+  auto game = ChaosGame::Create(p, threads);
+  if (!game.ok()) {
+    std::fprintf(stderr, "%s\n", std::string(game.status().message()).c_str());
+    std::exit(1);
+  }
+  if (!(*game)->Run(nullptr).ok()) std::exit(1);
+  CountGrid counts = (*game)->TakeCounts();
+  const double s = Since(t);
+  if (out) *out = std::move(counts);
+  return s;
+}
+
+void Row(const char* what, uint64_t n, double s) {
+  std::printf("%-52s %12llu %9.2f s %9.1f M/s\n", what, static_cast<unsigned long long>(n), s,
+              double(n) / s / 1e6);
+}
+
+int Main(int argc, char** argv) {
+  const uint64_t iterations = argc > 1 ? std::strtoull(argv[1], nullptr, 10) : uint64_t{1} << 28;
+  const int threads = argc > 2 ? std::atoi(argv[2]) : 2;
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism, size_t(threads));
+  auto spec = spec::LoadSpecFile(std::string(NIMBUS_SOURCE_DIR) + "/examples/poster.json");
+  if (!spec.ok()) return 1;
+  auto plan = spec::ConvertSpec(*spec, spec::Limits{});
+  if (!plan.ok()) {
+    std::fprintf(stderr, "%s\n", std::string(plan.status().message()).c_str());
+    return 1;
+  }
+  const ChaosGamePlan& cg = *plan->chaos_game();
+  const ImageJob& im = *cg.image;
+  ChaosGameParams p = cg.params;
+  p.iterations = iterations;
+  std::printf("%-52s %12s %11s %13s\n", "run", "points", "wall", "rate");
+  auto t = Clock::now();
+  auto box = FitBounds(p, *cg.auto_frame, nullptr);
+  if (!box.ok()) return 1;
+  p.frame.bounds = *box;
+  std::printf("%-52s %12llu %9.3f s\n", "auto-frame pilot",
+              static_cast<unsigned long long>(cg.auto_frame->pilot_iterations), Since(t));
+
+  // The same walk into a plain grid: the iteration rate without a picture.
+  ChaosGameParams plain = p;
+  plain.frame.resolution = {1024, 1536, 1};
+  Row("poster walk into a 1024x1536x1 grid (colour)", iterations, RunGame(plain, threads, nullptr));
+
+  const int ss = im.supersample;
+  ChaosGameParams pic = p;
+  pic.image = MakeImagePlane(im.view, p.frame.bounds, im.width * ss, im.height * ss);
+  CountGrid counts({1, 1, 1});
+  const double walk_s = RunGame(pic, threads, &counts);
+  Row("poster picture 12000x18000 samples (colour)", iterations, walk_s);
+
+  t = Clock::now();
+  auto density = BoxFilterImage({&counts}, pic.image->width, pic.image->height, ss, ss, nullptr);
+  counts = CountGrid({1, 1, 1});
+  const double filter_s = Since(t);
+  LookParams look = im.look;
+  look.glow_radius = 0.01 * std::max(im.width, im.height);
+  t = Clock::now();
+  auto rgb = DevelopImage(*density, look, nullptr);
+  const double develop_s = Since(t);
+  const std::filesystem::path out = std::filesystem::temp_directory_path() / "image_bench.png";
+  t = Clock::now();
+  if (!WriteImage(out, *rgb, ImageFormat::kPng8).ok()) return 1;
+  const double png_s = Since(t);
+  const double look_s = filter_s + develop_s;
+  std::printf("%-52s %25.2f s\n", "box filter 2x2 -> 6000x9000", filter_s);
+  std::printf("%-52s %25.2f s\n", "tone map, palette, desaturation, glow", develop_s);
+  std::printf("%-52s %25.2f s  (%.0f MB)\n", "PNG write (libpng, 8-bit)", png_s,
+              double(std::filesystem::file_size(out)) / 1e6);
+  std::printf("look (filter + develop) = %.1f %% of the walk's %.2f s; poster total %.2f s\n",
+              100 * look_s / walk_s, walk_s, walk_s + look_s + png_s);
+  std::filesystem::remove(out);
+
+  // The flam3 comparison's Sierpinski triangle, drawn as a 1024^2 picture:
+  // affine, no colour, so the fast path walks in pixel space.
+  ChaosGameParams tri;
+  for (Vec3 o : {Vec3{0, 0, 0}, Vec3{0.5, 0, 0}, Vec3{0.25, 0.5, 0}}) {
+    PointMap m;
+    m.pre = Affine3::Translate(o) * Affine3::Scale({0.5, 0.5, 0});
+    tri.ifs.maps.push_back(m);
+    tri.ifs.probabilities.push_back(1.0 / 3);
+  }
+  tri.frame = {{1024, 1024, 1}, {{-0.1, -0.1, -0.5}, {1.1, 1.1, 0.5}}};
+  tri.iterations = iterations;
+  tri.seed = 1;
+  Row("sierpinski 2D into a 1024^2 grid (fast path)", iterations, RunGame(tri, threads, nullptr));
+  tri.image = MakeImagePlane(ImageView{}, tri.frame.bounds, 1024, 1024);
+  Row("sierpinski 2D 1024^2 picture (fast path)", iterations, RunGame(tri, threads, nullptr));
+  tri.color.mode = ColorMode::kAddress;
+  Row("sierpinski 2D 1024^2 picture, colour (general path)", iterations,
+      RunGame(tri, threads, nullptr));
+  std::printf("(%d threads; flam3-render side by side: bench/compare_flam3.sh)\n", threads);
+  return 0;
+}
+
+}  // namespace
+}  // namespace nimbus
+
+int main(int argc, char** argv) { return nimbus::Main(argc, argv); }

@@ -1,0 +1,203 @@
+#include "core/grid/image_look.h"
+
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <array>
+#include <atomic>
+#include <cmath>
+
+namespace nimbus {
+
+namespace {
+
+// Rows per parallel task and per interrupter poll.
+constexpr int kRowBlock = 16;
+
+// Runs f(row) for every row in blocks, in parallel; each row's result
+// depends on that row only, so the output is the same for any thread count.
+template <typename F>
+absl::Status ForRows(int rows, Interrupter* interrupter, F&& f) {
+  Interrupter& intr = OrNull(interrupter);
+  std::atomic<bool> stop{false};
+  const int blocks = (rows + kRowBlock - 1) / kRowBlock;
+  tbb::parallel_for(0, blocks, [&](int b) {
+    if (stop.load(std::memory_order_relaxed)) return;
+    if (intr.WasInterrupted(uint64_t(b), uint64_t(blocks))) {
+      stop = true;
+      return;
+    }
+    for (int r = b * kRowBlock; r < std::min(rows, (b + 1) * kRowBlock); ++r) f(r);
+  });
+  if (stop) return absl::CancelledError("interrupted");
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+absl::StatusOr<ImageDensity> BoxFilterImage(const std::vector<const CountGrid*>& parts,
+                                            int samples_w, int samples_h, int factor, int taps,
+                                            Interrupter* interrupter) {
+  if (samples_w <= 0 || samples_h <= 0 || factor <= 0 || taps <= 0 || taps > factor)
+    return absl::InvalidArgumentError("bad image filter size");
+  for (const CountGrid* g : parts)
+    if (g->resolution() != FoldedImageResolution(samples_w, samples_h))
+      return absl::InvalidArgumentError("image counters do not match the image size");
+  ImageDensity out;
+  out.width = (samples_w + factor - 1) / factor;
+  out.height = (samples_h + factor - 1) / factor;
+  const size_t n = size_t(out.width) * size_t(out.height);
+  out.density.assign(n, 0.f);
+  out.color.assign(n, 0.f);
+  absl::Status st = ForRows(out.height, interrupter, [&](int row) {
+    for (int x = 0; x < out.width; ++x) {
+      uint64_t sum = 0, col = 0, used = 0;
+      for (int j = 0; j < taps; ++j) {
+        const int sy = row * factor + j * factor / taps;
+        if (sy >= samples_h) break;
+        for (int i = 0; i < taps; ++i) {
+          const int sx = x * factor + i * factor / taps;
+          if (sx >= samples_w) break;
+          ++used;
+          const Int3 v = FoldedImageVoxel(sx, sy);
+          for (const CountGrid* g : parts) {
+            sum += g->Get(v.x, v.y, v.z);
+            if (g->has_color()) col += g->GetColorSum(v.x, v.y, v.z);
+          }
+        }
+      }
+      const size_t p = size_t(row) * size_t(out.width) + size_t(x);
+      out.density[p] = float(double(sum) / double(used));
+      if (sum) out.color[p] = float(double(col) / (double(sum) * CountGrid::kColorScale));
+    }
+  });
+  if (!st.ok()) return st;
+  return out;
+}
+
+double ToneMap(const LookParams& look, double d, double dmin, double dmax) {
+  if (!(d > 0) || !(dmax > 0)) return 0;
+  double v = 0;
+  switch (look.tone) {
+    case ToneMapping::kSqrt: {
+      const double lo = std::sqrt(dmin), hi = std::sqrt(dmax);
+      // A picture whose lit pixels all have one density is lit uniformly.
+      v = hi > lo ? (std::sqrt(d) - lo) / (hi - lo) : 1;
+      break;
+    }
+    case ToneMapping::kLog:
+      v = std::log1p(d) / std::log1p(dmax);
+      break;
+    case ToneMapping::kGamma:
+      v = std::pow(d / dmax, 1 / look.gamma);
+      break;
+    case ToneMapping::kLinear:
+      v = d / dmax;
+      break;
+  }
+  return std::clamp(v, 0.0, 1.0);
+}
+
+absl::StatusOr<RgbImage> DevelopImage(const ImageDensity& image, const LookParams& look,
+                                      Interrupter* interrupter) {
+  float dmin = 0, dmax = 0;
+  for (float d : image.density) {
+    if (!(d > 0)) continue;
+    dmin = dmin > 0 ? std::min(dmin, d) : d;
+    dmax = std::max(dmax, d);
+  }
+  RgbImage out;
+  out.width = image.width;
+  out.height = image.height;
+  out.rgb.assign(3 * size_t(image.width) * size_t(image.height), 0.f);
+  const double keep = 1 - look.desaturation;
+  absl::Status st = ForRows(image.height, interrupter, [&](int row) {
+    for (int x = 0; x < image.width; ++x) {
+      const size_t p = size_t(row) * size_t(image.width) + size_t(x);
+      float* o = out.At(x, row);
+      const double d = image.density[p];
+      if (!(d > 0)) {
+        for (int c = 0; c < 3; ++c) o[c] = float(look.background[c]);
+        continue;
+      }
+      const double v = look.brightness * ToneMap(look, d, dmin, dmax);
+      Vec3 c = look.colored ? look.palette.Eval(image.color[p]) : Vec3{1, 1, 1};
+      // Mix with the colour's own grey (Rec. 709 luma) to desaturate.
+      const double grey = 0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z;
+      c = keep * c + look.desaturation * Vec3{grey, grey, grey};
+      for (int k = 0; k < 3; ++k) o[k] = float(c[k] * v);
+    }
+  });
+  if (!st.ok()) return st;
+  AddGlow(out, look.glow, look.glow_radius);
+  return out;
+}
+
+namespace {
+
+// Widths of three box filters whose succession approximates a Gaussian of
+// standard deviation `sigma` (the variances of the boxes add up to
+// sigma^2): odd widths wl or wl + 2, the first `m` of them wl.
+std::array<int, 3> BoxWidths(double sigma) {
+  const double ideal = std::sqrt(12 * sigma * sigma / 3 + 1);
+  int wl = int(std::floor(ideal));
+  if (wl % 2 == 0) --wl;
+  wl = std::max(wl, 1);
+  const double m = std::round((12 * sigma * sigma - 3.0 * wl * wl - 12.0 * wl - 9) /
+                              (-4.0 * wl - 4));
+  std::array<int, 3> w{};
+  for (int i = 0; i < 3; ++i) w[size_t(i)] = i < m ? wl : wl + 2;
+  return w;
+}
+
+// One box filter of odd width `width` along a line of `n` values `stride`
+// apart (one channel), edges extended; a running sum in double, so each
+// output costs O(1) whatever the width.
+void BoxLine(float* v, int n, size_t stride, int width, std::vector<float>& line) {
+  const int r = width / 2;
+  line.resize(size_t(n));
+  for (int i = 0; i < n; ++i) line[size_t(i)] = v[size_t(i) * stride];
+  auto at = [&](int i) { return double(line[size_t(std::clamp(i, 0, n - 1))]); };
+  double sum = 0;
+  for (int i = -r; i <= r; ++i) sum += at(i);
+  const double inv = 1.0 / width;
+  for (int i = 0; i < n; ++i) {
+    v[size_t(i) * stride] = float(sum * inv);
+    sum += at(i + r + 1) - at(i - r);
+  }
+}
+
+}  // namespace
+
+void AddGlow(RgbImage& image, double amount, double radius) {
+  if (!(amount > 0) || !(radius > 0) || image.rgb.empty()) return;
+  // A Gaussian approximated by three box filters per axis (rows, then
+  // columns), each line filtered on its own: O(1) per pixel for any radius,
+  // and the same result for any thread count.
+  const std::array<int, 3> widths = BoxWidths(radius);
+  const int W = image.width, H = image.height;
+  std::vector<float> blur = image.rgb;
+  tbb::parallel_for(0, H, [&](int y) {
+    std::vector<float> line;
+    for (int c = 0; c < 3; ++c)
+      for (int w : widths) BoxLine(&blur[3 * size_t(y) * W + c], W, 3, w, line);
+  });
+  // Columns in blocks of 16, copied out to a contiguous buffer so each
+  // filter pass walks memory row by row instead of one cache line per value.
+  constexpr int kBlock = 16;
+  tbb::parallel_for(0, (W + kBlock - 1) / kBlock, [&](int b) {
+    const int x0 = b * kBlock, n = std::min(kBlock, W - x0);
+    const size_t row = 3 * size_t(n);
+    std::vector<float> block(row * size_t(H)), line;
+    for (int y = 0; y < H; ++y)
+      std::copy_n(&blur[3 * (size_t(y) * W + x0)], row, &block[size_t(y) * row]);
+    for (size_t k = 0; k < row; ++k)
+      for (int w : widths) BoxLine(&block[k], H, row, w, line);
+    for (int y = 0; y < H; ++y)
+      std::copy_n(&block[size_t(y) * row], row, &blur[3 * (size_t(y) * W + x0)]);
+  });
+  const float a = float(amount);
+  for (size_t i = 0; i < image.rgb.size(); ++i) image.rgb[i] += a * blur[i];
+}
+
+}  // namespace nimbus

@@ -1,0 +1,210 @@
+#include "core/io/image_io.h"
+
+#include <ImfChannelList.h>
+#include <ImfFrameBuffer.h>
+#include <ImfHeader.h>
+#include <ImfInputFile.h>
+#include <ImfOutputFile.h>
+#include <png.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <memory>
+#include <system_error>
+
+#include "absl/strings/str_cat.h"
+
+namespace nimbus {
+
+namespace {
+
+struct FileCloser {
+  void operator()(FILE* f) const {
+    if (f) std::fclose(f);
+  }
+};
+using FilePtr = std::unique_ptr<FILE, FileCloser>;
+
+// Quantised samples of `image`, clamped to [0, 1] and rounded to nearest.
+template <typename T>
+std::vector<T> Quantise(const RgbImage& image, double max) {
+  std::vector<T> out(image.rgb.size());
+  for (size_t i = 0; i < out.size(); ++i)
+    out[i] = T(std::lround(std::clamp(double(image.rgb[i]), 0.0, 1.0) * max));
+  return out;
+}
+
+// What libpng writes into: a file or a growing string.
+struct Sink {
+  FILE* file = nullptr;
+  std::string* bytes = nullptr;
+};
+
+void WriteToString(png_structp png, png_bytep data, png_size_t n) {
+  static_cast<std::string*>(png_get_io_ptr(png))->append(reinterpret_cast<char*>(data), n);
+}
+void FlushNothing(png_structp) {}
+
+// libpng reports errors by longjmp; nothing with a destructor lives
+// between the setjmp and the calls that may jump.
+bool WritePngRows(const Sink& sink, int width, int height, int depth, png_bytep* rows) {
+  png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, nullptr, nullptr, nullptr);
+  if (!png) return false;
+  png_infop info = png_create_info_struct(png);
+  if (!info || setjmp(png_jmpbuf(png))) {
+    png_destroy_write_struct(&png, info ? &info : nullptr);
+    return false;
+  }
+  if (sink.file)
+    png_init_io(png, sink.file);
+  else
+    png_set_write_fn(png, sink.bytes, WriteToString, FlushNothing);
+  png_set_IHDR(png, info, png_uint_32(width), png_uint_32(height), depth, PNG_COLOR_TYPE_RGB,
+               PNG_INTERLACE_NONE, PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
+  png_write_info(png, info);
+  if (depth == 16) png_set_swap(png);  // PNG is big-endian; samples are host order
+  png_write_image(png, rows);
+  png_write_end(png, nullptr);
+  png_destroy_write_struct(&png, &info);
+  return true;
+}
+
+template <typename T>
+std::vector<png_bytep> RowPointers(std::vector<T>& samples, int width, int height) {
+  std::vector<png_bytep> rows(static_cast<size_t>(height));
+  for (int r = 0; r < height; ++r)
+    rows[size_t(r)] = reinterpret_cast<png_bytep>(&samples[3 * size_t(r) * size_t(width)]);
+  return rows;
+}
+
+bool WritePng(const Sink& sink, const RgbImage& image, int depth) {
+  if (depth == 8) {
+    std::vector<uint8_t> s = Quantise<uint8_t>(image, 255);
+    std::vector<png_bytep> rows = RowPointers(s, image.width, image.height);
+    return WritePngRows(sink, image.width, image.height, 8, rows.data());
+  }
+  std::vector<uint16_t> s = Quantise<uint16_t>(image, 65535);
+  std::vector<png_bytep> rows = RowPointers(s, image.width, image.height);
+  return WritePngRows(sink, image.width, image.height, 16, rows.data());
+}
+
+absl::Status WriteExr(const std::filesystem::path& path, const RgbImage& image) {
+  try {
+    Imf::Header header(image.width, image.height);
+    header.compression() = Imf::ZIP_COMPRESSION;
+    const char* names[3] = {"R", "G", "B"};
+    for (const char* n : names) header.channels().insert(n, Imf::Channel(Imf::FLOAT));
+    Imf::OutputFile file(path.c_str(), header, 1);
+    Imf::FrameBuffer fb;
+    char* base = const_cast<char*>(reinterpret_cast<const char*>(image.rgb.data()));
+    for (int c = 0; c < 3; ++c)
+      fb.insert(names[c], Imf::Slice(Imf::FLOAT, base + c * sizeof(float), 3 * sizeof(float),
+                                     3 * sizeof(float) * size_t(image.width)));
+    file.setFrameBuffer(fb);
+    file.writePixels(image.height);
+  } catch (const std::exception& e) {
+    return absl::InternalError(absl::StrCat("writing ", path.string(), ": ", e.what()));
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+const char* ImageExtension(ImageFormat format) {
+  return format == ImageFormat::kExr ? ".exr" : ".png";
+}
+
+absl::Status WriteImage(const std::filesystem::path& path, const RgbImage& image,
+                        ImageFormat format) {
+  if (image.width <= 0 || image.height <= 0 ||
+      image.rgb.size() != 3 * size_t(image.width) * size_t(image.height))
+    return absl::InvalidArgumentError("image size does not match its pixels");
+  const std::filesystem::path tmp = path.string() + ".partial";
+  absl::Status st;
+  if (format == ImageFormat::kExr) {
+    st = WriteExr(tmp, image);
+  } else {
+    FilePtr f(std::fopen(tmp.c_str(), "wb"));
+    if (!f) return absl::InternalError(absl::StrCat("cannot create ", tmp.string()));
+    if (!WritePng({f.get(), nullptr}, image, format == ImageFormat::kPng16 ? 16 : 8) ||
+        std::fflush(f.get()) != 0)
+      st = absl::InternalError(absl::StrCat("writing ", path.string(), " failed"));
+  }
+  std::error_code ec;
+  if (!st.ok()) {
+    std::filesystem::remove(tmp, ec);
+    return st;
+  }
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) return absl::InternalError(absl::StrCat("renaming ", tmp.string(), ": ", ec.message()));
+  return absl::OkStatus();
+}
+
+absl::StatusOr<std::string> EncodePng8(const RgbImage& image) {
+  if (image.width <= 0 || image.height <= 0 ||
+      image.rgb.size() != 3 * size_t(image.width) * size_t(image.height))
+    return absl::InvalidArgumentError("image size does not match its pixels");
+  std::string bytes;
+  if (!WritePng({nullptr, &bytes}, image, 8)) return absl::InternalError("png encoding failed");
+  return bytes;
+}
+
+absl::StatusOr<PngPixels> ReadPngPixels(const std::filesystem::path& path) {
+  FilePtr f(std::fopen(path.c_str(), "rb"));
+  if (!f) return absl::NotFoundError(absl::StrCat("cannot open ", path.string()));
+  png_structp png = png_create_read_struct(PNG_LIBPNG_VER_STRING, nullptr, nullptr, nullptr);
+  png_infop info = png ? png_create_info_struct(png) : nullptr;
+  if (!info) {
+    png_destroy_read_struct(&png, nullptr, nullptr);
+    return absl::InternalError("libpng");
+  }
+  PngPixels* out = new PngPixels;  // raw: survives a longjmp without leaking its buffer
+  if (setjmp(png_jmpbuf(png))) {
+    png_destroy_read_struct(&png, &info, nullptr);
+    delete out;
+    return absl::InvalidArgumentError(absl::StrCat("reading ", path.string(), " failed"));
+  }
+  png_init_io(png, f.get());
+  png_read_png(png, info, PNG_TRANSFORM_SWAP_ENDIAN, nullptr);
+  out->width = int(png_get_image_width(png, info));
+  out->height = int(png_get_image_height(png, info));
+  out->bit_depth = png_get_bit_depth(png, info);
+  out->channels = png_get_channels(png, info);
+  png_bytepp rows = png_get_rows(png, info);
+  const size_t per_row = size_t(out->width) * size_t(out->channels);
+  out->samples.resize(per_row * size_t(out->height));
+  for (int r = 0; r < out->height; ++r)
+    for (size_t i = 0; i < per_row; ++i)
+      out->samples[size_t(r) * per_row + i] =
+          out->bit_depth == 16 ? reinterpret_cast<const uint16_t*>(rows[r])[i] : rows[r][i];
+  png_destroy_read_struct(&png, &info, nullptr);
+  PngPixels result = std::move(*out);
+  delete out;
+  return result;
+}
+
+absl::StatusOr<RgbImage> ReadExr(const std::filesystem::path& path) {
+  try {
+    Imf::InputFile file(path.c_str());
+    const Imath::Box2i dw = file.header().dataWindow();
+    RgbImage out;
+    out.width = dw.max.x - dw.min.x + 1;
+    out.height = dw.max.y - dw.min.y + 1;
+    out.rgb.assign(3 * size_t(out.width) * size_t(out.height), 0.f);
+    Imf::FrameBuffer fb;
+    const char* names[3] = {"R", "G", "B"};
+    char* base = reinterpret_cast<char*>(out.rgb.data()) -
+                 3 * sizeof(float) * (size_t(dw.min.x) + size_t(dw.min.y) * size_t(out.width));
+    for (int c = 0; c < 3; ++c)
+      fb.insert(names[c], Imf::Slice(Imf::FLOAT, base + c * sizeof(float), 3 * sizeof(float),
+                                     3 * sizeof(float) * size_t(out.width)));
+    file.setFrameBuffer(fb);
+    file.readPixels(dw.min.y, dw.max.y);
+    return out;
+  } catch (const std::exception& e) {
+    return absl::InvalidArgumentError(absl::StrCat("reading ", path.string(), ": ", e.what()));
+  }
+}
+
+}  // namespace nimbus
