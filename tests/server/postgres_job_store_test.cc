@@ -68,7 +68,7 @@ TEST_F(PostgresJobStoreTest, ReplicasStartingTogetherMigrateOnce) {
   for (auto& t : threads) t.join();
   ASSERT_TRUE(errors.empty()) << errors.front();
   EXPECT_EQ(QueryInt("SELECT count(*) FROM nimbus_schema"), 1);
-  EXPECT_EQ(QueryInt("SELECT max(version) FROM nimbus_schema"), 3);
+  EXPECT_EQ(QueryInt("SELECT max(version) FROM nimbus_schema"), 4);
   EXPECT_EQ(QueryInt("SELECT count(*) FROM pg_indexes WHERE indexname = 'jobs_request_id' "
                      "AND indexdef LIKE '%UNIQUE%WHERE%'"),
             1);
