@@ -43,6 +43,7 @@ v1::JobSpec LoadExample(const std::string& name) {
 v1::JobSpec Tetrahedron(uint64_t iterations) {
   v1::JobSpec spec = LoadExample("sierpinski_tetrahedron.json");
   spec.mutable_chaos_game()->set_iterations(iterations);
+  spec.set_no_cache(true);  // every job here must really run
   return spec;
 }
 
@@ -127,6 +128,7 @@ void FetchAndWriteShare(client::NimbusClient& c, const std::filesystem::path& di
   spec.mutable_fractal_field()->clear_shape();
   spec.mutable_grid()->clear_resolution();
   spec.mutable_grid()->add_resolution(256);
+  spec.set_no_cache(true);
   auto job = c.Submit(spec);
   const v1::Job done = WatchToEnd(c, job->id(), 0, 1.0);
   const double mb = double(done.result().size_bytes()) / 1e6;
