@@ -27,6 +27,7 @@
 #include "absl/strings/str_cat.h"
 #include "server/bounded_text.h"
 #include "server/job_store.h"
+#include "server/job_store_util.h"
 
 namespace nimbus::server {
 namespace {
@@ -294,44 +295,6 @@ JobRecord RowToRecord(const Statement& s) {
   return r;
 }
 
-// The page token is opaque to clients; internally it is the (create_time, id)
-// keyset cursor of the last row returned, so pages stay stable while new jobs
-// arrive (they sort before the cursor).
-std::string EncodePageToken(TimeMs create_time, const std::string& id) {
-  return absl::WebSafeBase64Escape(absl::StrCat(create_time, ":", id));
-}
-
-absl::Status DecodePageToken(const std::string& token, TimeMs* create_time, std::string* id) {
-  std::string raw;
-  absl::Status bad =
-      absl::InvalidArgumentError(absl::StrCat("invalid page_token \"", EchoId(token), "\""));
-  if (!absl::WebSafeBase64Unescape(token, &raw)) return bad;
-  const size_t colon = raw.find(':');
-  if (colon == std::string::npos) return bad;
-  if (!absl::SimpleAtoi(raw.substr(0, colon), create_time)) return bad;
-  *id = raw.substr(colon + 1);
-  return absl::OkStatus();
-}
-
-// What a record adds to a ListJobs response, about: the view's text (the
-// error twice: as error and as status.message) plus fixed fields. Counted
-// with the bounds the view applies, so a stored giant does not end a page.
-uint64_t ViewBytes(const JobRecord& r) {
-  const auto bounded = [](const std::string& s, size_t max) {
-    return std::min<uint64_t>(s.size(), max + 64);
-  };
-  return 256 + r.id.size() + bounded(r.name, kMaxJobNameBytes) * 2 +
-         bounded(r.error, kMaxErrorBytes) * 2 + bounded(r.warnings, kMaxWarningsBytes) +
-         r.result_sha256.size();
-}
-
-// RequeueRunning takes no `now`; it runs once at startup, so the wall clock is
-// the honest end time for the jobs it cancels.
-TimeMs WallClockMs() {
-  return std::chrono::duration_cast<std::chrono::milliseconds>(
-             std::chrono::system_clock::now().time_since_epoch())
-      .count();
-}
 
 }  // namespace
 

@@ -119,25 +119,11 @@ class WorkerPool::Context : public JobContext {
           Seconds(Clock::now() - last) < std::max(0.05, want.interval_seconds))
         continue;
       last = Clock::now();
-      const int factor = DownsampleFactor(frame.resolution, int(want.resolution));
-      const CountGrid coarse = DownsampleCounts(parts, factor);
-      const GridFrame coarse_frame = DownsampleFrame(frame, factor);
-      // The file says which preview and how far the run was, so a client
-      // that names its files densely loses neither.
-      const uint64_t sequence = ++preview_sequence_;
-      auto bytes = DensityVdbBytes(coarse, coarse_frame, density,
-                                   {{meta_key::kPreviewSequence, int64_t(sequence)},
-                                    {meta_key::kPreviewDone, int64_t(done)}});
-      if (!bytes.ok()) continue;
-      v1::Preview preview;
-      preview.set_sequence(sequence);
-      preview.set_vdb(std::move(*bytes));
-      preview.add_resolution(coarse_frame.resolution.x);
-      preview.add_resolution(coarse_frame.resolution.y);
-      preview.add_resolution(coarse_frame.resolution.z);
-      preview.set_done(done);
+      auto made = MakePreview(parts, frame, density, done, want.resolution, ++preview_sequence_);
+      if (!made.ok()) continue;
+      v1::Preview preview = *std::move(made);
       if (want.remote) {
-        auto st = pool_->store_->PutPreview(record_.id, want.resolution, sequence,
+        auto st = pool_->store_->PutPreview(record_.id, want.resolution, preview.sequence(),
                                             preview.SerializeAsString());
         if (!st.ok()) spdlog::warn("job={} event=put_preview_failed reason=\"{}\"", record_.id,
                                    st.ToString());
@@ -145,6 +131,30 @@ class WorkerPool::Context : public JobContext {
       pool_->hub_->PublishPreview(record_.id, want.resolution, std::move(preview));
     }
     if (!record_.parent_id.empty()) PublishParentPreview(parts, frame, density, done);
+  }
+
+  // A preview of the counts at `resolution`. The file says which preview
+  // and how far the run was, so a client that names its files densely
+  // loses neither.
+  static absl::StatusOr<v1::Preview> MakePreview(const std::vector<const CountGrid*>& parts,
+                                                 const GridFrame& frame,
+                                                 const DensityOptions& density, uint64_t done,
+                                                 uint32_t resolution, uint64_t sequence) {
+    const int factor = DownsampleFactor(frame.resolution, int(resolution));
+    const CountGrid coarse = DownsampleCounts(parts, factor);
+    const GridFrame coarse_frame = DownsampleFrame(frame, factor);
+    auto bytes = DensityVdbBytes(coarse, coarse_frame, density,
+                                 {{meta_key::kPreviewSequence, int64_t(sequence)},
+                                  {meta_key::kPreviewDone, int64_t(done)}});
+    if (!bytes.ok()) return bytes.status();
+    v1::Preview preview;
+    preview.set_sequence(sequence);
+    preview.set_vdb(*std::move(bytes));
+    preview.add_resolution(coarse_frame.resolution.x);
+    preview.add_resolution(coarse_frame.resolution.y);
+    preview.add_resolution(coarse_frame.resolution.z);
+    preview.set_done(done);
+    return preview;
   }
 
   // A shard's watchers-of-the-parent see the newest shard's partial counts.
@@ -157,22 +167,10 @@ class WorkerPool::Context : public JobContext {
           Seconds(Clock::now() - last) < std::max(0.05, want.interval_seconds))
         continue;
       last = Clock::now();
-      const int factor = DownsampleFactor(frame.resolution, int(want.resolution));
-      const CountGrid coarse = DownsampleCounts(parts, factor);
-      const GridFrame coarse_frame = DownsampleFrame(frame, factor);
-      const uint64_t sequence = pool_->NextParentPreviewSequence(parent);
-      auto bytes = DensityVdbBytes(coarse, coarse_frame, density,
-                                   {{meta_key::kPreviewSequence, int64_t(sequence)},
-                                    {meta_key::kPreviewDone, int64_t(done)}});
-      if (!bytes.ok()) continue;
-      v1::Preview preview;
-      preview.set_sequence(sequence);
-      preview.set_vdb(std::move(*bytes));
-      preview.add_resolution(coarse_frame.resolution.x);
-      preview.add_resolution(coarse_frame.resolution.y);
-      preview.add_resolution(coarse_frame.resolution.z);
-      preview.set_done(done);
-      pool_->hub_->PublishPreview(parent, want.resolution, std::move(preview));
+      auto preview = MakePreview(parts, frame, density, done, want.resolution,
+                                 pool_->NextParentPreviewSequence(parent));
+      if (!preview.ok()) continue;
+      pool_->hub_->PublishPreview(parent, want.resolution, *std::move(preview));
     }
   }
 

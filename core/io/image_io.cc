@@ -14,17 +14,11 @@
 #include <system_error>
 
 #include "absl/strings/str_cat.h"
+#include "core/io/file_ptr.h"
 
 namespace nimbus {
 
 namespace {
-
-struct FileCloser {
-  void operator()(FILE* f) const {
-    if (f) std::fclose(f);
-  }
-};
-using FilePtr = std::unique_ptr<FILE, FileCloser>;
 
 // Quantised samples of `image`, clamped to [0, 1] and rounded to nearest.
 template <typename T>

@@ -7,17 +7,11 @@
 #include <system_error>
 
 #include "absl/strings/str_cat.h"
+#include "core/io/file_ptr.h"
 
 namespace nimbus {
 
 namespace {
-
-struct FileCloser {
-  void operator()(FILE* f) const {
-    if (f) std::fclose(f);
-  }
-};
-using FilePtr = std::unique_ptr<FILE, FileCloser>;
 
 // libpng reports errors by longjmp; the callers keep no C++ objects with
 // destructors between setjmp and the calls that may jump.

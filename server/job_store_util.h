@@ -1,0 +1,29 @@
+// Pieces both job stores (SQLite and PostgreSQL) share, so that listings
+// page and bound alike whichever store a server uses.
+#pragma once
+
+#include <cstdint>
+#include <string>
+
+#include "absl/status/status.h"
+#include "server/job_store.h"
+
+namespace nimbus::server {
+
+/// The page token is opaque to clients; inside it is the (create_time, id)
+/// keyset cursor of the last row returned, so pages stay stable while new
+/// jobs arrive (they sort before the cursor).
+std::string EncodePageToken(TimeMs create_time, const std::string& id);
+/// INVALID_ARGUMENT naming the token when it was not made by EncodePageToken.
+absl::Status DecodePageToken(const std::string& token, TimeMs* create_time, std::string* id);
+
+/// What a record adds to a ListJobs response, about: the view's text (the
+/// error twice: as error and as status.message) plus fixed fields, counted
+/// with the bounds the view applies, so a stored giant does not end a page.
+uint64_t ViewBytes(const JobRecord& r);
+
+/// Milliseconds since the epoch, for the few store operations that take no
+/// `now` (start-up recovery, cascades): the honest end time there.
+TimeMs WallClockMs();
+
+}  // namespace nimbus::server
