@@ -141,8 +141,13 @@ class WorkerPool::Context : public JobContext {
                                                  const DensityOptions& density, uint64_t done,
                                                  uint32_t resolution, uint64_t sequence) {
     const int factor = DownsampleFactor(frame.resolution, int(resolution));
-    const CountGrid coarse = DownsampleCounts(parts, factor);
-    const GridFrame coarse_frame = DownsampleFrame(frame, factor);
+    return PreviewOf(DownsampleCounts(parts, factor), DownsampleFrame(frame, factor), density,
+                     done, sequence);
+  }
+  static absl::StatusOr<v1::Preview> PreviewOf(const CountGrid& coarse,
+                                               const GridFrame& coarse_frame,
+                                               const DensityOptions& density, uint64_t done,
+                                               uint64_t sequence) {
     auto bytes = DensityVdbBytes(coarse, coarse_frame, density,
                                  {{meta_key::kPreviewSequence, int64_t(sequence)},
                                   {meta_key::kPreviewDone, int64_t(done)}});
@@ -157,7 +162,8 @@ class WorkerPool::Context : public JobContext {
     return preview;
   }
 
-  // A shard's watchers-of-the-parent see the newest shard's partial counts.
+  // Watchers of a sharded job see the sum of its shards' newest counts
+  // (those run by this process), so the preview covers every shard.
   void PublishParentPreview(const std::vector<const CountGrid*>& parts, const GridFrame& frame,
                             const DensityOptions& density, uint64_t done) {
     const std::string& parent = record_.parent_id;
@@ -167,8 +173,10 @@ class WorkerPool::Context : public JobContext {
           Seconds(Clock::now() - last) < std::max(0.05, want.interval_seconds))
         continue;
       last = Clock::now();
-      auto preview = MakePreview(parts, frame, density, done, want.resolution,
-                                 pool_->NextParentPreviewSequence(parent));
+      const int factor = DownsampleFactor(frame.resolution, int(want.resolution));
+      auto [sum, sequence] = pool_->SumParentPreview(parent, record_.shard_index, want.resolution,
+                                                     DownsampleCounts(parts, factor));
+      auto preview = PreviewOf(sum, DownsampleFrame(frame, factor), density, done, sequence);
       if (!preview.ok()) continue;
       pool_->hub_->PublishPreview(parent, want.resolution, *std::move(preview));
     }
@@ -495,13 +503,22 @@ void WorkerPool::PublishParent(const std::string& parent_id, const std::string& 
   if (IsTerminal(parent->state)) {
     hub_->Forget(parent_id);
     std::lock_guard<std::mutex> lock(mu_);
-    parent_preview_seq_.erase(parent_id);
+    parent_previews_.erase(parent_id);
   }
 }
 
-uint64_t WorkerPool::NextParentPreviewSequence(const std::string& parent_id) {
+std::pair<CountGrid, uint64_t> WorkerPool::SumParentPreview(const std::string& parent_id,
+                                                           uint32_t shard, uint32_t resolution,
+                                                           CountGrid coarse) {
   std::lock_guard<std::mutex> lock(mu_);
-  return ++parent_preview_seq_[parent_id];
+  ParentPreviews& p = parent_previews_[parent_id];
+  const Int3 res = coarse.resolution();
+  const bool color = coarse.has_color();
+  p.latest.insert_or_assign({resolution, shard}, std::move(coarse));
+  CountGrid sum(res, color);
+  for (const auto& [key, grid] : p.latest)
+    if (key.first == resolution && grid.resolution() == res) sum.Merge(grid);
+  return {std::move(sum), ++p.sequence};
 }
 
 absl::Status WorkerPool::RunShardOrMerge(const JobPlan& plan, const JobRecord& record,

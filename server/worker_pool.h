@@ -9,8 +9,10 @@
 #include <mutex>
 #include <string>
 #include <thread>
+#include <utility>
 #include <vector>
 
+#include "core/grid/count_grid.h"
 #include "proto/spec_convert.h"
 #include "server/job_hub.h"
 #include "server/job_runner.h"
@@ -51,6 +53,12 @@ class WorkerPool {
   void Cancel(const std::string& job_id);
   int threads_per_job() const { return threads_per_job_; }
 
+  /// Keeps `coarse` as shard `shard`'s newest counts at `resolution` and
+  /// returns the sum over the parent's shards kept so far, with the next
+  /// preview sequence for the parent's watchers (shards share it).
+  std::pair<CountGrid, uint64_t> SumParentPreview(const std::string& parent_id, uint32_t shard,
+                                                  uint32_t resolution, CountGrid coarse);
+
  private:
   class Context;
   void Loop(int index);
@@ -62,8 +70,6 @@ class WorkerPool {
   // to the parent's watchers; `live_done` is shard `shard_id`'s progress.
   void PublishParent(const std::string& parent_id, const std::string& shard_id,
                      uint64_t live_done);
-  // The next preview sequence for a parent's watchers (shards share it).
-  uint64_t NextParentPreviewSequence(const std::string& parent_id);
   // Stores the end of an attempt; false when it could not (see
   // worker_pool.cc for what a failing store gets).
   bool RecordEnd(const std::string& id, const std::string& worker_id, const Completion& done);
@@ -81,7 +87,13 @@ class WorkerPool {
   bool stopping_ = false;
   uint64_t wake_generation_ = 0;
   std::map<std::string, std::shared_ptr<std::atomic<bool>>> running_;  // job id -> cancel flag
-  std::map<std::string, uint64_t> parent_preview_seq_;  // sharded parent -> last preview
+  // A sharded parent's preview state: the last sequence, and each shard's
+  // newest coarse counts by (resolution, shard).
+  struct ParentPreviews {
+    uint64_t sequence = 0;
+    std::map<std::pair<uint32_t, uint32_t>, CountGrid> latest;
+  };
+  std::map<std::string, ParentPreviews> parent_previews_;
   std::atomic<bool> shutdown_{false};
   std::vector<std::thread> threads_;
 };
