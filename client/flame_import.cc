@@ -119,7 +119,9 @@ absl::StatusOr<std::vector<Genome>> ParseGenomes(std::string_view xml) {
   const char* expat_error = ok ? "" : XML_ErrorString(XML_GetErrorCode(s.parser));
   XML_ParserFree(s.parser);
   if (!s.error.empty()) return absl::InvalidArgumentError(StrCat("line ", line, ": ", s.error));
-  if (!ok) return absl::InvalidArgumentError(StrCat("line ", line, ": not XML: ", expat_error ? expat_error : "?"));
+  if (!ok)
+    return absl::InvalidArgumentError(
+        StrCat("line ", line, ": not XML: ", expat_error ? expat_error : "?"));
   if (s.genomes.empty()) return absl::InvalidArgumentError("no <flame> element");
   return std::move(s.genomes);
 }
@@ -514,6 +516,17 @@ absl::Status Convert(const Genome& g, const FlameImportOptions& options, FlameIm
   NIMBUS_RETURN_IF_ERROR(ReadPalette(g, *colour.mutable_palette(), out.warnings));
   // flam3 shows log density; so does the imported volume.
   spec.mutable_output()->set_density_mapping(v1::DENSITY_MAPPING_LOG);
+  if (options.picture) {
+    // flam3's picture: its size, looking down z with y up (the mirrored
+    // plane puts flam3's top row there), log density.
+    v1::ImageOutput& image = *spec.mutable_image();
+    image.set_width(cam.width);
+    image.set_height(cam.height);
+    image.set_axis(v1::PROJECTION_AXIS_Z);
+    image.set_format(v1::IMAGE_FORMAT_PNG8);
+    image.mutable_look()->set_tone_mapping(v1::TONE_MAPPING_LOG);
+    image.set_image_only(true);
+  }
   WarnUnused(g, out.warnings);
   return absl::OkStatus();
 }

@@ -27,6 +27,9 @@ struct FlameImportOptions {
   /// Plotted samples; 0 takes flam3's quality x width x height.
   uint64_t iterations = 0;
   uint64_t seed = 1;
+  /// Make a picture the size of flam3's (a PNG, log density, looking down
+  /// z) instead of a one-voxel-thick volume.
+  bool picture = false;
 };
 
 struct FlameImport {

@@ -379,8 +379,9 @@ int RunImportFlame(const Options& o) {
     return ExitFor(absl::InvalidArgumentError(o.spec_path + ": larger than 64 MiB"));
   xml.resize(size_t(in.gcount()));
   auto got = nimbus::client::ImportFlame(xml, o.flame);
-  if (!got.ok()) return ExitFor(absl::Status(got.status().code(),
-                                             o.spec_path + ": " + std::string(got.status().message())));
+  if (!got.ok())
+    return ExitFor(absl::Status(got.status().code(),
+                                o.spec_path + ": " + std::string(got.status().message())));
   for (const std::string& w : got->warnings) std::cerr << "nimbus: warning: " << w << "\n";
   auto plan = nimbus::spec::ConvertSpec(got->spec, nimbus::spec::Limits{});
   if (!plan.ok()) return ExitFor(plan.status());
@@ -681,6 +682,8 @@ std::vector<Command> AddCommands(CLI::App& app, Options& o) {
   import->add_option("--iterations", o.flame.iterations,
                      "samples (default flam3's quality x width x height)");
   import->add_option("--seed", o.flame.seed, "random seed")->capture_default_str();
+  import->add_flag("--picture", o.flame.picture,
+                   "render a PNG the size of flam3's instead of a one-voxel-thick volume");
   return {{validate, RunValidate},
           {import, RunImportFlame},
           {render, RunRender},

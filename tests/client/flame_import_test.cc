@@ -77,6 +77,22 @@ TEST(FlameImport, CameraBecomesTheGrid) {
   EXPECT_EQ(got->spec.output().density_mapping(), v1::DENSITY_MAPPING_LOG);
 }
 
+TEST(FlameImport, PictureOptionAsksForFlam3sPicture) {
+  FlameImportOptions options;
+  options.picture = true;
+  auto got = ImportFlame(
+      Flame("<xform weight=\"1\" linear=\"1\" coefs=\"0.5 0 0 0.5 0 0\"/>\n"), options);
+  ASSERT_TRUE(got.ok()) << got.status();
+  const v1::ImageOutput& image = got->spec.image();
+  EXPECT_EQ(image.width(), 200);
+  EXPECT_EQ(image.height(), 100);
+  EXPECT_EQ(image.axis(), v1::PROJECTION_AXIS_Z);
+  EXPECT_EQ(image.look().tone_mapping(), v1::TONE_MAPPING_LOG);
+  EXPECT_TRUE(image.image_only());
+  auto plan = spec::ConvertSpec(got->spec, spec::Limits{});
+  EXPECT_TRUE(plan.ok()) << plan.status();
+}
+
 TEST(FlameImport, PalettesAndColourSpeed) {
   std::string colors;
   for (int i = 0; i < 256; ++i) colors += absl::StrCat("<color index=\"", i, "\" rgb=\"", i,
@@ -217,7 +233,8 @@ std::string AgreementGenome(const std::string& variations, double rotate, bool e
     << "\" center=\"0.2 -0.1\" scale=\"" << kSize / 4.4 << "\" rotate=\"" << rotate
     << "\" quality=\"200\" oversample=\"1\" filter=\"0\" supersample=\"1\""
     << " estimator_radius=\"0\" gamma=\"1\" brightness=\"4\" vibrancy=\"1\">\n"
-    << "<xform weight=\"0.5\" color=\"0\" " << variations << " coefs=\"0.6 0.2 -0.2 0.6 0.1 0.1\"" << (extras ? " post=\"1 0.1 0 0.9 0 0.1\"" : "")
+    << "<xform weight=\"0.5\" color=\"0\" " << variations
+    << " coefs=\"0.6 0.2 -0.2 0.6 0.1 0.1\"" << (extras ? " post=\"1 0.1 0 0.9 0 0.1\"" : "")
     << "/>\n<xform weight=\"0.5\" color=\"1\" linear=\"1\" coefs=\"0.5 0 0 0.5 0.4 -0.3\"/>\n";
   if (extras) g << "<finalxform color=\"0\" symmetry=\"1\" linear=\"0.8\" swirl=\"0.2\" "
                    "coefs=\"1 0 0 1 0 0\"/>\n";
