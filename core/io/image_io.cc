@@ -15,6 +15,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "core/io/file_ptr.h"
+#include "core/io/png_internal.h"
 
 namespace nimbus {
 
@@ -29,41 +30,6 @@ std::vector<T> Quantise(const RgbImage& image, double max) {
   return out;
 }
 
-// What libpng writes into: a file or a growing string.
-struct Sink {
-  FILE* file = nullptr;
-  std::string* bytes = nullptr;
-};
-
-void WriteToString(png_structp png, png_bytep data, png_size_t n) {
-  static_cast<std::string*>(png_get_io_ptr(png))->append(reinterpret_cast<char*>(data), n);
-}
-void FlushNothing(png_structp) {}
-
-// libpng reports errors by longjmp; nothing with a destructor lives
-// between the setjmp and the calls that may jump.
-bool WritePngRows(const Sink& sink, int width, int height, int depth, png_bytep* rows) {
-  png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, nullptr, nullptr, nullptr);
-  if (!png) return false;
-  png_infop info = png_create_info_struct(png);
-  if (!info || setjmp(png_jmpbuf(png))) {
-    png_destroy_write_struct(&png, info ? &info : nullptr);
-    return false;
-  }
-  if (sink.file)
-    png_init_io(png, sink.file);
-  else
-    png_set_write_fn(png, sink.bytes, WriteToString, FlushNothing);
-  png_set_IHDR(png, info, png_uint_32(width), png_uint_32(height), depth, PNG_COLOR_TYPE_RGB,
-               PNG_INTERLACE_NONE, PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
-  png_write_info(png, info);
-  if (depth == 16) png_set_swap(png);  // PNG is big-endian; samples are host order
-  png_write_image(png, rows);
-  png_write_end(png, nullptr);
-  png_destroy_write_struct(&png, &info);
-  return true;
-}
-
 template <typename T>
 std::vector<png_bytep> RowPointers(std::vector<T>& samples, int width, int height) {
   std::vector<png_bytep> rows(static_cast<size_t>(height));
@@ -72,15 +38,15 @@ std::vector<png_bytep> RowPointers(std::vector<T>& samples, int width, int heigh
   return rows;
 }
 
-bool WritePng(const Sink& sink, const RgbImage& image, int depth) {
+bool WritePng(const PngSink& sink, const RgbImage& image, int depth) {
   if (depth == 8) {
     std::vector<uint8_t> s = Quantise<uint8_t>(image, 255);
     std::vector<png_bytep> rows = RowPointers(s, image.width, image.height);
-    return WritePngRows(sink, image.width, image.height, 8, rows.data());
+    return WritePngRows(sink, image.width, image.height, 8, 3, rows.data());
   }
   std::vector<uint16_t> s = Quantise<uint16_t>(image, 65535);
   std::vector<png_bytep> rows = RowPointers(s, image.width, image.height);
-  return WritePngRows(sink, image.width, image.height, 16, rows.data());
+  return WritePngRows(sink, image.width, image.height, 16, 3, rows.data());
 }
 
 absl::Status WriteExr(const std::filesystem::path& path, const RgbImage& image) {

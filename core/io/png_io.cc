@@ -1,21 +1,28 @@
 #include "core/io/png_io.h"
 
-#include <png.h>
-
 #include <cstdio>
 #include <memory>
 #include <system_error>
 
 #include "absl/strings/str_cat.h"
 #include "core/io/file_ptr.h"
+#include "core/io/png_internal.h"
 
 namespace nimbus {
 
 namespace {
 
-// libpng reports errors by longjmp; the callers keep no C++ objects with
-// destructors between setjmp and the calls that may jump.
-bool WriteRows(FILE* f, const Gray16Image& image, std::vector<png_bytep>& rows) {
+void WriteToString(png_structp png, png_bytep data, png_size_t n) {
+  static_cast<std::string*>(png_get_io_ptr(png))->append(reinterpret_cast<char*>(data), n);
+}
+void FlushNothing(png_structp) {}
+
+}  // namespace
+
+// libpng reports errors by longjmp; nothing with a destructor lives
+// between the setjmp and the calls that may jump.
+bool WritePngRows(const PngSink& sink, int width, int height, int depth, int channels,
+                  png_bytep* rows) {
   png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, nullptr, nullptr, nullptr);
   if (!png) return false;
   png_infop info = png_create_info_struct(png);
@@ -23,19 +30,20 @@ bool WriteRows(FILE* f, const Gray16Image& image, std::vector<png_bytep>& rows) 
     png_destroy_write_struct(&png, info ? &info : nullptr);
     return false;
   }
-  png_init_io(png, f);
-  png_set_IHDR(png, info, png_uint_32(image.width), png_uint_32(image.height), 16,
-               PNG_COLOR_TYPE_GRAY, PNG_INTERLACE_NONE, PNG_COMPRESSION_TYPE_DEFAULT,
-               PNG_FILTER_TYPE_DEFAULT);
+  if (sink.file)
+    png_init_io(png, sink.file);
+  else
+    png_set_write_fn(png, sink.bytes, WriteToString, FlushNothing);
+  png_set_IHDR(png, info, png_uint_32(width), png_uint_32(height), depth,
+               channels == 1 ? PNG_COLOR_TYPE_GRAY : PNG_COLOR_TYPE_RGB, PNG_INTERLACE_NONE,
+               PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
   png_write_info(png, info);
-  png_set_swap(png);  // PNG is big-endian; our samples are host order
-  png_write_image(png, rows.data());
+  if (depth == 16) png_set_swap(png);  // PNG is big-endian; samples are host order
+  png_write_image(png, rows);
   png_write_end(png, nullptr);
   png_destroy_write_struct(&png, &info);
   return true;
 }
-
-}  // namespace
 
 absl::Status WritePng16(const std::filesystem::path& path, const Gray16Image& image) {
   if (image.width <= 0 || image.height <= 0 ||
@@ -49,7 +57,8 @@ absl::Status WritePng16(const std::filesystem::path& path, const Gray16Image& im
   {
     FilePtr f(std::fopen(tmp.c_str(), "wb"));
     if (!f) return absl::InternalError(absl::StrCat("cannot create ", tmp.string()));
-    if (!WriteRows(f.get(), image, rows) || std::fflush(f.get()) != 0) {
+    if (!WritePngRows({f.get(), nullptr}, image.width, image.height, 16, 1, rows.data()) ||
+        std::fflush(f.get()) != 0) {
       f.reset();
       std::error_code ec;
       std::filesystem::remove(tmp, ec);
