@@ -22,7 +22,7 @@
 #include "core/base/sha256.h"
 #include "proto/spec_io.h"
 #include "tests/support/nimbusd_process.h"
-#include "tests/support/postgres_server.h"
+#include "tests/support/job_store_factory.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus {
@@ -59,10 +59,8 @@ size_t CountOf(const std::string& text, const std::string& needle) {
 class ReplicasE2E : public ::testing::Test {
  protected:
   void SetUp() override {
-    std::string why;
-    testing::PostgresServer* pg = testing::PostgresServer::Shared(&why);
-    if (pg == nullptr) GTEST_SKIP() << why;
-    auto url = pg->NewDatabase();
+    absl::StatusOr<std::string> url = testing::FreshPostgresUrl();
+    if (absl::IsUnavailable(url.status())) GTEST_SKIP() << url.status().message();
     ASSERT_TRUE(url.ok()) << url.status();
     url_ = *url;
     for (int i = 0; i < kReplicas; ++i) {

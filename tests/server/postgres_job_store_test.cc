@@ -15,7 +15,7 @@
 
 #include "absl/status/status.h"
 #include "server/job_store.h"
-#include "tests/support/postgres_server.h"
+#include "tests/support/job_store_factory.h"
 
 namespace nimbus::server {
 namespace {
@@ -25,10 +25,8 @@ constexpr TimeMs kT0 = 1'700'000'000'000;
 class PostgresJobStoreTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    std::string why;
-    testing::PostgresServer* pg = testing::PostgresServer::Shared(&why);
-    if (pg == nullptr) GTEST_SKIP() << why;
-    auto url = pg->NewDatabase();
+    absl::StatusOr<std::string> url = testing::FreshPostgresUrl();
+    if (absl::IsUnavailable(url.status())) GTEST_SKIP() << url.status().message();
     ASSERT_TRUE(url.ok()) << url.status();
     url_ = *url;
   }

@@ -24,6 +24,16 @@ inline std::string StoreKindName(StoreKind kind) {
 /// For GoogleTest's names of parameterized tests (and so ctest's).
 inline void PrintTo(StoreKind kind, std::ostream* os) { *os << StoreKindName(kind); }
 
+/// The URL of a fresh, empty database on the test process's private
+/// PostgreSQL server. UNAVAILABLE (the reason in the message) when
+/// PostgreSQL is not installed: tests skip then.
+inline absl::StatusOr<std::string> FreshPostgresUrl() {
+  std::string why;
+  PostgresServer* server = PostgresServer::Shared(&why);
+  if (server == nullptr) return absl::UnavailableError(why);
+  return server->NewDatabase();
+}
+
 /// @brief Where one test's store lives: a SQLite file or a PostgreSQL URL.
 struct StoreLocation {
   StoreKind kind = StoreKind::kSqlite;
@@ -34,10 +44,7 @@ struct StoreLocation {
   /// in the message) when PostgreSQL is not installed.
   static absl::StatusOr<StoreLocation> Fresh(StoreKind kind, const std::filesystem::path& dir) {
     if (kind == StoreKind::kSqlite) return StoreLocation{kind, (dir / "jobs.db").string()};
-    std::string why;
-    PostgresServer* server = PostgresServer::Shared(&why);
-    if (server == nullptr) return absl::UnavailableError(why);
-    absl::StatusOr<std::string> url = server->NewDatabase();
+    absl::StatusOr<std::string> url = FreshPostgresUrl();
     if (!url.ok()) return url.status();
     return StoreLocation{kind, *url};
   }
