@@ -19,6 +19,7 @@
 #include "client/nimbus_client.h"
 #include "proto/spec_io.h"
 #include "tests/support/nimbusd_process.h"
+#include "tests/support/test_util.h"
 
 namespace nimbus {
 namespace {
@@ -32,7 +33,7 @@ double Median(std::vector<double> v) {
 }
 
 v1::JobSpec LoadExample(const std::string& name) {
-  auto spec = spec::LoadSpecFile(std::string(NIMBUS_SOURCE_DIR) + "/examples/" + name);
+  auto spec = spec::LoadSpecFile(testing::SourcePath("examples/" + name));
   if (!spec.ok()) {
     std::fprintf(stderr, "cannot load %s: %s\n", name.c_str(), spec.status().ToString().c_str());
     std::exit(1);

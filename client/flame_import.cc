@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdlib>
 #include <map>
+#include <optional>
 #include <set>
 
 #include "absl/strings/numbers.h"
@@ -37,8 +38,9 @@ struct Genome {
   std::vector<Element> finals;
   std::vector<Element> colors;
   std::vector<Element> others;
+  /// A <palette> element, and its hex text.
+  std::optional<Element> palette;
   std::string palette_hex;
-  bool has_palette = false;
 };
 
 // Guards against absurd files before anything is built from them.
@@ -88,9 +90,8 @@ void XMLCALL OnStart(void* data, const char* name, const char** attrs) {
   if (tag == "finalxform") return add(g.finals);
   if (tag == "color") return add(g.colors);
   if (tag == "palette") {
-    g.has_palette = true;
+    g.palette = MakeElement(s, name, attrs);
     s.in_palette = true;
-    g.others.push_back(MakeElement(s, name, attrs));
     return;
   }
   g.others.push_back(MakeElement(s, name, attrs));
@@ -378,11 +379,9 @@ absl::StatusOr<std::vector<std::array<double, 3>>> HexPalette(const Genome& g) {
   std::string hex;
   for (char ch : g.palette_hex)
     if (!std::isspace(static_cast<unsigned char>(ch))) hex.push_back(ch);
-  const Element* el = nullptr;
-  for (const Element& e : g.others)
-    if (e.name == "palette") el = &e;
+  const Element& el = *g.palette;
   if (hex.size() % 6 != 0 || hex.empty() || hex.size() > 6 * 4096)
-    return Bad(*el, "(text)", "needs 6 hex digits per colour, up to 4096 colours");
+    return Bad(el, "(text)", "needs 6 hex digits per colour, up to 4096 colours");
   std::vector<std::array<double, 3>> out;
   for (size_t i = 0; i < hex.size(); i += 6) {
     std::array<double, 3> rgb;
@@ -390,7 +389,7 @@ absl::StatusOr<std::vector<std::array<double, 3>>> HexPalette(const Genome& g) {
       char* end = nullptr;
       const std::string byte = hex.substr(i + 2 * k, 2);
       rgb[k] = double(std::strtol(byte.c_str(), &end, 16)) / 255;
-      if (*end) return Bad(*el, "(text)", StrCat("'", byte, "' is not hexadecimal"));
+      if (*end) return Bad(el, "(text)", StrCat("'", byte, "' is not hexadecimal"));
     }
     out.push_back(rgb);
   }
@@ -400,7 +399,7 @@ absl::StatusOr<std::vector<std::array<double, 3>>> HexPalette(const Genome& g) {
 absl::Status ReadPalette(const Genome& g, v1::Palette& palette,
                          std::vector<std::string>& warnings) {
   std::vector<std::array<double, 3>> colours;
-  if (g.has_palette) {
+  if (g.palette) {
     NIMBUS_ASSIGN_OR_RETURN(colours, HexPalette(g));
   } else if (!g.colors.empty()) {
     std::map<int, std::array<double, 3>> by_index;
