@@ -7,12 +7,14 @@
 //   4. the share of job time spent writing the VDB (stat write_ms).
 // Prints figures; asserts nothing about speed.
 //
-// Usage: responsiveness_bench [REPEATS]   (default 3)
+// Usage: responsiveness_bench [REPEATS [fetch]]   (default 3; `fetch` runs
+// only figures 3 and 4)
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <string>
 #include <thread>
 #include <vector>
 
@@ -124,11 +126,11 @@ void WatcherCost(const std::string& address, int repeats) {
 }
 
 void FetchAndWriteShare(client::NimbusClient& c, const std::filesystem::path& dir, int repeats) {
-  // A dense 256^3 cloud: every voxel active, so the file is ~64 MB.
+  // A dense 320^3 cloud: every voxel active, so the file is ~64 MB.
   v1::JobSpec spec = LoadExample("cumulus.json");
   spec.mutable_fractal_field()->clear_shape();
   spec.mutable_grid()->clear_resolution();
-  spec.mutable_grid()->add_resolution(256);
+  spec.mutable_grid()->add_resolution(320);
   spec.set_no_cache(true);
   auto job = c.Submit(spec);
   const v1::Job done = WatchToEnd(c, job->id(), 0, 1.0);
@@ -149,7 +151,7 @@ void FetchAndWriteShare(client::NimbusClient& c, const std::filesystem::path& di
     auto it = j.stats().find("write_ms");
     return it == j.stats().end() ? -1.0 : double(it->second) / 1e3 / JobSeconds(j) * 100;
   };
-  std::printf("VDB write share: dense 256^3 cloud %.0f %% of %.2f s", share(done), JobSeconds(done));
+  std::printf("VDB write share: dense 320^3 cloud %.0f %% of %.2f s", share(done), JobSeconds(done));
   auto t = c.Submit(Tetrahedron(uint64_t{1} << 30));
   const v1::Job tet = WatchToEnd(c, t->id(), 0, 1.0);
   std::printf("; tetrahedron 256^3 (1.07e9 points) %.0f %% of %.2f s\n", share(tet),
@@ -172,8 +174,11 @@ int main(int argc, char** argv) {
   auto client = nimbus::client::NimbusClient::Connect(address);
   std::printf("responsiveness_bench: nimbusd on %s, 1 worker, %u hardware threads\n",
               address.c_str(), std::thread::hardware_concurrency());
-  nimbus::FirstPreview(*client, address, repeats);
-  nimbus::WatcherCost(address, repeats);
+  const bool fetch_only = argc > 2 && std::string(argv[2]) == "fetch";
+  if (!fetch_only) {
+    nimbus::FirstPreview(*client, address, repeats);
+    nimbus::WatcherCost(address, repeats);
+  }
   nimbus::FetchAndWriteShare(*client, dir, repeats);
   server.Stop();
   std::filesystem::remove_all(dir);

@@ -271,7 +271,8 @@ class WatchReactor : public grpc::ServerWriteReactor<v1::WatchJobResponse> {
 // every chunk read run on the blocking executor; gRPC threads only write.
 // The next chunk is read while the previous one is on the wire: at most one
 // read and one write are outstanding, and the reactor finishes only when no
-// read is (a read still running must not outlive the reactor).
+// read is (a read still running must not outlive the reactor). Two chunk
+// buffers take turns, so a download allocates and zero-fills them once.
 class FetchReactor : public grpc::ServerWriteReactor<v1::FetchResultResponse> {
  public:
   FetchReactor(JobStore* store, ResultStore* results, BlockingExecutor* blocking,
@@ -336,9 +337,15 @@ class FetchReactor : public grpc::ServerWriteReactor<v1::FetchResultResponse> {
       c.end = true;
       return c;
     }
-    auto data = file_name_.empty()
-                    ? results_->Read(key_, read_offset_, kFetchChunk)
-                    : results_->ReadFile(key_, file_name_, running_, read_offset_, kFetchChunk);
+    std::string buffer;
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      buffer.swap(spare_);
+    }
+    auto data = file_name_.empty() ? results_->Read(key_, read_offset_, kFetchChunk,
+                                                    std::move(buffer))
+                                   : results_->ReadFile(key_, file_name_, running_, read_offset_,
+                                                        kFetchChunk, std::move(buffer));
     if (!data.ok()) {
       c.status = data.status();
     } else if (data->empty()) {
@@ -374,7 +381,11 @@ class FetchReactor : public grpc::ServerWriteReactor<v1::FetchResultResponse> {
   void Send(Chunk c) {
     if (!c.status.ok()) return Finish(ToGrpc(c.status));
     if (c.end && sent_any_) return Finish(grpc::Status::OK);
-    if (sent_any_) resp_.Clear();  // size and hash ride on the first chunk only
+    if (sent_any_) {
+      std::lock_guard<std::mutex> lock(mu_);
+      spare_.swap(*resp_.mutable_data());  // the written chunk's buffer, for the next read
+      resp_.Clear();  // size and hash ride on the first chunk only
+    }
     resp_.set_offset(c.offset);
     resp_.set_data(std::move(c.data));
     sent_any_ = true;
@@ -449,6 +460,7 @@ class FetchReactor : public grpc::ServerWriteReactor<v1::FetchResultResponse> {
   std::mutex mu_;
   bool reading_ = false, writing_ = false, failed_ = false;
   std::optional<Chunk> ahead_;
+  std::string spare_;  // a chunk buffer no one uses, for the next read
 };
 
 }  // namespace

@@ -30,13 +30,26 @@ bool IsPlainName(const std::string& name) {
 }
 
 absl::StatusOr<std::string> ReadRange(const std::filesystem::path& path, uint64_t offset,
-                                      uint64_t max_bytes, const std::string& what) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return absl::NotFoundError(absl::StrCat(what, " is missing from the store"));
-  in.seekg(std::streamoff(offset));
-  std::string buf(max_bytes, '\0');
-  in.read(buf.data(), std::streamsize(max_bytes));
-  buf.resize(size_t(in.gcount()));
+                                      uint64_t max_bytes, const std::string& what,
+                                      std::string buf) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return absl::NotFoundError(absl::StrCat(what, " is missing from the store"));
+  // Growing zero-fills only the new part: a reused buffer costs no memset.
+  if (buf.size() < max_bytes) buf.resize(max_bytes);
+  size_t got = 0;
+  while (got < max_bytes) {
+    const ssize_t n = ::pread(fd, buf.data() + got, max_bytes - got, off_t(offset + got));
+    if (n < 0 && errno == EINTR) continue;
+    if (n < 0) {
+      const int err = errno;
+      ::close(fd);
+      return absl::InternalError(absl::StrCat("read ", what, ": ", std::strerror(err)));
+    }
+    if (n == 0) break;
+    got += size_t(n);
+  }
+  ::close(fd);
+  buf.resize(got);
   return buf;
 }
 
@@ -168,14 +181,15 @@ class LocalResultStore : public ResultStore {
     return Commit(to_key, scratch);
   }
 
-  absl::StatusOr<std::string> Read(const std::string& key, uint64_t offset,
-                                   uint64_t max_bytes) override {
+  absl::StatusOr<std::string> Read(const std::string& key, uint64_t offset, uint64_t max_bytes,
+                                   std::string buffer) override {
     if (!writer_.empty() && offset == 0) {
       // Another replica wrote it: check it whole before serving the first
       // chunk (a torn or foreign file on a shared volume is caught here).
       if (auto st = VerifyHash(key); !st.ok()) return st;
     }
-    return ReadRange(Path(key), offset, max_bytes, absl::StrCat("result ", key));
+    return ReadRange(Path(key), offset, max_bytes, absl::StrCat("result ", key),
+                     std::move(buffer));
   }
 
   absl::StatusOr<uint64_t> Size(const std::string& key) override {
@@ -210,14 +224,15 @@ class LocalResultStore : public ResultStore {
   }
 
   absl::StatusOr<std::string> ReadFile(const std::string& key, const std::string& name,
-                                       bool running, uint64_t offset, uint64_t max_bytes) override {
+                                       bool running, uint64_t offset, uint64_t max_bytes,
+                                       std::string buffer) override {
     const std::string what = absl::StrCat("file ", name, " of result ", key);
     if (!IsPlainName(name)) return absl::NotFoundError(absl::StrCat(what, " does not exist"));
     const std::filesystem::path folder = running ? RunningFilesDir(key) : FilesDir(key);
     std::error_code ec;
     if (!std::filesystem::is_regular_file(folder / name, ec))
       return absl::NotFoundError(absl::StrCat(what, " does not exist"));
-    return ReadRange(folder / name, offset, max_bytes, what);
+    return ReadRange(folder / name, offset, max_bytes, what, std::move(buffer));
   }
 
  private:

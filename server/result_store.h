@@ -47,8 +47,10 @@ class ResultStore {
   virtual absl::StatusOr<StoredResult> Commit(const std::string& key,
                                               const std::filesystem::path& scratch) = 0;
   /// Reads up to `max_bytes` at `offset`. Returns an empty string at EOF.
+  /// The answer reuses `buffer`'s storage: a streaming reader that hands
+  /// each chunk back saves an allocation and a zero fill per chunk.
   virtual absl::StatusOr<std::string> Read(const std::string& key, uint64_t offset,
-                                           uint64_t max_bytes) = 0;
+                                           uint64_t max_bytes, std::string buffer = {}) = 0;
   virtual absl::StatusOr<uint64_t> Size(const std::string& key) = 0;
   /// Removes a committed result and its further files (retention, or a
   /// deleted job); returns the bytes freed. A missing result frees 0.
@@ -70,10 +72,10 @@ class ResultStore {
   /// it). Cheap: one statvfs.
   virtual absl::Status CheckFreeSpace() { return absl::OkStatus(); }
   /// Reads part of a further file (committed, or written so far when
-  /// `running`). NOT_FOUND for an unknown name.
+  /// `running`). NOT_FOUND for an unknown name. `buffer` as for Read.
   virtual absl::StatusOr<std::string> ReadFile(const std::string& key, const std::string& name,
-                                               bool running, uint64_t offset,
-                                               uint64_t max_bytes) = 0;
+                                               bool running, uint64_t offset, uint64_t max_bytes,
+                                               std::string buffer = {}) = 0;
 };
 
 /// Results as files in `dir` (created if needed). CheckFreeSpace refuses
