@@ -166,7 +166,7 @@ namespace {
 // their starting distance before they plot. Otherwise: the whole grid.
 uint64_t ReachableTiles(const ChaosGameParams& p) {
   const Int3 r = p.CountResolution();
-  const uint64_t all = uint64_t((r.x + 31) / 32) * ((r.y + 31) / 32) * ((r.z + 31) / 32);
+  const uint64_t all = CountGrid::TileCountFor(r);
   if (p.image || p.ifs.final_map || p.ifs.arcs || !p.ifs.AllAffine() || p.ifs.maps.empty())
     return all;
   Vec3 c;
@@ -189,12 +189,13 @@ uint64_t ReachableTiles(const ChaosGameParams& p) {
   radius += std::pow(s_max, double(p.warmup)) * start + Length(vs);
   if (!std::isfinite(radius)) return all;
   uint64_t tiles = 1;
+  const Int3 span = CountGrid::TileSpan(r);  // a folded grid's tiles are 1024 rows high
   for (int a = 0; a < 3; ++a) {
-    const int n = a == 0 ? r.x : (a == 1 ? r.y : r.z);
+    const int n = r[a];
     const double lo = std::floor((c[a] - radius - b.min[a]) / vs[a]);
     const double hi = std::floor((c[a] + radius - b.min[a]) / vs[a]);
-    const int t0 = int(std::clamp(lo, 0.0, double(n - 1))) / 32;
-    const int t1 = int(std::clamp(hi, 0.0, double(n - 1))) / 32;
+    const int t0 = int(std::clamp(lo, 0.0, double(n - 1))) / span[a];
+    const int t1 = int(std::clamp(hi, 0.0, double(n - 1))) / span[a];
     tiles *= uint64_t(t1 - t0 + 1);
   }
   return std::min(tiles, all);
@@ -243,9 +244,9 @@ ChaosGameMemory ChaosGame::EstimateMemory(const ChaosGameParams& p, int threads,
   m.accumulation = uint64_t(threads) * CountGrid::BoundedMemoryBytes(r, 0, color) +
                    all_tiles * CountGrid::TileBytes(color) + uint64_t(threads) * buffers;
   // Output: the merged grid, plus one VDB leaf (8^3 voxels, with ~15 %
-  // tree overhead) per touched leaf.
+  // tree overhead) per touched leaf: 64 per tile, 512 per folded tile.
   const uint64_t merged = CountGrid::BoundedMemoryBytes(r, std::min(tiles, touches), color);
-  const uint64_t leaves = std::min(tiles * 64, touches);
+  const uint64_t leaves = std::min(tiles * CountGrid::LeavesPerTile(r), touches);
   m.output = merged + leaves * 512 * output_bytes_per_voxel * 115 / 100;
   return m;
 }
@@ -256,11 +257,12 @@ absl::StatusOr<TileCensus> ChaosGame::Pilot(const ChaosGameParams& params, uint6
   p.image.reset();  // a census of the volume grid's tiles
   const Int3 r = params.frame.resolution;
   const Vec3 vs = params.frame.VoxelSize();
-  constexpr int kT = CountGrid::kTileDim;
-  p.frame.resolution = {(r.x + kT - 1) / kT, (r.y + kT - 1) / kT, (r.z + kT - 1) / kT};
+  const Int3 span = CountGrid::TileSpan(r);  // voxels of the real grid per tile
+  p.frame.resolution = {(r.x + span.x - 1) / span.x, (r.y + span.y - 1) / span.y,
+                        (r.z + span.z - 1) / span.z};
   // Pilot voxel i covers exactly tile i of the real grid.
   for (int a = 0; a < 3; ++a)
-    p.frame.bounds.max[a] = p.frame.bounds.min[a] + p.frame.resolution[a] * kT * vs[a];
+    p.frame.bounds.max[a] = p.frame.bounds.min[a] + p.frame.resolution[a] * span[a] * vs[a];
   p.iterations = std::max<uint64_t>(1, std::min(samples, params.iterations));
   p.color = {};
   p.splat = false;
@@ -275,17 +277,12 @@ absl::StatusOr<TileCensus> ChaosGame::Pilot(const ChaosGameParams& params, uint6
   TileCensus c;
   c.samples = p.iterations;
   std::vector<uint8_t> hit(size_t(pr.x) * pr.y * pr.z, 0);
-  counts.ForEachTile([&](Int3 o, const uint32_t* t) {
-    for (int i = 0; i < CountGrid::kTileVoxels; ++i) {
-      if (t[i] == 0) continue;
-      const Int3 l = CountGrid::LocalCoord(uint32_t(i));
-      const Int3 v{o.x + l.x, o.y + l.y, o.z + l.z};
-      if (v.x >= pr.x || v.y >= pr.y || v.z >= pr.z) continue;
-      hit[(size_t(v.x) * pr.y + v.y) * pr.z + v.z] = 1;
-      ++c.seen;
-      c.singletons += t[i] == 1;
-      c.doubletons += t[i] == 2;
-    }
+  counts.ForEachVoxel([&](Int3 v, uint32_t n) {
+    if (v.x >= pr.x || v.y >= pr.y || v.z >= pr.z) return;
+    hit[(size_t(v.x) * pr.y + v.y) * pr.z + v.z] = 1;
+    ++c.seen;
+    c.singletons += n == 1;
+    c.doubletons += n == 2;
   });
   const double f1 = double(c.singletons), f2 = double(c.doubletons);
   const double unseen = f2 > 0 ? f1 * f1 / (2 * f2) : f1 * (f1 - 1) / 2;
@@ -459,7 +456,9 @@ void ChaosGame::RunChunkFast(uint64_t chunk, Worker& w) {
   }
   const Int3 res = p.image ? Int3{p.image->width, p.image->height, 1} : p.frame.resolution;
   k.res[0] = res.x, k.res[1] = res.y, k.res[2] = res.z;
-  if (p.image) k.fold_mask = ImagePlane::kFoldMask, k.fold_shift = ImagePlane::kFoldShift;
+  // Image rows, or a thin grid's rows, fold into the tiles' depth alike.
+  k.fold_mask = p.image ? ImagePlane::kFoldMask : w.grid->fold_mask();
+  k.fold_shift = p.image ? ImagePlane::kFoldShift : w.grid->fold_shift();
   k.tiles_y = uint32_t(w.grid->tiles().y);
   k.tiles_z = uint32_t(w.grid->tiles().z);
   k.bin_shift = c.bins->bin_shift();
@@ -835,6 +834,13 @@ std::vector<uint64_t> CoarseCounts(const std::vector<const CountGrid*>& parts, i
   const Int3 c{(r.x + cell - 1) / cell, (r.y + cell - 1) / cell, (r.z + cell - 1) / cell};
   std::vector<uint64_t> out(size_t(c.x) * c.y * c.z, 0);
   for (const CountGrid* g : parts) {
+    if (g->folded()) {
+      // A folded tile spans more than one cell.
+      g->ForEachVoxel([&](Int3 v, uint32_t n) {
+        out[(size_t(v.x / cell) * c.y + v.y / cell) * c.z + v.z / cell] += n;
+      });
+      continue;
+    }
     g->ForEachTile([&](Int3 o, const uint32_t* t) {
       uint64_t sum = 0;
       for (int i = 0; i < CountGrid::kTileVoxels; ++i) sum += t[i];

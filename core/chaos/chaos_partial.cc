@@ -15,7 +15,9 @@ namespace nimbus {
 namespace {
 
 constexpr char kMagic[8] = {'N', 'I', 'M', 'B', 'U', 'S', 'C', 'P'};
-constexpr uint32_t kFormatVersion = 1;
+// 2: grids one voxel thick are stored folded (CountGrid), so format 1's
+// tiles of such grids mean other voxels.
+constexpr uint32_t kFormatVersion = 2;
 constexpr size_t kDigestBytes = 64;  // hex SHA-256
 
 static_assert(__BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__, "partials are written little-endian");
@@ -100,7 +102,7 @@ absl::Status AddChaosPartial(std::string_view bytes, CountGrid& counts, ChaosGam
   Header h;
   std::memcpy(&h, body.data(), sizeof h);
   if (std::memcmp(h.magic, kMagic, sizeof kMagic) != 0 || h.version != kFormatVersion)
-    return Damaged("not a chaos partial of format 1");
+    return Damaged(absl::StrCat("not a chaos partial of format ", kFormatVersion));
   const Int3 r = counts.resolution();
   if (h.res[0] != r.x || h.res[1] != r.y || h.res[2] != r.z ||
       (h.with_color != 0) != counts.has_color())

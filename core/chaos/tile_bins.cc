@@ -13,12 +13,7 @@ uint32_t ShiftFor(uint64_t tiles) {
   return shift;
 }
 
-uint64_t TileCount(Int3 r) {
-  const auto tiles = [](int n) {
-    return uint64_t((n + CountGrid::kTileDim - 1) / CountGrid::kTileDim);
-  };
-  return tiles(r.x) * tiles(r.y) * tiles(r.z);
-}
+uint64_t TileCount(Int3 r) { return CountGrid::TileCountFor(r); }
 
 }  // namespace
 

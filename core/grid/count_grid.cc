@@ -11,13 +11,27 @@ namespace {
 int CeilDiv(int a, int b) { return (a + b - 1) / b; }
 }  // namespace
 
+namespace {
+Int3 StorageTiles(Int3 resolution) {
+  const Int3 s = CountGrid::StorageResolution(resolution);
+  return {CeilDiv(s.x, CountGrid::kTileDim), CeilDiv(s.y, CountGrid::kTileDim),
+          CeilDiv(s.z, CountGrid::kTileDim)};
+}
+}  // namespace
+
 CountGrid::CountGrid(Int3 resolution, bool with_color)
     : res_(resolution),
-      tiles_{CeilDiv(resolution.x, kTileDim), CeilDiv(resolution.y, kTileDim),
-             CeilDiv(resolution.z, kTileDim)},
+      tiles_(StorageTiles(resolution)),
+      fold_shift_(Folds(resolution) ? kTileLog2 : 0),
+      fold_mask_(Folds(resolution) ? kTileDim - 1 : 0),
       with_color_(with_color),
       table_(size_t(tiles_.x) * tiles_.y * tiles_.z) {
   if (with_color_) color_.resize(table_.size());
+}
+
+uint64_t CountGrid::TileCountFor(Int3 resolution) {
+  const Int3 t = StorageTiles(resolution);
+  return uint64_t(t.x) * uint64_t(t.y) * uint64_t(t.z);
 }
 
 CountGrid::CountGrid(CountGrid&&) noexcept = default;
@@ -135,15 +149,13 @@ size_t CountGrid::MemoryBytes() const {
 }
 
 uint64_t CountGrid::BoundedMemoryBytes(Int3 r, uint64_t max_tiles, bool with_color) {
-  const uint64_t tiles =
-      uint64_t(CeilDiv(r.x, kTileDim)) * CeilDiv(r.y, kTileDim) * CeilDiv(r.z, kTileDim);
+  const uint64_t tiles = TileCountFor(r);
   return tiles * sizeof(void*) * (with_color ? 2 : 1) +
          std::min(tiles, max_tiles) * TileBytes(with_color);
 }
 
 uint64_t CountGrid::MaxMemoryBytes(Int3 r) {
-  const uint64_t tiles =
-      uint64_t(CeilDiv(r.x, kTileDim)) * CeilDiv(r.y, kTileDim) * CeilDiv(r.z, kTileDim);
+  const uint64_t tiles = TileCountFor(r);
   return tiles * (sizeof(void*) + sizeof(uint32_t) * kTileVoxels);
 }
 

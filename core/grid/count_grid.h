@@ -17,6 +17,13 @@ namespace nimbus {
 /// stays in cache. Inside a tile, 8^3 leaves are laid out in OpenVDB's
 /// LeafNode order so conversion to a VDB tree copies whole leaves.
 ///
+/// A grid one voxel thick in z (resolution z == 1, a 2D picture as a
+/// volume) would waste 31/32 of every tile, so it folds 32 rows into the
+/// tile's depth: voxel (x, y, 0) is stored at (x, y >> 5, y & 31), the
+/// layout of ImagePlane's pixels, and a tile holds 32 columns by 1024 rows.
+/// Key, Add, Get and ForEachVoxel speak in voxels whatever the layout;
+/// tiles(), TileOrigin and ForEachTile are in the stored layout.
+///
 /// Optionally each voxel also carries a colour sum: the exact integer sum
 /// of the 16-bit fixed-point colour coordinates of its visits, so colour
 /// adds up order-independently (bitwise reproducible for any thread count).
@@ -43,15 +50,44 @@ class CountGrid {
   CountGrid& operator=(CountGrid&&) noexcept;
   ~CountGrid();
 
+  /// True for the resolutions stored folded (z == 1).
+  static bool Folds(Int3 resolution) { return resolution.z == 1; }
+  /// The lattice the tiles cover: the resolution, or (x, ceil(y / 32), 32)
+  /// folded.
+  static Int3 StorageResolution(Int3 resolution) {
+    return Folds(resolution) ? Int3{resolution.x, (resolution.y + kTileDim - 1) >> kTileLog2,
+                                    kTileDim}
+                             : resolution;
+  }
+  /// Tiles of a grid of this resolution, all allocated.
+  static uint64_t TileCountFor(Int3 resolution);
+  /// Voxels of the resolution one tile spans along each axis: 32^3, or 32
+  /// columns by 1024 rows by 32 (more than the one slice) folded.
+  static Int3 TileSpan(Int3 resolution) {
+    return Folds(resolution) ? Int3{kTileDim, kTileDim << kTileLog2, kTileDim}
+                             : Int3{kTileDim, kTileDim, kTileDim};
+  }
+
+  /// VDB leaves (8^3 voxels) one tile's voxels fall in: 64, or 512 folded.
+  static uint64_t LeavesPerTile(Int3 resolution) { return Folds(resolution) ? 512 : 64; }
+
   Int3 resolution() const { return res_; }
+  /// Tiles per axis of the stored layout.
   Int3 tiles() const { return tiles_; }
+  bool folded() const { return fold_shift_ != 0; }
+  /// The fold as walk::AffineWalk takes it: y is stored at
+  /// (y >> fold_shift, z + (y & fold_mask)); both 0 unfolded.
+  uint32_t fold_shift() const { return fold_shift_; }
+  uint32_t fold_mask() const { return fold_mask_; }
 
   /// Packs a voxel into a key: tile index << 15 | offset inside the tile.
   uint64_t Key(int x, int y, int z) const {
+    // Branch-free fold: shift and mask are 0 for an unfolded grid.
+    const int sy = y >> fold_shift_, sz = z + int(uint32_t(y) & fold_mask_);
     const uint64_t tile =
-        (uint64_t(x >> kTileLog2) * tiles_.y + uint64_t(y >> kTileLog2)) * tiles_.z +
-        uint64_t(z >> kTileLog2);
-    return (tile << 15) | LocalOffset(x & 31, y & 31, z & 31);
+        (uint64_t(x >> kTileLog2) * tiles_.y + uint64_t(sy >> kTileLog2)) * tiles_.z +
+        uint64_t(sz >> kTileLog2);
+    return (tile << 15) | LocalOffset(x & 31, sy & 31, sz & 31);
   }
   static uint32_t LocalOffset(int lx, int ly, int lz) {
     // leaf (lx>>3, ly>>3, lz>>3) then OpenVDB's (x<<6 | y<<3 | z) in the leaf.
@@ -120,7 +156,8 @@ class CountGrid {
   static uint64_t BoundedMemoryBytes(Int3 resolution, uint64_t max_tiles, bool with_color);
 
   /// Calls f(tile_origin, const uint32_t* tile) for every allocated tile,
-  /// in tile-index order (deterministic).
+  /// in tile-index order (deterministic). The origin and the tile's local
+  /// offsets are in the stored layout: VoxelAt turns them into a voxel.
   template <typename F>
   void ForEachTile(F&& f) const {
     for (size_t t = 0; t < table_.size(); ++t)
@@ -136,6 +173,69 @@ class CountGrid {
     const int z = int(t % tiles_.z), y = int((t / tiles_.z) % tiles_.y),
               x = int(t / (size_t(tiles_.z) * tiles_.y));
     return {x * kTileDim, y * kTileDim, z * kTileDim};
+  }
+  /// The voxel stored at local offset `offset` of the tile at `origin`
+  /// (a TileOrigin); past the resolution for padding voxels.
+  Int3 VoxelAt(Int3 origin, uint32_t offset) const {
+    const Int3 l = LocalCoord(offset);
+    const int sy = origin.y + l.y, sz = origin.z + l.z;
+    return {origin.x + l.x, (sy << fold_shift_) | (sz & int(fold_mask_)),
+            sz & ~int(fold_mask_)};
+  }
+  /// Calls f(Int3 voxel, uint32_t count) for every non-zero counter, tile
+  /// by tile in tile-index order.
+  template <typename F>
+  void ForEachVoxel(F&& f) const {
+    ForEachTile([&](Int3 o, const uint32_t* t) {
+      for (uint32_t i = 0; i < uint32_t(kTileVoxels); ++i)
+        if (t[i]) f(VoxelAt(o, i), t[i]);
+    });
+  }
+  /// Calls f(Int3 leaf_origin, const uint32_t* counts, const uint64_t*
+  /// colors) for every 8^3 leaf of voxels with a non-zero counter, its 512
+  /// counters (and colour sums, nullptr without colour) in OpenVDB's
+  /// LeafNode order: what a VDB tree of the voxels holds, leaf by leaf.
+  /// Unfolded these are slices of the tiles; folded, each stored leaf holds
+  /// eight voxel leaves' only slice, gathered into a buffer.
+  template <typename F>
+  void ForEachLeaf(F&& f) const {
+    if (!folded()) {
+      ForEachTileWithColor([&](Int3 o, const uint32_t* t, const uint64_t* c) {
+        for (int leaf = 0; leaf < 64; ++leaf) {
+          const uint32_t* v = t + leaf * 512;
+          if (AllZero(v, 512)) continue;
+          f(Int3{o.x + ((leaf >> 4) & 3) * 8, o.y + ((leaf >> 2) & 3) * 8, o.z + (leaf & 3) * 8},
+            v, c ? c + leaf * 512 : nullptr);
+        }
+      });
+      return;
+    }
+    uint32_t v[512] = {};
+    uint64_t cs[512] = {};
+    ForEachTileWithColor([&](Int3 o, const uint32_t* t, const uint64_t* c) {
+      for (int leaf = 0; leaf < 64; ++leaf) {
+        const int x0 = o.x + ((leaf >> 4) & 3) * 8, sy0 = o.y + ((leaf >> 2) & 3) * 8,
+                  sz0 = o.z + (leaf & 3) * 8;
+        const uint32_t* lv = t + leaf * 512;
+        // Stored (x, sy, sz) is voxel (x, 32 sy + sz, 0): fixing sy gives
+        // the z = 0 slice of one voxel leaf, offset x << 6 | (sz & 7) << 3.
+        for (int j = 0; j < 8; ++j) {
+          bool any = false;
+          for (int i = 0; i < 8; ++i)
+            for (int k = 0; k < 8; ++k) {
+              const uint32_t n = lv[(i << 6) | (j << 3) | k];
+              v[(i << 6) | (k << 3)] = n;
+              any = any || n;
+            }
+          if (!any) continue;
+          if (c)
+            for (int i = 0; i < 8; ++i)
+              for (int k = 0; k < 8; ++k)
+                cs[(i << 6) | (k << 3)] = c[leaf * 512 + ((i << 6) | (j << 3) | k)];
+          f(Int3{x0, ((sy0 + j) << kTileLog2) + sz0, 0}, v, c ? cs : nullptr);
+        }
+      }
+    });
   }
   /// Voxel coordinates (relative to its tile's origin) of a local offset.
   static Int3 LocalCoord(uint32_t offset) {
@@ -157,9 +257,15 @@ class CountGrid {
   }
   // Allocates the tile, or returns the scratch tile past the limit.
   uint32_t* Allocate(uint64_t tile);
+  static bool AllZero(const uint32_t* v, int n) {
+    for (int i = 0; i < n; ++i)
+      if (v[i]) return false;
+    return true;
+  }
 
   Int3 res_;
-  Int3 tiles_;
+  Int3 tiles_;  // of the stored layout
+  uint32_t fold_shift_ = 0, fold_mask_ = 0;
   bool with_color_ = false;
   // Tiles come from calloc: fresh pages are already zero, so a new tile
   // costs no memset on top of the kernel's page clearing.

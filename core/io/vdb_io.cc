@@ -358,7 +358,8 @@ struct ResultGrids {
   openvdb::Int64Grid::Ptr raw_i;
 };
 
-// Built leaf by leaf straight from the count tiles, in the spec's frame.
+// Built leaf by leaf straight from the count tiles (CountGrid::ForEachLeaf),
+// in the spec's frame.
 ResultGrids BuildFineGrids(const CountGrid& counts, const GridFrame& frame,
                            const DensityOptions& options, bool int64_counts) {
   ResultGrids g;
@@ -375,42 +376,34 @@ ResultGrids BuildFineGrids(const CountGrid& counts, const GridFrame& frame,
   const Normaliser norm(options, counts.Max());
   auto& tree = g.density->tree();
   const double inv_scale = 1.0 / CountGrid::kColorScale;
-  counts.ForEachTileWithColor([&](Int3 origin, const uint32_t* tile, const uint64_t* csum) {
-    for (int leaf = 0; leaf < 64; ++leaf) {
-      const uint32_t* v = tile + leaf * 512;
-      bool any = false;
-      for (int i = 0; i < 512 && !any; ++i) any = v[i] != 0;
-      if (!any) continue;
-      const openvdb::Coord c(origin.x + ((leaf >> 4) & 3) * 8, origin.y + ((leaf >> 2) & 3) * 8,
-                             origin.z + (leaf & 3) * 8);
-      auto* node = tree.touchLeaf(c);
-      for (int i = 0; i < 512; ++i)
-        if (v[i]) node->setValueOn(i, norm(v[i]));
-      if (options.modulation) Modulate(options.modulation, frame, *node);
-      if (color || address) {
-        const uint64_t* cs = csum + leaf * 512;
-        auto* cd_node = color ? g.cd->tree().touchLeaf(c) : nullptr;
-        auto* a_node = address ? g.addr->tree().touchLeaf(c) : nullptr;
-        for (int i = 0; i < 512; ++i) {
-          if (!v[i]) continue;
-          const double t = double(cs[i]) * inv_scale / double(v[i]);
-          if (cd_node) {
-            const Vec3 rgb = options.palette.Eval(t);
-            cd_node->setValueOn(i, openvdb::Vec3s(float(rgb.x), float(rgb.y), float(rgb.z)));
-          }
-          if (a_node) a_node->setValueOn(i, float(t));
+  counts.ForEachLeaf([&](Int3 origin, const uint32_t* v, const uint64_t* cs) {
+    const openvdb::Coord c(origin.x, origin.y, origin.z);
+    auto* node = tree.touchLeaf(c);
+    for (int i = 0; i < 512; ++i)
+      if (v[i]) node->setValueOn(i, norm(v[i]));
+    if (options.modulation) Modulate(options.modulation, frame, *node);
+    if (color || address) {
+      auto* cd_node = color ? g.cd->tree().touchLeaf(c) : nullptr;
+      auto* a_node = address ? g.addr->tree().touchLeaf(c) : nullptr;
+      for (int i = 0; i < 512; ++i) {
+        if (!v[i]) continue;
+        const double t = double(cs[i]) * inv_scale / double(v[i]);
+        if (cd_node) {
+          const Vec3 rgb = options.palette.Eval(t);
+          cd_node->setValueOn(i, openvdb::Vec3s(float(rgb.x), float(rgb.y), float(rgb.z)));
         }
+        if (a_node) a_node->setValueOn(i, float(t));
       }
-      if (g.raw_f) {
-        auto* n = g.raw_f->tree().touchLeaf(c);
-        for (int i = 0; i < 512; ++i)
-          if (v[i]) n->setValueOn(i, float(v[i]));
-      }
-      if (g.raw_i) {
-        auto* n = g.raw_i->tree().touchLeaf(c);
-        for (int i = 0; i < 512; ++i)
-          if (v[i]) n->setValueOn(i, int64_t(v[i]));
-      }
+    }
+    if (g.raw_f) {
+      auto* n = g.raw_f->tree().touchLeaf(c);
+      for (int i = 0; i < 512; ++i)
+        if (v[i]) n->setValueOn(i, float(v[i]));
+    }
+    if (g.raw_i) {
+      auto* n = g.raw_i->tree().touchLeaf(c);
+      for (int i = 0; i < 512; ++i)
+        if (v[i]) n->setValueOn(i, int64_t(v[i]));
     }
   });
   return g;
@@ -478,25 +471,16 @@ ResultGrids Coarsen(const ResultGrids& g, int f) {
 GridSupport SupportAtFactor(const CountGrid& counts, int f) {
   GridSupport s;
   if (f == 1) {
-    // Count tiles hold 64 leaves of 512 voxels in OpenVDB's order.
-    counts.ForEachTile([&](Int3, const uint32_t* tile) {
-      for (int leaf = 0; leaf < 64; ++leaf) {
-        uint64_t n = 0;
-        for (int i = 0; i < 512; ++i) n += tile[leaf * 512 + i] != 0;
-        s.voxels += n;
-        s.leaves += n > 0;
-      }
+    counts.ForEachLeaf([&](Int3, const uint32_t* v, const uint64_t*) {
+      for (int i = 0; i < 512; ++i) s.voxels += v[i] != 0;
+      ++s.leaves;
     });
     return s;
   }
   openvdb::MaskGrid mask;
   auto acc = mask.getAccessor();
-  counts.ForEachTile([&](Int3 o, const uint32_t* tile) {
-    for (uint32_t i = 0; i < uint32_t(CountGrid::kTileVoxels); ++i) {
-      if (!tile[i]) continue;
-      const Int3 l = CountGrid::LocalCoord(i);
-      acc.setValueOn(openvdb::Coord((o.x + l.x) / f, (o.y + l.y) / f, (o.z + l.z) / f));
-    }
+  counts.ForEachVoxel([&](Int3 v, uint32_t) {
+    acc.setValueOn(openvdb::Coord(v.x / f, v.y / f, v.z / f));
   });
   s.voxels = mask.activeVoxelCount();
   s.leaves = mask.tree().leafCount();
@@ -876,13 +860,8 @@ CountGrid DownsampleCounts(const std::vector<const CountGrid*>& parts, int facto
   CountGrid out(
       Int3{(r.x + factor - 1) / factor, (r.y + factor - 1) / factor, (r.z + factor - 1) / factor});
   for (const CountGrid* part : parts) {
-    part->ForEachTile([&](Int3 o, const uint32_t* tile) {
-      for (uint32_t i = 0; i < uint32_t(CountGrid::kTileVoxels); ++i) {
-        if (!tile[i]) continue;
-        const Int3 l = CountGrid::LocalCoord(i);
-        out.Add((o.x + l.x) / factor, (o.y + l.y) / factor, (o.z + l.z) / factor, tile[i]);
-      }
-    });
+    part->ForEachVoxel(
+        [&](Int3 v, uint32_t n) { out.Add(v.x / factor, v.y / factor, v.z / factor, n); });
   }
   return out;
 }

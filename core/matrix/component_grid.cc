@@ -15,21 +15,15 @@ ComponentAccumulator::ComponentAccumulator(Int3 resolution)
 
 void ComponentAccumulator::Add(int32_t label, const CountGrid& counts) {
   density_.Merge(counts);
-  counts.ForEachTile([&](Int3 origin, const uint32_t* tile) {
-    for (uint32_t i = 0; i < uint32_t(CountGrid::kTileVoxels); ++i) {
-      const uint32_t c = tile[i];
-      if (c == 0) continue;
-      const Int3 l = CountGrid::LocalCoord(i);
-      const int x = origin.x + l.x, y = origin.y + l.y, z = origin.z + l.z;
-      const uint32_t best = best_.Get(x, y, z);
-      if (c <= best) continue;
-      // CountGrid only adds, so store the differences.
-      best_.Add(x, y, z, c - best);
-      // Counters are modular uint32, so adding the difference also lowers.
-      const uint32_t old = label_plus_one_.Get(x, y, z);
-      const uint32_t want = uint32_t(label) + 1;
-      if (want != old) label_plus_one_.Add(x, y, z, want - old);
-    }
+  counts.ForEachVoxel([&](Int3 v, uint32_t c) {
+    const uint32_t best = best_.Get(v.x, v.y, v.z);
+    if (c <= best) return;
+    // CountGrid only adds, so store the differences.
+    best_.Add(v.x, v.y, v.z, c - best);
+    // Counters are modular uint32, so adding the difference also lowers.
+    const uint32_t old = label_plus_one_.Get(v.x, v.y, v.z);
+    const uint32_t want = uint32_t(label) + 1;
+    if (want != old) label_plus_one_.Add(v.x, v.y, v.z, want - old);
   });
 }
 

@@ -40,13 +40,8 @@ class ComponentAccumulator {
   /// Calls f(x, y, z, label) for every labelled voxel, in tile order.
   template <typename F>
   void ForEachLabel(F&& f) const {
-    label_plus_one_.ForEachTile([&](Int3 origin, const uint32_t* tile) {
-      for (uint32_t i = 0; i < uint32_t(CountGrid::kTileVoxels); ++i) {
-        if (tile[i] == 0) continue;
-        const Int3 c = CountGrid::LocalCoord(i);
-        f(origin.x + c.x, origin.y + c.y, origin.z + c.z, int32_t(tile[i]) - 1);
-      }
-    });
+    label_plus_one_.ForEachVoxel(
+        [&](Int3 v, uint32_t label) { f(v.x, v.y, v.z, int32_t(label) - 1); });
   }
 
   /// Worst-case bytes of the three grids kept here.

@@ -134,8 +134,7 @@ void ForEachCounted(const CountGrid& g, F&& f) {
   g.ForEachTileWithColor([&](Int3 o, const uint32_t* counts, const uint64_t* colors) {
     for (int i = 0; i < CountGrid::kTileVoxels; ++i) {
       if (counts[i] == 0) continue;
-      const Int3 l = CountGrid::LocalCoord(uint32_t(i));
-      const Int3 v{o.x + l.x, o.y + l.y, o.z + l.z};
+      const Int3 v = g.VoxelAt(o, uint32_t(i));  // thin grids are stored folded
       if (v.x < r.x && v.y < r.y && v.z < r.z) f(v, counts[i], colors ? colors[i] : 0);
     }
   });

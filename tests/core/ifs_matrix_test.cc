@@ -52,13 +52,9 @@ VoxelSet VoxelsOf(const std::vector<Vec3>& pts, const GridFrame& f) {
 VoxelSet VoxelsOf(const CountGrid& g) {
   VoxelSet out;
   const Int3 res = g.resolution();
-  g.ForEachTile([&](Int3 origin, const uint32_t* tile) {
-    for (uint32_t o = 0; o < uint32_t(CountGrid::kTileVoxels); ++o) {
-      if (!tile[o]) continue;
-      const Int3 l = CountGrid::LocalCoord(o);
-      const Voxel v{origin.x + l.x, origin.y + l.y, origin.z + l.z};
-      if (v[0] < res.x && v[1] < res.y && v[2] < res.z) out.insert(v);
-    }
+  g.ForEachVoxel([&](Int3 c, uint32_t) {
+    const Voxel v{c.x, c.y, c.z};
+    if (v[0] < res.x && v[1] < res.y && v[2] < res.z) out.insert(v);
   });
   return out;
 }
