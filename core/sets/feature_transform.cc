@@ -20,25 +20,24 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 // Per-thread buffers for one line of a pass.
 struct LineScratch {
   std::vector<int> pos;        // site positions along the line
-  std::vector<double> g;       // site costs from earlier axes (scratch)
+  std::vector<double> c;       // g_i + w pos_i^2 (g: the cost from earlier axes)
   std::vector<PackedVoxel> f;  // site features
-  std::vector<int> hull;       // envelope: indices into the site arrays
+  // The envelope as a stack of its sites' values (not indices into the
+  // site arrays): the pop test then reads adjacent entries, not scattered
+  // ones through a level of indirection.
+  std::vector<double> hc;
+  std::vector<int> hp;
+  std::vector<PackedVoxel> hf;
   void Reserve(int n) {
     pos.resize(n);
-    g.resize(n);
+    c.resize(n);
     f.resize(n);
-    hull.resize(n);
+    hc.resize(n);
+    hp.resize(n);
+    hf.resize(n);
   }
 };
 
-// Lower envelope of the parabolas g_i + w (q - pos_i)^2 for m sites in
-// increasing position, then the winning feature for every position q in
-// [q0 + lo, q0 + hi), written to out[(q - q0) * stride]. Positions are lattice
-// coordinates, not box-relative ones, so a line computed inside any box
-// does the same floating-point operations and breaks ties the same way. Works on c_i = g_i + w
-// pos_i^2 and cross-multiplied intersection tests (no divisions: they dominated the pass). Equal
-// curvatures mean the rightmost site always wins far enough right, so each new site is pushed after
-// popping the ones it hides.
 // Copies one tile row: a fixed-size copy for whole blocks, so the compiler
 // emits two vector moves instead of a library call.
 template <int kBlock>
@@ -49,23 +48,42 @@ inline void CopyRow(const PackedVoxel* from, int n, PackedVoxel* to) {
     std::copy_n(from, n, to);
 }
 
+// Lower envelope of the parabolas g_i + w (q - pos_i)^2 for m sites in
+// increasing position, then the winning feature for every position q in
+// [q0 + lo, q0 + hi), written to out[(q - q0) * stride]. Positions are lattice
+// coordinates, not box-relative ones, so a line computed inside any box
+// does the same floating-point operations and breaks ties the same way.
+// Works on c_i = g_i + w pos_i^2, which the caller stores (w pos^2 comes
+// from a table per pass: the same double for every line), and
+// cross-multiplied intersection tests (no divisions: they dominated the
+// pass). Equal curvatures mean the rightmost site always wins far enough
+// right, so each new site is pushed after popping the ones it hides.
 void EnvelopeLine(LineScratch& s, int m, double w, int q0, int lo, int hi, PackedVoxel* out,
                   size_t stride) {
-  double* c = s.g.data();
+  const double* c = s.c.data();
   const int* p = s.pos.data();
-  for (int i = 0; i < m; ++i) c[i] += w * double(p[i]) * p[i];
-  int* hull = s.hull.data();
+  const PackedVoxel* f = s.f.data();
+  double* hc = s.hc.data();
+  int* hp = s.hp.data();
+  PackedVoxel* hf = s.hf.data();
   int k = 0;
-  hull[0] = 0;
+  hc[0] = c[0];
+  hp[0] = p[0];
+  hf[0] = f[0];
   for (int i = 1; i < m; ++i) {
-    // Pop hull[k] while the new parabola overtakes it no later than
-    // hull[k] overtakes hull[k - 1].
+    const double ci = c[i];
+    const int pi = p[i];
+    // Pop the top while the new parabola overtakes it no later than it
+    // overtakes the one below.
     while (k > 0) {
-      const int u = hull[k - 1], v = hull[k];
-      if ((c[v] - c[u]) * double(p[i] - p[v]) < (c[i] - c[v]) * double(p[v] - p[u])) break;
+      if ((hc[k] - hc[k - 1]) * double(pi - hp[k]) < (ci - hc[k]) * double(hp[k] - hp[k - 1]))
+        break;
       --k;
     }
-    hull[++k] = i;
+    ++k;
+    hc[k] = ci;
+    hp[k] = pi;
+    hf[k] = f[i];
   }
   // Only positions [q0 + lo, q0 + hi) are written. Starting the walk at
   // q0 + lo instead of q0 changes nothing: whether the next parabola is
@@ -75,17 +93,29 @@ void EnvelopeLine(LineScratch& s, int m, double w, int q0, int lo, int hi, Packe
   // parabola is reached it wins every remaining position.
   int h = 0, i = lo;
   while (h < k && i < hi) {
-    const int u = hull[h], v = hull[h + 1];
-    const double dc = c[v] - c[u], dp = double(p[v] - p[u]);
+    const double dc = hc[h + 1] - hc[h], dp = double(hp[h + 1] - hp[h]);
+    const PackedVoxel fu = hf[h];
     // Positions where the next parabola is not strictly lower stay with u.
-    for (; i < hi && !(dc < 2.0 * w * (q0 + i) * dp); ++i) out[size_t(i) * stride] = s.f[u];
+    for (; i < hi && !(dc < 2.0 * w * (q0 + i) * dp); ++i) out[size_t(i) * stride] = fu;
     if (i < hi) ++h;
   }
-  const PackedVoxel last = s.f[hull[h]];
+  const PackedVoxel last = hf[h];
   for (; i < hi; ++i) out[size_t(i) * stride] = last;
 }
 
 int Square(int v) { return v * v; }
+
+// First x in [from, x1] whose bit differs from `flip` (0: the first member,
+// all ones: the first non-member), or x1 + 1 when there is none.
+inline int NextBit(const uint64_t* row, int from, int x1, uint64_t flip) {
+  int w = from >> 6;
+  uint64_t bits = (row[w] ^ flip) & (~uint64_t{0} << (from & 63));
+  while (!bits) {
+    if (++w > x1 >> 6) return x1 + 1;
+    bits = row[w] ^ flip;
+  }
+  return std::min((w << 6) + std::countr_zero(bits), x1 + 1);
+}
 
 // Box-relative ranges of the last two passes that queries need: rows
 // [ylo[x], yhi[x]) of each x column in every slice (pass 2) and slices
@@ -195,44 +225,45 @@ absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
     return !cancelled.load(std::memory_order_relaxed);
   };
 
-  // Pass 1, along x: nearest member within each row.
+  // Pass 1, along x: nearest member within each row, run by run: members
+  // map to themselves, and each gap between two members splits at its
+  // midpoint (ties go left).
   tbb::parallel_for(tbb::blocked_range<int>(0, b.z, 4), [&](const tbb::blocked_range<int>& r) {
     if (cancelled) return;
-    std::vector<int> xs;
+    const int x1 = box.max.x;
     for (int zi = r.begin(); zi < r.end() && keep_going(); ++zi) {
       const int z = z0 + zi;
       for (int yi = 0; yi < b.y; ++yi) {
         const int y = y0 + yi;
-        PackedVoxel* line = F + size_t(zi) * plane + size_t(yi) * b.x;
+        PackedVoxel* const at = F + size_t(zi) * plane + size_t(yi) * b.x - x0;  // by lattice x
         const uint64_t* row = set.Row(y, z);
-        xs.clear();
-        for (int w = x0 >> 6; w <= box.max.x >> 6; ++w)
-          for (uint64_t bits = row[w]; bits; bits &= bits - 1) {
-            const int x = (w << 6) + std::countr_zero(bits);
-            if (x >= x0 && x <= box.max.x) xs.push_back(x);
-          }
-        if (xs.empty()) {
-          std::fill(line, line + b.x, kNoVoxel);
+        const PackedVoxel yz = PackVoxel(0, y, z);
+        int pos = x0, prev = -1;  // next position to write; last member so far
+        for (;;) {
+          const int m = NextBit(row, pos, x1, 0);
+          if (m > x1) break;
+          const int e = NextBit(row, m, x1, ~uint64_t{0});  // end of the run
+          const int split = prev < 0 ? pos - 1 : (prev + m) >> 1;
+          for (int x = pos; x <= split; ++x) at[x] = yz | uint32_t(prev);
+          for (int x = std::max(pos, split + 1); x < m; ++x) at[x] = yz | uint32_t(m);
+          for (int x = m; x < e; ++x) at[x] = yz | uint32_t(x);
+          prev = e - 1;
+          pos = e;
+        }
+        if (prev < 0) {
+          std::fill(at + x0, at + x1 + 1, kNoVoxel);
           continue;
         }
-        const PackedVoxel yz = PackVoxel(0, y, z);
-        size_t next = 0;  // first member at or right of x
-        for (int x = x0; x <= box.max.x; ++x) {
-          while (next < xs.size() && xs[next] < x) ++next;
-          int best;  // ties go left
-          if (next == xs.size()) {
-            best = xs.back();
-          } else if (next == 0) {
-            best = xs[0];
-          } else {
-            best = (x - xs[next - 1] <= xs[next] - x) ? xs[next - 1] : xs[next];
-          }
-          line[x - x0] = yz | uint32_t(best);
-        }
+        for (int x = pos; x <= x1; ++x) at[x] = yz | uint32_t(prev);
       }
     }
   });
   if (cancelled) return absl::CancelledError("feature transform interrupted");
+
+  // w pos^2 of every position of the last two passes, for EnvelopeLine.
+  std::vector<double> wpp_y(size_t(b.y)), wpp_z(size_t(b.z));
+  for (int yi = 0; yi < b.y; ++yi) wpp_y[size_t(yi)] = wy * double(y0 + yi) * (y0 + yi);
+  for (int zi = 0; zi < b.z; ++zi) wpp_z[size_t(zi)] = wz * double(z0 + zi) * (z0 + zi);
 
   // Pass 2, along y: combine rows within each z slice. Pass 3 reads rows
   // [ylo, yhi) of column x only, so only those are written. Columns are
@@ -244,8 +275,15 @@ absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
     LineScratch s;
     s.Reserve(b.y);
     std::vector<PackedVoxel> tile(size_t(b.y) * kBlock);
+    std::vector<int> rows;  // rows of the slice with a member: the sites
     for (int zi = r.begin(); zi < r.end() && keep_going(); ++zi) {
       PackedVoxel* slice = F + size_t(zi) * plane;
+      rows.clear();
+      for (int yi = 0; yi < b.y; ++yi)
+        if (slice[size_t(yi) * b.x] != kNoVoxel) rows.push_back(yi);
+      if (rows.empty()) continue;  // every column stays kNoVoxel
+      const int m = int(rows.size());
+      for (int i = 0; i < m; ++i) s.pos[i] = y0 + rows[size_t(i)];
       for (int xb = 0; xb < b.x; xb += kBlock) {
         const int nb = std::min(kBlock, b.x - xb);
         int lo = b.y, hi = 0;  // rows some column of the block needs
@@ -255,22 +293,21 @@ absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
             hi = std::max(hi, need.yhi[xb + j]);
           }
         if (lo >= hi) continue;
-        for (int yi = 0; yi < b.y; ++yi)
+        // The tile needs the site rows and the rows written back.
+        for (int yi : rows)
+          if (yi < lo || yi >= hi)
+            CopyRow<kBlock>(slice + size_t(yi) * b.x + xb, nb, tile.data() + size_t(yi) * kBlock);
+        for (int yi = lo; yi < hi; ++yi)
           CopyRow<kBlock>(slice + size_t(yi) * b.x + xb, nb, tile.data() + size_t(yi) * kBlock);
         for (int j = 0; j < nb; ++j) {
           if (need.ylo[xb + j] >= need.yhi[xb + j]) continue;
           const int x = x0 + xb + j;
           PackedVoxel* col = tile.data() + j;
-          int m = 0;
-          for (int yi = 0; yi < b.y; ++yi) {
-            const PackedVoxel f = col[size_t(yi) * kBlock];
-            if (f == kNoVoxel) continue;
-            s.pos[m] = y0 + yi;
-            s.g[m] = wx * Square(int(f & 1023u) - x);
-            s.f[m] = f;
-            ++m;
+          for (int i = 0; i < m; ++i) {
+            const PackedVoxel f = col[size_t(rows[size_t(i)]) * kBlock];
+            s.c[i] = wx * Square(int(f & 1023u) - x) + wpp_y[size_t(rows[size_t(i)])];
+            s.f[i] = f;
           }
-          if (m == 0) continue;  // the column stays kNoVoxel
           EnvelopeLine(s, m, wy, y0, need.ylo[xb + j], need.yhi[xb + j], col, kBlock);
         }
         for (int yi = lo; yi < hi; ++yi)
@@ -314,7 +351,8 @@ absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
             const PackedVoxel f = col[size_t(zi) * kBlock];
             if (f == kNoVoxel) continue;
             s.pos[m] = z0 + zi;
-            s.g[m] = wx * Square(int(f & 1023u) - x) + wy * Square(int((f >> 10) & 1023u) - y);
+            s.c[m] = (wx * Square(int(f & 1023u) - x) + wy * Square(int((f >> 10) & 1023u) - y)) +
+                     wpp_z[size_t(zi)];
             s.f[m] = f;
             ++m;
           }

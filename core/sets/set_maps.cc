@@ -2,9 +2,12 @@
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_invoke.h>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
+#include <bit>
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
@@ -34,11 +37,6 @@ inline void SetAtomic(VoxelSet& set, int x, int y, int z) {
   if (!(ref.load(std::memory_order_relaxed) & bit)) ref.fetch_or(bit, std::memory_order_relaxed);
 }
 
-inline bool GetAtomic(VoxelSet& set, int x, int y, int z) {
-  std::atomic_ref<uint64_t> ref(set.MutableRow(y, z)[x >> 6]);
-  return (ref.load(std::memory_order_relaxed) >> (x & 63)) & 1;
-}
-
 // Halfway from a to f. Where a coordinate sum is odd the midpoint sits on
 // a voxel face; bit i of `round_up` sends it up along axis i, else down.
 // The choice is per application, not per voxel: rounding stays monotone,
@@ -56,53 +54,115 @@ inline int Chebyshev(Int3 a, Int3 b) {
   return std::max({std::abs(a.x - b.x), std::abs(a.y - b.y), std::abs(a.z - b.z)});
 }
 
-inline Int3 Add(Int3 a, Int3 b) { return {a.x + b.x, a.y + b.y, a.z + b.z}; }
+
+// A voxel's motion toward its nearest point, with its squared length.
+struct Motion {
+  int64_t x, y, z, len2;
+};
+inline Motion MotionOf(Int3 a, Int3 fa) {
+  const int64_t x = fa.x - a.x, y = fa.y - a.y, z = fa.z - a.z;
+  return {x, y, z, x * x + y * y + z * z};
+}
 
 // True when the nearest-point map looks continuous between nearby source
-// voxels a and n (with nearest points fa, fn). Two moving voxels must move
-// in directions at most 60 degrees apart: across a medial axis of the
+// voxels a and n = a + d, which move by u and v. Two moving voxels must
+// move in directions at most 60 degrees apart: across a medial axis of the
 // target they move apart, a tear the exact image has too. A voxel that does
 // not move (it is in the target) agrees with a moving one unless that one
 // moves away from it, which again means a medial axis runs between them.
+inline bool Coherent(const Motion& u, const Motion& v, Int3 d) {
+  if (u.len2 == 0 && v.len2 == 0) return true;
+  if (v.len2 == 0) return u.x * d.x + u.y * d.y + u.z * d.z >= 0;
+  if (u.len2 == 0) return v.x * -d.x + v.y * -d.y + v.z * -d.z >= 0;
+  const int64_t dot = u.x * v.x + u.y * v.y + u.z * v.z;
+  return dot > 0 && 4 * dot * dot >= u.len2 * v.len2;
+}
 inline bool Coherent(Int3 a, Int3 fa, Int3 n, Int3 fn) {
-  const int64_t ux = fa.x - a.x, uy = fa.y - a.y, uz = fa.z - a.z;
-  const int64_t vx = fn.x - n.x, vy = fn.y - n.y, vz = fn.z - n.z;
-  const int64_t uu = ux * ux + uy * uy + uz * uz, vv = vx * vx + vy * vy + vz * vz;
-  if (uu == 0 && vv == 0) return true;
-  if (vv == 0) return ux * (n.x - a.x) + uy * (n.y - a.y) + uz * (n.z - a.z) >= 0;
-  if (uu == 0) return vx * (a.x - n.x) + vy * (a.y - n.y) + vz * (a.z - n.z) >= 0;
-  const int64_t dot = ux * vx + uy * vy + uz * vz;
-  return dot > 0 && 4 * dot * dot >= uu * vv;
+  return Coherent(MotionOf(a, fa), MotionOf(n, fn), {n.x - a.x, n.y - a.y, n.z - a.z});
 }
 
 // Sets every voxel whose index lies in the closed tetrahedron p[0..3]
 // (exact integer tests, so tetrahedra sharing a face leave no crack).
+// Voxels already set are skipped before any arithmetic (most are: the
+// images of neighbouring cubes overlap); for the others, the four
+// orientations "v in place of corner i" are affine in v, so they are
+// evaluated from face normals prepared on the first such voxel. The
+// integer arithmetic is exact, so this equals evaluating each
+// orientation determinant directly.
 void FillTetrahedron(const Int3 p[4], VoxelSet& out) {
-  auto orient = [](Int3 a, Int3 b, Int3 c, Int3 d) {
-    const int64_t bx = b.x - a.x, by = b.y - a.y, bz = b.z - a.z;
-    const int64_t cx = c.x - a.x, cy = c.y - a.y, cz = c.z - a.z;
-    const int64_t dx = d.x - a.x, dy = d.y - a.y, dz = d.z - a.z;
-    return bx * (cy * dz - cz * dy) - by * (cx * dz - cz * dx) + bz * (cx * dy - cy * dx);
+  auto sub = [](Int3 a, Int3 b) { return std::array<int64_t, 3>{a.x - b.x, a.y - b.y, a.z - b.z}; };
+  auto cross = [](const std::array<int64_t, 3>& a, const std::array<int64_t, 3>& b) {
+    return std::array<int64_t, 3>{a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
+                                  a[0] * b[1] - a[1] * b[0]};
   };
-  const int64_t vol = orient(p[0], p[1], p[2], p[3]);
+  const auto e1 = sub(p[1], p[0]), e2 = sub(p[2], p[0]), e3 = sub(p[3], p[0]);
+  const std::array<int64_t, 3> n1 = cross(e2, e3);  // opposite p[1]
+  const int64_t vol = e1[0] * n1[0] + e1[1] * n1[1] + e1[2] * n1[2];
   if (vol == 0) return;  // flat: the edge bridges cover it
   Int3 lo = p[0], hi = p[0];
   for (int i = 1; i < 4; ++i) {
     lo = {std::min(lo.x, p[i].x), std::min(lo.y, p[i].y), std::min(lo.z, p[i].z)};
     hi = {std::max(hi.x, p[i].x), std::max(hi.y, p[i].y), std::max(hi.z, p[i].z)};
   }
+  const Int3 res = out.resolution();
+  lo = {std::max(lo.x, 0), std::max(lo.y, 0), std::max(lo.z, 0)};
+  hi = {std::min(hi.x, res.x - 1), std::min(hi.y, res.y - 1), std::min(hi.z, res.z - 1)};
+  // s_i(v) = normal[i] . (v - base[i]): the orientation with v in place of
+  // corner i (s_0 through corner 1, the others through corner 0).
+  std::array<int64_t, 3> normal[4];
+  bool prepared = false;
   for (int z = lo.z; z <= hi.z; ++z)
-    for (int y = lo.y; y <= hi.y; ++y)
+    for (int y = lo.y; y <= hi.y; ++y) {
+      uint64_t* row = out.MutableRow(y, z);
       for (int x = lo.x; x <= hi.x; ++x) {
-        const Int3 v{x, y, z};
-        if (!out.InBounds(v) || GetAtomic(out, x, y, z)) continue;
-        // v is inside when replacing any corner by v keeps the orientation.
-        const int64_t s0 = orient(v, p[1], p[2], p[3]), s1 = orient(p[0], v, p[2], p[3]);
-        const int64_t s2 = orient(p[0], p[1], v, p[3]), s3 = orient(p[0], p[1], p[2], v);
+        std::atomic_ref<uint64_t> word(row[x >> 6]);
+        const uint64_t bit = uint64_t{1} << (x & 63);
+        if (word.load(std::memory_order_relaxed) & bit) continue;
+        if (!prepared) {
+          const std::array<int64_t, 3> m0 = cross(sub(p[2], p[1]), sub(p[3], p[1]));
+          normal[0] = {-m0[0], -m0[1], -m0[2]};
+          normal[1] = n1;
+          normal[2] = cross(e3, e1);
+          normal[3] = cross(e1, e2);
+          prepared = true;
+        }
+        const int64_t s0 = normal[0][0] * (x - p[1].x) + normal[0][1] * (y - p[1].y) +
+                           normal[0][2] * (z - p[1].z);
+        const int64_t dx = x - p[0].x, dy = y - p[0].y, dz = z - p[0].z;
+        const int64_t s1 = normal[1][0] * dx + normal[1][1] * dy + normal[1][2] * dz;
+        const int64_t s2 = normal[2][0] * dx + normal[2][1] * dy + normal[2][2] * dz;
+        const int64_t s3 = normal[3][0] * dx + normal[3][1] * dy + normal[3][2] * dz;
         const bool inside = vol > 0 ? (s0 >= 0 && s1 >= 0 && s2 >= 0 && s3 >= 0)
                                     : (s0 <= 0 && s1 <= 0 && s2 <= 0 && s3 <= 0);
-        if (inside) SetAtomic(out, x, y, z);
+        if (inside) word.fetch_or(bit, std::memory_order_relaxed);
       }
+    }
+}
+
+// True when every voxel of the box spanned by the eight points, clipped to
+// the lattice, is set in `out` (read bit by bit as other threads add bits:
+// a stale zero only costs a fill that changes nothing).
+bool AllSet(const VoxelSet& out, const Int3 (&p)[8]) {
+  Int3 lo = p[0], hi = p[0];
+  for (int i = 1; i < 8; ++i) {
+    lo = {std::min(lo.x, p[i].x), std::min(lo.y, p[i].y), std::min(lo.z, p[i].z)};
+    hi = {std::max(hi.x, p[i].x), std::max(hi.y, p[i].y), std::max(hi.z, p[i].z)};
+  }
+  const Int3 res = out.resolution();
+  lo = {std::max(lo.x, 0), std::max(lo.y, 0), std::max(lo.z, 0)};
+  hi = {std::min(hi.x, res.x - 1), std::min(hi.y, res.y - 1), std::min(hi.z, res.z - 1)};
+  for (int z = lo.z; z <= hi.z; ++z)
+    for (int y = lo.y; y <= hi.y; ++y) {
+      // The words are updated through atomic_ref by other threads.
+      uint64_t* row = const_cast<uint64_t*>(out.Row(y, z));
+      for (int w = lo.x >> 6; w <= hi.x >> 6; ++w) {
+        const int b0 = w == lo.x >> 6 ? lo.x & 63 : 0, b1 = w == hi.x >> 6 ? hi.x & 63 : 63;
+        const uint64_t want = (~uint64_t{0} >> (63 - b1)) & (~uint64_t{0} << b0);
+        std::atomic_ref<uint64_t> word(row[w]);
+        if ((word.load(std::memory_order_relaxed) & want) != want) return false;
+      }
+    }
+  return true;
 }
 
 absl::Status CheckPair(const VoxelSet& a, const VoxelSet& b, const GridFrame& frame) {
@@ -110,6 +170,62 @@ absl::Status CheckPair(const VoxelSet& a, const VoxelSet& b, const GridFrame& fr
   if (!(a.resolution() == frame.resolution) || !(b.resolution() == frame.resolution))
     return absl::InvalidArgumentError("set map: set resolution differs from the grid frame");
   return absl::OkStatus();
+}
+
+// Members of a word. The portable build has no popcnt instruction, and
+// std::popcount then calls a library routine; this inlines the same count.
+inline uint32_t PopCount(uint64_t v) {
+  v = v - ((v >> 1) & 0x5555555555555555ULL);
+  v = (v & 0x3333333333333333ULL) + ((v >> 2) & 0x3333333333333333ULL);
+  v = (v + (v >> 4)) & 0x0f0f0f0f0f0f0f0fULL;
+  return uint32_t((v * 0x0101010101010101ULL) >> 56);
+}
+
+// Numbers the members of a set inside a box in row order (x fastest), so
+// that per-member data can live in compact arrays instead of box-sized
+// ones: the moving voxels are a few percent of their box, and a box-sized
+// array (or a lattice-sized field) read at them misses the cache on almost
+// every access. A member's rank is the rank of the first member of its
+// 64-bit word plus the members before it in that word.
+struct MemberRanks {
+  VoxelBox box;
+  int w0 = 0, nw = 0, ny = 0;
+  const uint32_t* first = nullptr;  // per (row, word) of the box
+
+  // Index of word w0 of row (y, z) in `first`.
+  size_t Slot(int y, int z) const {
+    return (size_t(z - box.min.z) * size_t(ny) + size_t(y - box.min.y)) * size_t(nw);
+  }
+};
+
+// Ranks the members of `set` inside `box` into `first` (reused); returns
+// the member count. Word counts run in parallel, the prefix sum serially
+// (a few hundred thousand additions).
+uint32_t RankMembers(const VoxelSet& set, const VoxelBox& box, std::vector<uint32_t>& first,
+                     MemberRanks& ranks) {
+  ranks.box = box;
+  ranks.w0 = box.min.x >> 6;
+  ranks.nw = (box.max.x >> 6) - ranks.w0 + 1;
+  ranks.ny = box.Size().y;
+  const size_t per_slice = size_t(ranks.ny) * size_t(ranks.nw);
+  first.resize(per_slice * size_t(box.Size().z));
+  tbb::parallel_for(tbb::blocked_range<int>(box.min.z, box.max.z + 1, 8),
+                    [&](const tbb::blocked_range<int>& r) {
+                      for (int z = r.begin(); z < r.end(); ++z)
+                        for (int y = box.min.y; y <= box.max.y; ++y) {
+                          const uint64_t* row = set.Row(y, z) + ranks.w0;
+                          uint32_t* f = first.data() + ranks.Slot(y, z);
+                          for (int w = 0; w < ranks.nw; ++w) f[w] = PopCount(row[w]);
+                        }
+                    });
+  uint32_t total = 0;
+  for (uint32_t& f : first) {
+    const uint32_t n = f;
+    f = total;
+    total += n;
+  }
+  ranks.first = first.data();
+  return total;
 }
 
 // Adds { Midpoint(a, nearest(a)) : a in moving } to `out`, where `moving`
@@ -121,21 +237,28 @@ absl::Status CheckPair(const VoxelSet& a, const VoxelSet& b, const GridFrame& fr
 // voxels apart but their nearest points are close and in agreeing
 // directions (the nearest-point map is continuous there, so the exact image
 // is solid), the segment between the images is drawn, and the image of the
-// voxel cube spanned from `a` is filled as six tetrahedra.
+// voxel cube spanned from `a` is filled as six tetrahedra. The images and
+// nearest points of the moving voxels are kept in compact arrays indexed
+// by rank (MemberRanks) for the neighbour checks.
 absl::Status AddMidpoints(const VoxelSet& moving, const VoxelSet& source, const FeatureField& field,
                           const MedianOptions& options, uint64_t seed,
-                          const VoxelBox& moving_box, decltype(SetMapWorkspace::images)& images,
-                          VoxelSet& out, Interrupter& intr) {
+                          const VoxelBox& moving_box, MovingBuffers& ws, VoxelSet& out,
+                          Interrupter& intr) {
   const Int3 res = moving.resolution();
   const unsigned round_up = unsigned(Mix64(seed) >> 61);
   const int jump = options.bridge_max_jump;
   const VoxelBox* const mbox = &moving_box;  // the caller's, from SplitPair
-  // Images of the moving voxels, kept for the neighbour checks below.
-  const FeatureField image_index{*mbox, {}};
+  MemberRanks ranks;
+  const uint32_t count = RankMembers(moving, *mbox, ws.rank_first, ranks);
+  // Images and nearest points of the moving voxels, by rank; every entry
+  // is written by the first loop, so the buffers skip the fill.
+  auto& images = ws.images;
+  auto& nearest = ws.nearest;
   if (jump > 0) {
-    // Only moving voxels' entries are written and read: no fill, no copy.
-    if (images.capacity() < size_t(mbox->Volume())) images.clear();
-    images.resize(size_t(mbox->Volume()));
+    if (images.capacity() < count) images.clear();
+    images.resize(count);
+    if (nearest.capacity() < count) nearest.clear();
+    nearest.resize(count);
   }
   std::atomic<bool> cancelled{false};
   std::atomic<uint64_t> done{0};
@@ -146,61 +269,37 @@ absl::Status AddMidpoints(const VoxelSet& moving, const VoxelSet& source, const 
   };
   tbb::parallel_for(slabs, [&](const tbb::blocked_range<int>& r) {
     if (cancelled) return;
-    moving.ForEachInSlabs(r.begin(), r.end(), [&](int x, int y, int z) {
-      const PackedVoxel pf = field.At(x, y, z);
-      // An empty target leaves nothing to move toward: keep the voxel.
-      const Int3 m =
-          pf == kNoVoxel ? Int3{x, y, z} : Midpoint({x, y, z}, UnpackVoxel(pf), round_up);
-      SetAtomic(out, m.x, m.y, m.z);
-      if (jump > 0) images[image_index.Index(x, y, z)] = PackVoxel(m);
-    });
+    for (int z = r.begin(); z < r.end(); ++z)
+      for (int y = mbox->min.y; y <= mbox->max.y; ++y) {
+        const uint64_t* row = moving.Row(y, z);
+        uint32_t rank = ranks.first[ranks.Slot(y, z)];
+        for (int w = ranks.w0; w < ranks.w0 + ranks.nw; ++w)
+          for (uint64_t bits = row[w]; bits; bits &= bits - 1, ++rank) {
+            const int x = (w << 6) + std::countr_zero(bits);
+            const PackedVoxel pf = field.At(x, y, z);
+            // An empty target leaves nothing to move toward: keep the voxel.
+            const Int3 m =
+                pf == kNoVoxel ? Int3{x, y, z} : Midpoint({x, y, z}, UnpackVoxel(pf), round_up);
+            SetAtomic(out, m.x, m.y, m.z);
+            if (jump > 0) {
+              images[rank] = PackVoxel(m);
+              nearest[rank] = pf;
+            }
+          }
+      }
     poll(r.size());
   });
   if (cancelled) return absl::CancelledError("median interrupted");
   if (jump <= 0) return absl::OkStatus();
 
-  // Image and nearest point of a source voxel; target members stay put.
-  auto lookup = [&](Int3 v, Int3& f) {
-    if (!moving.Get(v)) {
-      f = v;
-      return v;
-    }
-    f = UnpackVoxel(field.At(v));
-    return UnpackVoxel(images[image_index.Index(v.x, v.y, v.z)]);
-  };
-  // Fills the image of the cube a + {0,1}^3 when it lies wholly in the
-  // source and the nearest-point map is continuous over it.
-  auto fill_cube = [&](Int3 a) {
-    Int3 corner[8], corner_img[8], corner_f[8];
-    Int3 flo{1 << 30, 1 << 30, 1 << 30}, fhi{-1, -1, -1};
-    for (int c = 0; c < 8; ++c) {
-      corner[c] = Add(a, {c & 1, (c >> 1) & 1, (c >> 2) & 1});
-      if (!source.Contains(corner[c])) return;
-      corner_img[c] = lookup(corner[c], corner_f[c]);
-      flo = {std::min(flo.x, corner_f[c].x), std::min(flo.y, corner_f[c].y),
-             std::min(flo.z, corner_f[c].z)};
-      fhi = {std::max(fhi.x, corner_f[c].x), std::max(fhi.y, corner_f[c].y),
-             std::max(fhi.z, corner_f[c].z)};
-    }
-    if (Chebyshev(flo, fhi) > jump) return;
-    for (int i = 0; i < 8; ++i)
-      for (int j = i + 1; j < 8; ++j)
-        if (!Coherent(corner[i], corner_f[i], corner[j], corner_f[j])) return;
-    // Six tetrahedra around the diagonal 0-7 tile the cube.
-    static constexpr int kTets[6][4] = {{0, 1, 3, 7}, {0, 1, 5, 7}, {0, 2, 3, 7},
-                                        {0, 2, 6, 7}, {0, 4, 5, 7}, {0, 4, 6, 7}};
-    for (const auto& t : kTets) {
-      const Int3 p[4] = {corner_img[t[0]], corner_img[t[1]], corner_img[t[2]], corner_img[t[3]]};
-      FillTetrahedron(p, out);
-    }
-  };
-  // Rows of the source, the moving set and the images around one row; the
-  // neighbour tests below are bit tests on these (null outside the lattice
-  // or, for images, outside the moving box, where nothing moves).
+  // Rows of the source and the moving set around one row, with the ranks
+  // of the moving voxels; the neighbour tests below are bit tests on these
+  // (null outside the lattice or, for ranks, outside the moving box, where
+  // nothing moves).
   struct Rows {
     const uint64_t* src = nullptr;
     const uint64_t* mov = nullptr;
-    const PackedVoxel* img = nullptr;
+    const uint32_t* first = nullptr;  // MemberRanks::first at word 0
   };
   auto rows_at = [&](int y, int z) {
     Rows r;
@@ -208,10 +307,57 @@ absl::Status AddMidpoints(const VoxelSet& moving, const VoxelSet& source, const 
     r.src = source.Row(y, z);
     r.mov = moving.Row(y, z);
     if (y >= mbox->min.y && y <= mbox->max.y && z >= mbox->min.z && z <= mbox->max.z)
-      r.img = images.data() + image_index.Index(mbox->min.x, y, z) - size_t(mbox->min.x);
+      r.first = ranks.first + ranks.Slot(y, z) - ranks.w0;
     return r;
   };
   auto bit = [](const uint64_t* row, int x) { return (row[x >> 6] >> (x & 63)) & 1; };
+  // Rank of moving voxel x of a row.
+  auto rank_in = [](const Rows& r, int x) {
+    const int w = x >> 6;
+    return r.first[w] + PopCount(r.mov[w] & ((uint64_t{1} << (x & 63)) - 1));
+  };
+  // Fills the image of the cube a + {0,1}^3 when it lies wholly in the
+  // source and the nearest-point map is continuous over it. `rows` are
+  // rows (y, z), (y + 1, z), (y, z + 1) and (y + 1, z + 1) of a = (x, y, z).
+  auto fill_cube = [&](Int3 a, const Rows (&rows)[4]) {
+    if (a.x + 1 >= res.x) return;
+    Int3 img[8];
+    Motion motion[8];
+    Int3 flo{1 << 30, 1 << 30, 1 << 30}, fhi{-1, -1, -1};
+    for (int c = 0; c < 8; ++c) {
+      const Rows& row = rows[c >> 1];
+      const int x = a.x + (c & 1);
+      if (!row.src || !bit(row.src, x)) return;
+      const Int3 v{x, a.y + ((c >> 1) & 1), a.z + (c >> 2)};
+      Int3 f = v;  // target members stay put
+      img[c] = v;
+      if (bit(row.mov, x)) {
+        const uint32_t rank = rank_in(row, x);
+        f = UnpackVoxel(nearest[rank]);
+        img[c] = UnpackVoxel(images[rank]);
+      }
+      motion[c] = MotionOf(v, f);
+      flo = {std::min(flo.x, f.x), std::min(flo.y, f.y), std::min(flo.z, f.z)};
+      fhi = {std::max(fhi.x, f.x), std::max(fhi.y, f.y), std::max(fhi.z, f.z)};
+    }
+    if (Chebyshev(flo, fhi) > jump) return;
+    // The tetrahedra only add voxels inside the corners' images' box: when
+    // the median has already set all of those (common: neighbouring cubes'
+    // images overlap), the fill and its 28 coherence tests can be skipped.
+    if (AllSet(out, img)) return;
+    for (int i = 0; i < 8; ++i)
+      for (int j = i + 1; j < 8; ++j) {
+        const Int3 d{(j & 1) - (i & 1), ((j >> 1) & 1) - ((i >> 1) & 1), (j >> 2) - (i >> 2)};
+        if (!Coherent(motion[i], motion[j], d)) return;
+      }
+    // Six tetrahedra around the diagonal 0-7 tile the cube.
+    static constexpr int kTets[6][4] = {{0, 1, 3, 7}, {0, 1, 5, 7}, {0, 2, 3, 7},
+                                        {0, 2, 6, 7}, {0, 4, 5, 7}, {0, 4, 6, 7}};
+    for (const auto& t : kTets) {
+      const Int3 p[4] = {img[t[0]], img[t[1]], img[t[2]], img[t[3]]};
+      FillTetrahedron(p, out);
+    }
+  };
   tbb::parallel_for(slabs, [&](const tbb::blocked_range<int>& r) {
     if (cancelled) return;
     for (int z = r.begin(); z < r.end(); ++z) {
@@ -225,35 +371,97 @@ absl::Status AddMidpoints(const VoxelSet& moving, const VoxelSet& source, const 
             here, here, rows_at(y - 1, z), rows_at(y + 1, z), rows_at(y, z - 1), rows_at(y, z + 1)};
         static constexpr int kStep[6][3] = {{-1, 0, 0}, {1, 0, 0},  {0, -1, 0},
                                             {0, 1, 0},  {0, 0, -1}, {0, 0, 1}};
-        for (int w = mbox->min.x >> 6; w <= mbox->max.x >> 6; ++w) {
-          for (uint64_t bits = here.mov[w]; bits; bits &= bits - 1) {
-            const int x = (w << 6) + std::countr_zero(bits);
-            const Int3 a{x, y, z};
-            const Int3 m = UnpackVoxel(here.img[x]);
-            Int3 f{-1, -1, -1};  // fetched only when a gap shows up
-            bool stretched = false;
-            for (int k = 0; k < 6; ++k) {
-              const Rows& nr = around[k];
-              const int nx = x + kStep[k][0];
-              if (!nr.src || nx < 0 || nx >= res.x || !bit(nr.src, nx)) continue;
-              const bool n_moving = bit(nr.mov, nx);
-              if ((k & 1) == 0 && n_moving) continue;  // that pair is handled from n
-              const Int3 n{nx, y + kStep[k][1], z + kStep[k][2]};
-              const Int3 mn = n_moving ? UnpackVoxel(nr.img[nx]) : n;
-              const int gap = Chebyshev(m, mn);
-              if (gap < 2) continue;
-              if (f.x < 0) f = UnpackVoxel(field.At(a));
-              const Int3 fn = n_moving ? UnpackVoxel(field.At(n)) : n;
-              if (Chebyshev(f, fn) > jump || !Coherent(a, f, n, fn)) continue;
-              if (k & 1) stretched = true;
-              for (int s = 1; s < gap; ++s) {
-                const double t = double(s) / gap;
-                SetAtomic(out, m.x + int(std::lround((mn.x - m.x) * t)),
-                          m.y + int(std::lround((mn.y - m.y) * t)),
-                          m.z + int(std::lround((mn.z - m.z) * t)));
-              }
+        // The pairs of moving voxel (x, rank) with its neighbours: bridges
+        // and, when it stretches toward +x, +y or +z, the cube fill.
+        auto bridge = [&](int x, uint32_t rank) {
+          const Int3 a{x, y, z};
+          const Int3 m = UnpackVoxel(images[rank]);
+          const Int3 f = UnpackVoxel(nearest[rank]);
+          bool stretched = false;
+          for (int k = 0; k < 6; ++k) {
+            const Rows& nr = around[k];
+            const int nx = x + kStep[k][0];
+            if (!nr.src || nx < 0 || nx >= res.x || !bit(nr.src, nx)) continue;
+            const bool n_moving = bit(nr.mov, nx);
+            if ((k & 1) == 0 && n_moving) continue;  // that pair is handled from n
+            const Int3 n{nx, y + kStep[k][1], z + kStep[k][2]};
+            // Along x a moving neighbour is the next rank.
+            const uint32_t rn = !n_moving ? 0 : k == 1 ? rank + 1 : rank_in(nr, nx);
+            const Int3 mn = n_moving ? UnpackVoxel(images[rn]) : n;
+            const int gap = Chebyshev(m, mn);
+            if (gap < 2) continue;
+            const Int3 fn = n_moving ? UnpackVoxel(nearest[rn]) : n;
+            if (Chebyshev(f, fn) > jump || !Coherent(a, f, n, fn)) continue;
+            if (k & 1) stretched = true;
+            for (int s = 1; s < gap; ++s) {
+              const double t = double(s) / gap;
+              SetAtomic(out, m.x + int(std::lround((mn.x - m.x) * t)),
+                        m.y + int(std::lround((mn.y - m.y) * t)),
+                        m.z + int(std::lround((mn.z - m.z) * t)));
             }
-            if (stretched) fill_cube(a);
+          }
+          if (stretched) {
+            const Rows cube_rows[4] = {here, around[3], around[5], rows_at(y + 1, z + 1)};
+            fill_cube(a, cube_rows);
+          }
+        };
+        const int w_first = mbox->min.x >> 6, w_last = mbox->max.x >> 6;
+        const int words = moving.words_per_row();
+        auto word_of = [&](const uint64_t* row, int w) {
+          return row && w >= 0 && w < words ? row[w] : uint64_t{0};
+        };
+        for (int w = w_first; w <= w_last; ++w) {
+          const uint64_t mov = here.mov[w];
+          if (!mov) continue;
+          // Bit b of these words stands for voxel x = 64 w + b and tells
+          // whether its neighbour in direction k is a source voxel that
+          // stays put (`still`) or one that moves (`moves`, +x, +y and +z
+          // only: pairs with -x, -y and -z moving neighbours are handled
+          // from those).
+          const int room = res.x - 1 - (w << 6);  // bits b with x + 1 < res.x
+          const uint64_t has_hi = room >= 64 ? ~uint64_t{0} : (uint64_t{1} << room) - 1;
+          const uint64_t src_lo = (here.src[w] << 1) | (word_of(here.src, w - 1) >> 63);
+          const uint64_t mov_lo = (mov << 1) | (word_of(here.mov, w - 1) >> 63);
+          const uint64_t src_hi = ((here.src[w] >> 1) | (word_of(here.src, w + 1) << 63)) & has_hi;
+          const uint64_t mov_hi = ((mov >> 1) | (word_of(here.mov, w + 1) << 63)) & has_hi;
+          uint64_t still[6], moves[6] = {0, mov_hi, 0, 0, 0, 0};
+          still[0] = src_lo & ~mov_lo;
+          still[1] = src_hi & ~mov_hi;
+          for (int k = 2; k < 6; ++k) {
+            const uint64_t s = word_of(around[k].src, w), mv = word_of(around[k].mov, w);
+            still[k] = s & ~mv;
+            if (k & 1) moves[k] = mv;
+          }
+          uint32_t rank = here.first[w];
+          for (uint64_t bits = mov; bits; bits &= bits - 1, ++rank) {
+            const int b = std::countr_zero(bits), x = (w << 6) + b;
+            // A pair shows a gap only when the images are two or more
+            // voxels apart; most pairs are closer, and this test on the
+            // displacement d = image - voxel (for neighbours that stay) and
+            // on the neighbours' images rules them out without the
+            // branches of the full test.
+            const PackedVoxel pm = images[rank];
+            const int dx = int(pm & 1023u) - x, dy = int((pm >> 10) & 1023u) - y,
+                      dz = int(pm >> 20) - z;
+            const bool far_y = dy > 1 || dy < -1, far_z = dz > 1 || dz < -1;
+            const bool far_x = dx > 1 || dx < -1;
+            // Neighbour a + e stays at a + e: the gap is max |d - e|.
+            bool need = (((still[0] >> b) & 1) && (dx >= 1 || dx <= -3 || far_y || far_z)) ||
+                        (((still[1] >> b) & 1) && (dx <= -1 || dx >= 3 || far_y || far_z)) ||
+                        (((still[2] >> b) & 1) && (dy >= 1 || dy <= -3 || far_x || far_z)) ||
+                        (((still[3] >> b) & 1) && (dy <= -1 || dy >= 3 || far_x || far_z)) ||
+                        (((still[4] >> b) & 1) && (dz >= 1 || dz <= -3 || far_x || far_y)) ||
+                        (((still[5] >> b) & 1) && (dz <= -1 || dz >= 3 || far_x || far_y));
+            auto apart = [&](uint32_t rn) {
+              const PackedVoxel q = images[rn];
+              return uint32_t(int(q & 1023u) - int(pm & 1023u) + 1) > 2u ||
+                     uint32_t(int((q >> 10) & 1023u) - int((pm >> 10) & 1023u) + 1) > 2u ||
+                     uint32_t(int(q >> 20) - int(pm >> 20) + 1) > 2u;
+            };
+            need = need || (((moves[1] >> b) & 1) && apart(rank + 1)) ||
+                   (((moves[3] >> b) & 1) && apart(rank_in(around[3], x))) ||
+                   (((moves[5] >> b) & 1) && apart(rank_in(around[5], x)));
+            if (need) bridge(x, rank);
           }
         }
       }
@@ -352,6 +560,23 @@ absl::Status MedianInto(const VoxelSet& a, const VoxelSet& b, const FeatureField
   Interrupter& intr = OrNull(ws.interrupter);
   const uint64_t seed = options.seed ^ ws.seed;
   const SplitBoxes boxes = SplitPair(a, b, both_sides, out, ws.moving_a, ws.moving_b);
+  if (b_field && both_sides && boxes.a && boxes.b) {
+    // The two halves overlap: a's voxels move with b's ready transform
+    // while a's transform is computed for b's voxels (separate buffers; the
+    // only shared output is `out`, which both only add bits to). Running
+    // them side by side lets the threads fill each other's serial parts
+    // and uneven ends of parallel loops.
+    absl::Status moved_a, field_b;
+    tbb::parallel_invoke(
+        [&] {
+          moved_a =
+              AddMidpoints(ws.moving_a, a, *b_field, options, seed, *boxes.a, ws.side_a, out, intr);
+        },
+        [&] { field_b = NearestFieldFor(a, ws.moving_b, *boxes.b, h, ws); });
+    NIMBUS_RETURN_IF_ERROR(moved_a);
+    NIMBUS_RETURN_IF_ERROR(field_b);
+    return AddMidpoints(ws.moving_b, b, ws.field, options, seed, *boxes.b, ws.side_b, out, intr);
+  }
   if (boxes.a) {
     const FeatureField* field = b_field;
     if (!field) {
@@ -359,13 +584,13 @@ absl::Status MedianInto(const VoxelSet& a, const VoxelSet& b, const FeatureField
       field = &ws.field;
     }
     NIMBUS_RETURN_IF_ERROR(
-        AddMidpoints(ws.moving_a, a, *field, options, seed, *boxes.a, ws.images, out, intr));
+        AddMidpoints(ws.moving_a, a, *field, options, seed, *boxes.a, ws.side_a, out, intr));
   }
   if (!both_sides) return absl::OkStatus();
   if (boxes.b) {
     NIMBUS_RETURN_IF_ERROR(NearestFieldFor(a, ws.moving_b, *boxes.b, h, ws));
     NIMBUS_RETURN_IF_ERROR(
-        AddMidpoints(ws.moving_b, b, ws.field, options, seed, *boxes.b, ws.images, out, intr));
+        AddMidpoints(ws.moving_b, b, ws.field, options, seed, *boxes.b, ws.side_b, out, intr));
   }
   return absl::OkStatus();
 }

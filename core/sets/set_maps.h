@@ -86,6 +86,13 @@ struct SetMapStats {
   double nearest_seconds = 0;  // building per-step feature transforms
 };
 
+/// Per-moving-voxel scratch of one half of a median, indexed by the voxels'
+/// rank in row order (entries are written before they are read).
+struct MovingBuffers {
+  std::vector<PackedVoxel, BigBufferAllocator<PackedVoxel>> images, nearest;
+  std::vector<uint32_t> rank_first;  // rank of each row word's first moving voxel
+};
+
 /// @brief Scratch buffers and per-call parameters for SetMap::Apply. One
 /// workspace per concurrent caller; buffers are reused between calls.
 struct SetMapWorkspace {
@@ -98,7 +105,7 @@ struct SetMapWorkspace {
   // Internal buffers.
   VoxelSet moving_a, moving_b, shifted, staged;
   FeatureField field;
-  std::vector<PackedVoxel, BigBufferAllocator<PackedVoxel>> images;  // written before read
+  MovingBuffers side_a, side_b;  // one per half of a median (they may overlap)
 };
 
 enum class SetMapKind { kMedian, kRotatedMedian, kConstant, kPoint };
