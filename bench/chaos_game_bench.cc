@@ -12,6 +12,8 @@
 
 #include "tests/support/attractors.h"
 #include "core/chaos/chaos_game.h"
+#include "core/chaos/flame_program.h"
+#include "core/chaos/image_plane.h"
 #include "core/base/cpu_dispatch.h"
 
 namespace nimbus {
@@ -112,6 +114,49 @@ BENCHMARK(BM_Flame6Planar1024)
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime()
     ->Iterations(1);
+
+// The same flame drawn as a 1024 x 1024 picture looking down z
+// (docs/images.md), whose rows fold into tiles: what the walk itself costs
+// once the counts fit the cache.
+void BM_Flame6Picture1024(benchmark::State& state) {
+  ChaosGameParams p = Flame6Params(uint64_t{1} << 25);
+  p.image = MakeImagePlane({}, p.frame.bounds, 1024, 1024);
+  RunEngine(state, p);
+}
+BENCHMARK(BM_Flame6Picture1024)
+    ->ArgsProduct({{1, 2}, {0, 1, 2}})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->Iterations(1);
+
+// The flame kernel alone: one round of 64 walkers of the six-variation
+// flame per call, points kept bounded by the maps themselves; items are
+// walker-steps.
+void BM_Flame6KernelRound(benchmark::State& state) {
+  const ChaosGameParams p = Flame6Params(1);
+  const SimdLevel level = std::min(SimdLevel(state.range(0)), DetectSimd());
+  state.SetLabel(std::string(SimdName(level)));
+  const AliasTable table(p.ifs.probabilities);
+  const FlameProgram program(p.ifs.maps, p.ifs.final_map, table, 1, p.color.blend);
+  const flame::RoundFn round = FlameKernel(level);
+  std::vector<uint64_t> words(size_t(program.program().words) * flame::kMaxWalkers);
+  std::vector<uint32_t> group(p.ifs.maps.size() + 1);
+  auto w = std::make_unique<flame::Walkers>();
+  w->words = words.data();
+  w->group = group.data();
+  for (int k = 0; k < flame::kMaxWalkers; ++k) {
+    const Rng rng(1, uint64_t(k));
+    w->s0[k] = rng.state(0), w->s1[k] = rng.state(1), w->s2[k] = rng.state(2);
+    w->s3[k] = rng.state(3);
+    w->x[k] = 0.01 * k, w->y[k] = 0.1, w->z[k] = 0;
+  }
+  for (auto _ : state) {
+    round(program.program(), *w, flame::kMaxWalkers);
+    benchmark::DoNotOptimize(w->x[0]);
+  }
+  state.SetItemsProcessed(int64_t(state.iterations()) * flame::kMaxWalkers);
+}
+BENCHMARK(BM_Flame6KernelRound)->Arg(0)->Arg(1)->Arg(2);
 
 // A thin attractor on a huge grid: the pilot census and the memory it
 // predicts against what the run really holds.

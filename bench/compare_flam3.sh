@@ -63,13 +63,15 @@ $(palette)
 </flame>
 EOF
 
-# Runs a command REPEAT times; prints "seconds peak_kb" of the fastest run.
+# Runs a command REPEAT times, each with stdin from FILE (or nothing);
+# prints "seconds peak_kb" of the fastest run. Usage: timed [-i FILE] CMD...
 timed() {
-  local best="" best_kb=""
+  local best="" best_kb="" in=/dev/null
+  if [ "$1" = "-i" ]; then in=$2; shift 2; fi
   for _ in $(seq 1 "$repeat"); do
     local t0 t1 kb
     t0=$(date +%s.%N)
-    /usr/bin/time -f "%M" -o "$work/rss" "$@" >"$work/log" 2>&1 || {
+    /usr/bin/time -f "%M" -o "$work/rss" "$@" <"$in" >"$work/log" 2>&1 || {
       echo "compare_flam3: failed: $*" >&2
       tail -5 "$work/log" >&2
       exit 1
@@ -85,16 +87,16 @@ timed() {
 
 printf "%-20s %12s %10s %10s %10s %10s %10s %10s %8s\n" genome samples flam3_s flam3_M/s \
   flam3_MB nimbus_s nimbus_M/s nimbus_MB speedup
-# genome:nimbus spec:samples. sierpinski_2d_image draws the same genome as a
+# genome:nimbus spec:samples. The *_image specs draw the same genome as a
 # 1024x1024 PNG (docs/images.md) instead of a 1024x1024x1 volume.
 for g in sierpinski_2d:sierpinski_2d:209715200 sierpinski_2d:sierpinski_2d_image:209715200 \
-  flame6_2d:flame6_2d:104857600; do
+  flame6_2d:flame6_2d:104857600 flame6_2d:flame6_2d_image:104857600; do
   name=${g%%:*} samples=${g##*:} spec=${g#*:}
   spec=${spec%%:*}
   out="$work/$spec.vdb"
   case "$spec" in *_image) out="$work/$spec.png" ;; esac
-  read -r fs fkb < <(timed env nthreads="$flam3_threads" verbose=0 format=png \
-    out="$work/$name.png" flam3-render <"$work/$name.flam3")
+  read -r fs fkb < <(timed -i "$work/$name.flam3" env nthreads="$flam3_threads" verbose=0 \
+    format=png out="$work/$name.png" flam3-render)
   read -r ns nkb < <(timed "$nimbus" --data-dir "$work/data" --threads "$threads" \
     render --no-cache "$here/flam3/$spec.json" -o "$out")
   printf "%-20s %12s %10.2f %10.1f %10.0f %10.2f %10.1f %10.0f %7.2fx\n" "$spec" "$samples" \

@@ -105,9 +105,14 @@ absl::StatusOr<std::unique_ptr<ChaosGame>> ChaosGame::Create(ChaosGameParams par
   game->fast_ = UsesFastPath(p);
   game->simd_ = std::min(p.simd.value_or(ActiveSimd()), DetectSimd());
   if (!game->fast_ && !p.chain) {
-    game->program_ = FlameProgram(ifs.maps);
-    if (ifs.final_map) game->final_program_.emplace(std::vector<PointMap>{*ifs.final_map});
-    game->apply_maps_ = FlameKernel(game->simd_);
+    const int mode = p.color.mode == ColorMode::kNone ? 0 : p.color.mode == ColorMode::kMap ? 1 : 2;
+    game->program_ = FlameProgram(ifs.maps, ifs.final_map, game->map_table_, mode, p.color.blend);
+    game->flame_round_ = FlameKernel(game->simd_);
+    // Affine maps keep kWalkers walkers, whose streams then hold exactly
+    // the draws of the one-walker loop (docs/chaos_game.md).
+    const bool affine = ifs.AllAffine() &&
+                        (!ifs.final_map || FlameProgram::MapWords(*ifs.final_map) == 0);
+    game->flame_walkers_ = affine ? kWalkers : flame::kMaxWalkers;
   }
   for (const PointMap& m : ifs.maps) {
     // Walking in pixel space: one affine map per step, no projection.
@@ -350,6 +355,15 @@ struct ChaosGame::Poll {
   bool Tick() {
     if (--left > 0) [[likely]]
       return stopped;
+    left = kPollSteps;
+    return stopped = stopped || game->Stopping(chunk);
+  }
+  // `steps` steps at once.
+  bool Tick(uint64_t steps) {
+    if (left > steps) [[likely]] {
+      left -= steps;
+      return stopped;
+    }
     left = kPollSteps;
     return stopped = stopped || game->Stopping(chunk);
   }
@@ -677,111 +691,111 @@ void ChaosGame::RunChunk(uint64_t chunk, Worker& w) {
   }
 }
 
-namespace {
-
-// Puts walker k in slot slot_of[k], grouping walkers by map (in walker
-// order within a map) and padding each group to a whole register, so a
-// register evaluates only its own map's terms; without room for the
-// padding, groups are packed. Padding slots repeat their group's map.
-// Returns the slot count (a multiple of kSlotAlign).
-int GroupByMap(const uint32_t* map, int n, int* slot_of, flame::Batch& b) {
-  constexpr int kWalkers = ChaosGame::kWalkers;
-  auto round_up = [](int v) {
-    return (v + flame::kSlotAlign - 1) / flame::kSlotAlign * flame::kSlotAlign;
-  };
-  uint32_t groups[kWalkers];
-  int sizes[kWalkers] = {}, group_of[kWalkers], num_groups = 0, padded = 0;
-  for (int k = 0; k < n; ++k) {
-    int g = 0;
-    while (g < num_groups && groups[g] != map[k]) ++g;
-    if (g == num_groups) groups[num_groups++] = map[k];
-    group_of[k] = g;
-    ++sizes[g];
-  }
-  for (int g = 0; g < num_groups; ++g) padded += round_up(sizes[g]);
-  const bool pad = padded <= flame::kSlots;
-  int fill[kWalkers], next = 0;
-  for (int g = 0; g < num_groups; ++g) {
-    fill[g] = next;
-    const int end = next + (pad ? round_up(sizes[g]) : sizes[g]);
-    for (int s = next; s < end; ++s) b.map[s] = groups[g], b.x[s] = b.y[s] = b.z[s] = 0;
-    next = end;
-  }
-  const int count = round_up(next);
-  for (int s = next; s < count; ++s)
-    b.map[s] = groups[num_groups - 1], b.x[s] = b.y[s] = b.z[s] = 0;
-  for (int k = 0; k < n; ++k) slot_of[k] = fill[group_of[k]]++;
-  return count;
-}
-
-}  // namespace
-
-// The batched general path without a chain: all walkers of the chunk step
-// together, their maps applied by the flame kernel of the SIMD level.
-// Random numbers are drawn per walker in the scalar engine's order, so the
-// scalar kernel counts exactly what RunChunk would.
+// The general path without a chain: all walkers of the chunk step
+// together, one round of the flame kernel of the SIMD level per step
+// (core/chaos/flame_walk.h): each walker draws its step's words from its
+// own stream, so any kernel takes it along the path the scalar one does,
+// up to the rounding of the elementary functions.
 void ChaosGame::RunChunkBatch(uint64_t chunk, Worker& w) {
+  const ChaosGameParams& p = params_;
   const uint64_t begin = chunk * kChunkIterations;
-  const uint64_t count = std::min(kChunkIterations, params_.iterations - begin);
+  const uint64_t count = std::min(kChunkIterations, p.iterations - begin);
   General g(*this, w, chunk, count);
-  General::Lane lanes[kWalkers];
-  for (int k = 0; k < kWalkers; ++k) {
-    lanes[k].rng = Rng(params_.seed, chunk * kWalkers + uint64_t(k));
-    g.WarmUp(lanes[k]);
+  const flame::Program& prog = program_.program();
+  const flame::RoundFn round = flame_round_;
+  const int n = flame_walkers_;
+  const bool color = p.color.mode != ColorMode::kNone;
+  // The chunk's walkers, and a block that re-warms one walker alone, copied
+  // into every lane: lanes compute independently, so alone or in the batch
+  // a walker takes the same path.
+  auto blocks = std::make_unique<flame::Walkers[]>(2);
+  flame::Walkers& s = blocks[0];
+  flame::Walkers& solo = blocks[1];
+  const size_t words = size_t(prog.words) * flame::kMaxWalkers;
+  const size_t groups = size_t(prog.maps.num_maps) + 1;
+  std::vector<uint64_t> word_buffer(2 * words);
+  std::vector<uint32_t> group_buffer(2 * groups);
+  s.words = word_buffer.data(), solo.words = s.words + words;
+  s.group = group_buffer.data(), solo.group = s.group + groups;
+  auto rng_of = [](const flame::Walkers& b, int k) {
+    return Rng::FromState(b.s0[k], b.s1[k], b.s2[k], b.s3[k]);
+  };
+  auto set_rng = [](flame::Walkers& b, int k, const Rng& r) {
+    b.s0[k] = r.state(0), b.s1[k] = r.state(1), b.s2[k] = r.state(2), b.s3[k] = r.state(3);
+  };
+  auto reseed = [&](flame::Walkers& b, int k) {  // RandomPoint from the walker's stream
+    Rng r = rng_of(b, k);
+    const Vec3 q = RandomPoint(r, g.b);
+    b.x[k] = q.x, b.y[k] = q.y, b.z[k] = q.z;
+    set_rng(b, k, r);
+  };
+  auto restart = [&](flame::Walkers& b, int k) {  // General::WarmUp's start
+    reseed(b, k);
+    if (!color) return;
+    Rng r = rng_of(b, k);
+    b.addr[k] = b.col[k] = r.Uniform();
+    set_rng(b, k, r);
+  };
+  auto finite = [](const flame::Walkers& b, int k) {
+    return IsFinite(Vec3{b.x[k], b.y[k], b.z[k]});
+  };
+  auto copy = [](const flame::Walkers& from, int i, flame::Walkers& to, int j) {
+    to.x[j] = from.x[i], to.y[j] = from.y[i], to.z[j] = from.z[i];
+    to.addr[j] = from.addr[i], to.col[j] = from.col[i];
+    to.s0[j] = from.s0[i], to.s1[j] = from.s1[i], to.s2[j] = from.s2[i], to.s3[j] = from.s3[i];
+  };
+  // A walker whose point went non-finite starts again and warms up alone.
+  auto rewarm = [&](int k) {
+    restart(s, k);
+    for (int l = 0; l < flame::kAlign; ++l) copy(s, k, solo, l);
+    for (uint32_t i = 0; i < p.warmup; ++i) {
+      if (g.poll.Tick()) [[unlikely]]
+        break;
+      round(prog, solo, flame::kAlign);
+      if (finite(solo, 0)) [[likely]]
+        continue;
+      reseed(solo, 0);
+      ++g.reseeded;
+      for (int l = 1; l < flame::kAlign; ++l) copy(solo, 0, solo, l);
+    }
+    copy(solo, 0, s, k);
+  };
+
+  for (int k = 0; k < n; ++k) {
+    set_rng(s, k, Rng(p.seed, chunk * uint64_t(n) + uint64_t(k)));
+    restart(s, k);
   }
-  const FlameProgram* final_program = final_program_ ? &*final_program_ : nullptr;
-  const uint32_t columns =
-      std::max(program_.draw_columns(), final_program ? final_program->draw_columns() : 0u);
-  std::vector<double> draws(size_t(std::max(columns, 1u)) * flame::kSlots, 0.0);
-  flame::Batch step, fin;
-  step.draws = fin.draws = draws.data();
-  for (int s = 0; s < flame::kSlots; ++s) fin.map[s] = 0;
-  const uint64_t rounds = (count + kWalkers - 1) / kWalkers;
+  // A stopped chunk's counts are thrown away with the job.
+  for (uint32_t i = 0; i < p.warmup; ++i) {
+    if (g.poll.Tick(uint64_t(n))) [[unlikely]]
+      return;
+    round(prog, s, n);
+    for (int k = 0; k < n; ++k) {
+      if (finite(s, k)) [[likely]]
+        continue;
+      reseed(s, k);
+      ++g.reseeded;
+    }
+  }
+  const bool final_map = prog.final_map.num_maps != 0;
+  const double* px = final_map ? s.fx : s.x;
+  const double* py = final_map ? s.fy : s.y;
+  const double* pz = final_map ? s.fz : s.z;
+  const uint64_t rounds = (count + uint64_t(n) - 1) / uint64_t(n);
   for (uint64_t j = 0; j < rounds; ++j) {
-    // In the last round only the first count % kWalkers walkers step.
-    const int active = int(std::min<uint64_t>(kWalkers, count - j * kWalkers));
-    bool stop = false;
-    uint32_t map[kWalkers];
-    int slot[kWalkers];
-    for (int k = 0; k < active; ++k) {
-      stop = stop || g.poll.Tick();
-      map[k] = g.PickMap(lanes[k]);
-    }
-    // A stopped chunk's counts are thrown away with the job.
-    if (stop) [[unlikely]]
+    // In the last round only the first count % n walkers plot.
+    const int active = int(std::min<uint64_t>(uint64_t(n), count - j * uint64_t(n)));
+    if (g.poll.Tick(uint64_t(active))) [[unlikely]]
       break;
-    step.count = GroupByMap(map, active, slot, step);
+    round(prog, s, n);
     for (int k = 0; k < active; ++k) {
-      General::Lane& l = lanes[k];
-      const int s = slot[k];
-      program_.Draw(map[k], l.rng, draws.data(), s);
-      step.x[s] = l.pos.x, step.y[s] = l.pos.y, step.z[s] = l.pos.z;
-    }
-    apply_maps_(program_.tables(), step);
-    int plotted[kWalkers], n_plotted = 0;
-    for (int k = 0; k < active; ++k) {
-      General::Lane& l = lanes[k];
-      l.pos = {step.x[slot[k]], step.y[slot[k]], step.z[slot[k]]};
-      g.Recolor(l, map[k]);
-      if (!IsFinite(l.pos)) [[unlikely]] {
+      if (!finite(s, k)) [[unlikely]] {
         ++g.reseeded;
-        g.WarmUp(l);
+        rewarm(k);
         continue;
       }
-      plotted[n_plotted] = k;
-      if (final_program) final_program->Draw(0, l.rng, draws.data(), n_plotted);
-      fin.x[n_plotted] = l.pos.x, fin.y[n_plotted] = l.pos.y, fin.z[n_plotted] = l.pos.z;
-      ++n_plotted;
-    }
-    if (final_program) {
-      fin.count = (n_plotted + flame::kSlotAlign - 1) / flame::kSlotAlign * flame::kSlotAlign;
-      for (int s = n_plotted; s < fin.count; ++s) fin.x[s] = fin.y[s] = fin.z[s] = 0;
-      apply_maps_(final_program->tables(), fin);
-    }
-    for (int i = 0; i < n_plotted; ++i) {
-      const int k = plotted[i];
       g.Reserve();
-      g.Plot({fin.x[i], fin.y[i], fin.z[i]}, lanes[k].col, begin + j * kWalkers + uint64_t(k));
+      g.Plot({px[k], py[k], pz[k]}, s.col[k], begin + j * uint64_t(n) + uint64_t(k));
     }
   }
 }

@@ -168,6 +168,9 @@ class ChaosGame {
   /// Walkers per chunk, each with its own random stream (seed, chunk *
   /// kWalkers + walker), so SIMD lanes and scalar code walk the same paths.
   /// Walker k plots every kWalkers-th step of the chunk, starting at k.
+  /// Flames (maps with variations or post transforms, or a final transform
+  /// that draws) use flame::kMaxWalkers (64) the same way, so the flame
+  /// kernels find whole registers of walkers of one map (docs/chaos_game.md).
   static constexpr int kWalkers = 16;
 
   /// Validates `params` (non-empty IFS, probabilities, chain shape).
@@ -229,7 +232,7 @@ class ChaosGame {
   struct General;
   void RunChunk(uint64_t chunk, Worker& worker);
   // The general path without a chain: the chunk's walkers in one batch,
-  // maps applied by the flame kernel of the SIMD level (core/flame_walk.h).
+  // stepped by the flame kernel of the SIMD level (core/chaos/flame_walk.h).
   void RunChunkBatch(uint64_t chunk, Worker& worker);
   // The fast path (UsesFastPath): the walk kernels of core/affine_walk.h
   // write into per-thread TileBins. Same random streams and arithmetic as
@@ -260,10 +263,11 @@ class ChaosGame {
   // The fast path's maps: the IFS's own, or conjugated into pixel space
   // (view * map * view^-1) for an orthographic image.
   std::vector<Affine3> fast_maps_;
-  // The maps and the final map for RunChunkBatch, and its kernel.
+  // The maps and the final map for RunChunkBatch, its kernel and its
+  // walkers per chunk (kWalkers for affine maps, flame::kMaxWalkers else).
   FlameProgram program_;
-  std::optional<FlameProgram> final_program_;
-  flame::ApplyMapsFn apply_maps_ = nullptr;
+  flame::RoundFn flame_round_ = nullptr;
+  int flame_walkers_ = kWalkers;
   // The chain as flat tables for the fast path (walk::ChainTables).
   struct FlatChain {
     std::vector<uint64_t> state, sample, step;

@@ -5,64 +5,64 @@
 #include "core/chaos/variation_formulas.h"
 
 namespace nimbus {
-namespace {
 
-void AppendAffine(const Affine3& a, std::vector<double>& out) {
-  for (const auto& row : a.m) out.insert(out.end(), row.begin(), row.end());
+uint32_t FlameProgram::MapWords(const PointMap& map) {
+  uint32_t n = 0;
+  for (const VariationTerm& v : map.variations) n += uint32_t(formulas::VariationDraws(v.kind));
+  return n;
 }
 
-// A flag in the first of a map's 12 entries (flame_walk.h).
-void AppendFlag(bool flag, std::vector<double>& out) {
-  out.push_back(flag ? 1.0 : 0.0);
-  out.insert(out.end(), 11, 0.0);
-}
-
-}  // namespace
-
-FlameProgram::FlameProgram(const std::vector<PointMap>& maps) {
-  random_.resize(maps.size());
-  for (uint32_t m = 0; m < maps.size(); ++m) {
-    const PointMap& map = maps[m];
-    AppendAffine(map.pre, pre_);
-    AppendAffine(map.post.value_or(Affine3::Identity()), post_);
-    AppendFlag(map.post.has_value(), has_post_);
-    AppendFlag(!map.variations.empty(), has_terms_);
-    uint32_t column = 0;
-    for (const VariationTerm& v : map.variations) {
-      terms_.push_back({m, uint32_t(v.kind), v.weight, column});
-      const int n = formulas::VariationDraws(v.kind);
-      if (n > 0) random_[m].push_back(v.kind);
-      column += uint32_t(n);
-    }
-    columns_ = std::max(columns_, column);
+void FlameProgram::Tables::Add(const PointMap& map) {
+  if (first_term.empty()) first_term.push_back(0);
+  for (const auto& row : map.pre.m) pre.insert(pre.end(), row.begin(), row.end());
+  const Affine3 after = map.post.value_or(Affine3::Identity());
+  for (const auto& row : after.m) post.insert(post.end(), row.begin(), row.end());
+  has_post.push_back(map.post.has_value());
+  has_terms.push_back(!map.variations.empty());
+  color.push_back(map.color);
+  uint32_t draw = 0;
+  for (const VariationTerm& v : map.variations) {
+    terms.push_back({uint32_t(v.kind), v.weight, draw});
+    draw += uint32_t(formulas::VariationDraws(v.kind));
   }
-  view_ = {pre_.data(),       post_.data(),  has_post_.data(),
-           has_terms_.data(), terms_.data(), uint32_t(terms_.size())};
+  first_term.push_back(uint32_t(terms.size()));
 }
 
-void FlameProgram::Draw(uint32_t map, Rng& rng, double* draws, int slot) const {
-  double* out = draws + slot;
-  for (VariationKind kind : random_[map]) {
-    if (kind == VariationKind::kJulia) {
-      *out = double(rng.Next() >> 63);
-      out += flame::kSlots;
-      continue;
-    }
-    for (int i = 0; i < formulas::VariationDraws(kind); ++i, out += flame::kSlots)
-      *out = rng.Uniform();
+flame::MapTables FlameProgram::Tables::View() const {
+  return {pre.data(),        post.data(),  has_post.data(),  has_terms.data(),
+          first_term.data(), terms.data(), color.data(),     uint32_t(color.size())};
+}
+
+FlameProgram::FlameProgram(const std::vector<PointMap>& maps,
+                           const std::optional<PointMap>& final_map, const AliasTable& table,
+                           int color_mode, double blend) {
+  uint32_t map_words = 0;
+  for (const PointMap& m : maps) {
+    maps_.Add(m);
+    map_words = std::max(map_words, MapWords(m));
   }
+  if (final_map) final_.Add(*final_map);
+  view_.maps = maps_.View();
+  view_.final_map = final_.View();
+  view_.threshold = table.thresholds();
+  view_.alias = table.aliases();
+  view_.final_word = 1 + map_words;
+  view_.words = view_.final_word + (final_map ? MapWords(*final_map) : 0);
+  view_.color_mode = color_mode;
+  view_.blend = blend;
+  view_.inv_maps = 1.0 / double(maps.size());
 }
 
-flame::ApplyMapsFn FlameKernel(SimdLevel level) {
+flame::RoundFn FlameKernel(SimdLevel level) {
   switch (std::min(level, DetectSimd())) {
     case SimdLevel::kAvx512:
-      return &flame::ApplyMapsAvx512;
+      return &flame::RoundAvx512;
     case SimdLevel::kAvx2:
-      return &flame::ApplyMapsAvx2;
+      return &flame::RoundAvx2;
     case SimdLevel::kScalar:
       break;
   }
-  return &flame::ApplyMapsScalar;
+  return &flame::RoundScalar;
 }
 
 }  // namespace nimbus

@@ -1,13 +1,13 @@
-// @brief A list of point maps laid out for the batched flame kernels
-// (flame_walk.h): flat tables, the terms in the order a walker sums them,
-// and where each random term finds its pre-drawn numbers.
+// @brief A job's maps laid out for the flame kernels (flame_walk.h): flat
+// tables, each map's terms in the order a walker sums them, the alias table
+// and the colour rule, and how many random words a step draws.
 #pragma once
 
 #include <cstdint>
+#include <optional>
 #include <vector>
 
 #include "core/base/cpu_dispatch.h"
-#include "core/base/random.h"
 #include "core/chaos/flame_walk.h"
 #include "core/chaos/point_map.h"
 
@@ -16,30 +16,35 @@ namespace nimbus {
 class FlameProgram {
  public:
   FlameProgram() = default;
-  explicit FlameProgram(const std::vector<PointMap>& maps);
-  // tables() points into the vectors, whose buffers survive a move only.
+  /// `color_mode`: 0 none, 1 by map, 2 by address (flame::Program).
+  FlameProgram(const std::vector<PointMap>& maps, const std::optional<PointMap>& final_map,
+               const AliasTable& table, int color_mode, double blend);
+  // program() points into the vectors, whose buffers survive a move only.
   FlameProgram(const FlameProgram&) = delete;
   FlameProgram& operator=(const FlameProgram&) = delete;
   FlameProgram(FlameProgram&&) = default;
   FlameProgram& operator=(FlameProgram&&) = default;
 
-  const flame::MapTables& tables() const { return view_; }
-  /// Columns of pre-drawn numbers a batch needs (the most any map takes).
-  uint32_t draw_columns() const { return columns_; }
-  /// Draws the numbers of one application of map `map`, in the order the
-  /// scalar engine draws them, into draws[column * kSlots + slot].
-  void Draw(uint32_t map, Rng& rng, double* draws, int slot) const;
+  const flame::Program& program() const { return view_; }
+
+  /// Random words one application of `map` reads (formulas::VariationDraws
+  /// summed over its terms).
+  static uint32_t MapWords(const PointMap& map);
 
  private:
-  std::vector<double> pre_, post_, has_post_, has_terms_;
-  std::vector<flame::Term> terms_;
-  // Per map: the kinds of its random terms, in order.
-  std::vector<std::vector<VariationKind>> random_;
-  uint32_t columns_ = 0;
-  flame::MapTables view_;
+  struct Tables {
+    std::vector<double> pre, post, color;
+    std::vector<uint8_t> has_post, has_terms;
+    std::vector<uint32_t> first_term;
+    std::vector<flame::Term> terms;
+    void Add(const PointMap& map);
+    flame::MapTables View() const;
+  };
+  Tables maps_, final_;
+  flame::Program view_;
 };
 
 /// The kernel for a SIMD level (never above what the CPU has).
-flame::ApplyMapsFn FlameKernel(SimdLevel level);
+flame::RoundFn FlameKernel(SimdLevel level);
 
 }  // namespace nimbus

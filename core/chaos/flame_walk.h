@@ -1,10 +1,13 @@
-// @brief The nonlinear (flame) maps applied to a batch of walkers at once:
-// every walker's pre-affine, weighted variation sum and post-affine, in
-// structure-of-arrays form. One formula source (variation_formulas.h) is
-// compiled three times: portably with the C library's functions (the
-// scalar reference) and for AVX2 and AVX-512 with SLEEF's vector functions;
-// core/base/cpu_dispatch.h picks one at run time. docs/chaos_game.md states
-// which kernels agree bit for bit and which within an ulp bound.
+// @brief The flame (nonlinear) walk, one round for a whole chunk of walkers
+// at once: every walker's random words (its own xoshiro256++ stream), its
+// map (the alias table), its recolouring, then walkers grouped by map so a
+// register holds walkers of one map and evaluates that map's terms only:
+// pre-affine, weighted variation sum, post-affine. The final transform is
+// a second pass. One formula source (variation_formulas.h) is compiled three
+// times: portably with the C library's functions (the scalar reference) and
+// for AVX2 and AVX-512 with SLEEF's vector functions; core/base/cpu_dispatch.h
+// picks one at run time. docs/chaos_game.md states which kernels agree bit
+// for bit and which within an ulp bound.
 //
 // Plain data only, like affine_walk.h: the SIMD translation units include
 // nothing else of the engine.
@@ -14,54 +17,72 @@
 
 namespace nimbus::flame {
 
-/// Slots of a batch: room for a chunk's 16 walkers grouped by map, each
-/// group padded to a whole AVX-512 register (8 slots), so that a register
-/// mostly holds walkers of one map and evaluates only that map's terms.
-inline constexpr int kSlots = 32;
-/// Slots are processed in multiples of this.
-inline constexpr int kSlotAlign = 8;
+/// Walkers a Walkers block holds; a round steps a multiple of kAlign.
+inline constexpr int kMaxWalkers = 64;
+inline constexpr int kAlign = 8;
 
-/// @brief One weighted variation term of one map. Terms are listed map by
-/// map, each map's in its own order, so a walker sums its terms in the
-/// order the scalar engine does. `draw` is the first column of the batch's
-/// pre-drawn random numbers this term reads (formulas::VariationDraws).
+/// @brief One weighted variation term. `draw` is the first of the words the
+/// term reads, counted from its map's first (formulas::VariationDraws).
 struct Term {
-  uint32_t map = 0;
   uint32_t kind = 0;  // a VariationKind
   double weight = 0;
   uint32_t draw = 0;
 };
 
-/// @brief The maps as flat tables of 12 doubles per map: the pre-affine and
-/// the post-affine (the identity where a map has none) as row-major [A | b],
-/// and two flags (1 or 0, in the first of the map's 12 entries) so that one
-/// gather index serves every table.
+/// @brief A list of maps as flat tables: per map the pre-affine and the
+/// post-affine (the identity where it has none) as 12 row-major doubles
+/// [A | b], flags, its terms terms[first_term[m], first_term[m + 1]) in the
+/// order a walker sums them, and its colour.
 struct MapTables {
   const double* pre = nullptr;
   const double* post = nullptr;
-  const double* has_post = nullptr;
-  const double* has_terms = nullptr;
+  const uint8_t* has_post = nullptr;
+  const uint8_t* has_terms = nullptr;
+  const uint32_t* first_term = nullptr;
   const Term* terms = nullptr;
-  uint32_t num_terms = 0;
+  const double* color = nullptr;
+  uint32_t num_maps = 0;
 };
 
-/// @brief A batch: positions, each slot's map (an index into the tables)
-/// and its pre-drawn random numbers, draws[column * kSlots + slot]. Slots
-/// [0, count) are applied, count a multiple of kSlotAlign; padding slots
-/// need only a valid map.
-struct alignas(64) Batch {
-  double x[kSlots], y[kSlots], z[kSlots];
-  int64_t map[kSlots];
-  int count = 0;
-  const double* draws = nullptr;
+/// @brief What a round needs of the job. Each step a walker draws `words`
+/// words: word 0 picks the map (AliasTable::Sample), words 1.. feed the
+/// map's random terms, words final_word.. the final transform's.
+struct Program {
+  MapTables maps;
+  MapTables final_map;  // num_maps 0: none
+  const uint32_t* threshold = nullptr;  // the alias table
+  const uint32_t* alias = nullptr;
+  uint32_t words = 1;
+  uint32_t final_word = 1;
+  int color_mode = 0;  // 0 none, 1 by map, 2 by address (ColorMode)
+  double blend = 0;
+  double inv_maps = 1;
 };
 
-/// Replaces every slot's position by its map's image.
-using ApplyMapsFn = void (*)(const MapTables& t, Batch& b);
-void ApplyMapsScalar(const MapTables& t, Batch& b);
-/// AVX2 (4 lanes per register) and AVX-512 (8 lanes per register) with
-/// SLEEF; call only where the CPU has them.
-void ApplyMapsAvx2(const MapTables& t, Batch& b);
-void ApplyMapsAvx512(const MapTables& t, Batch& b);
+/// @brief The walkers of a chunk in structure-of-arrays form, with the
+/// round's scratch. `words` holds Program::words x kMaxWalkers words
+/// (word c of walker k at c * kMaxWalkers + k) and `group` num_maps + 1
+/// entries, both owned by the caller.
+struct alignas(64) Walkers {
+  double x[kMaxWalkers], y[kMaxWalkers], z[kMaxWalkers];
+  double addr[kMaxWalkers], col[kMaxWalkers];
+  uint64_t s0[kMaxWalkers], s1[kMaxWalkers], s2[kMaxWalkers], s3[kMaxWalkers];
+  // Written by a round: the point after the final transform (when there
+  // is one), each walker's map, and the walkers sorted by map.
+  double fx[kMaxWalkers], fy[kMaxWalkers], fz[kMaxWalkers];
+  uint32_t map[kMaxWalkers];
+  int32_t order[kMaxWalkers];
+  uint64_t* words = nullptr;
+  uint32_t* group = nullptr;
+};
+
+/// One step of walkers [0, n), n a multiple of kAlign: draw, pick, recolour,
+/// apply the maps, then the final transform (into fx, fy, fz) if any.
+using RoundFn = void (*)(const Program& p, Walkers& w, int n);
+void RoundScalar(const Program& p, Walkers& w, int n);
+/// AVX2 (4 lanes per register) and AVX-512 (8 lanes) with SLEEF; call only
+/// where the CPU has them.
+void RoundAvx2(const Program& p, Walkers& w, int n);
+void RoundAvx512(const Program& p, Walkers& w, int n);
 
 }  // namespace nimbus::flame

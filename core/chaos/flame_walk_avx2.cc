@@ -16,6 +16,10 @@ namespace {
 inline __m256d Sqrt(__m256d a) { return _mm256_sqrt_pd(a); }  // correctly rounded
 inline __m256d Sin(__m256d a) { return Sleef_sind4_u10avx2(a); }
 inline __m256d Cos(__m256d a) { return Sleef_cosd4_u10avx2(a); }
+inline void SinCos(__m256d a, __m256d* s, __m256d* c) {
+  const auto both = Sleef_sincosd4_u10avx2(a);
+  *s = both.x, *c = both.y;
+}
 inline __m256d Tan(__m256d a) { return Sleef_tand4_u10avx2(a); }
 inline __m256d Atan2(__m256d y, __m256d x) { return Sleef_atan2d4_u10avx2(y, x); }
 inline __m256d Exp(__m256d a) { return Sleef_expd4_u10avx2(a); }
@@ -38,25 +42,92 @@ namespace {
 struct Avx2Isa {
   using T = __m256d;
   static constexpr int kWidth = 4;
-  static __m256d Load(const double* p) { return _mm256_loadu_pd(p); }
-  static void Store(double* p, __m256d v) { _mm256_storeu_pd(p, v); }
-  static __m256i Index(const int64_t* map) {
-    const __m256i m = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(map));
-    return _mm256_add_epi64(_mm256_slli_epi64(m, 3), _mm256_slli_epi64(m, 2));  // 12 m
+  static __m256d Load(const double* p) { return _mm256_load_pd(p); }
+  static void Store(double* p, __m256d v) { _mm256_store_pd(p, v); }
+  static __m128i Index(const int32_t* lanes) {
+    return _mm_loadu_si128(reinterpret_cast<const __m128i*>(lanes));
   }
-  static __m256d Gather(const double* table, __m256i index, int j) {
-    return _mm256_i64gather_pd(table + j, index, 8);
+  static __m256d ToDouble(__m128i i) { return _mm256_cvtepi32_pd(i); }
+  static void SortByMap(uint32_t maps, Walkers& w, int n) { SortByMapScalar(maps, w, n); }
+  // AliasTable::Sample, four words at a time: the 32 x 32-bit product picks
+  // the column, the low half of the word decides between it and its alias.
+  static void PickMaps(const Program& p, Walkers& w, int n) {
+    const __m256i num = _mm256_set1_epi64x(p.maps.num_maps);
+    const __m256i low = _mm256_set1_epi64x(0xffffffff);
+    const __m256i pack = _mm256_setr_epi32(0, 2, 4, 6, 1, 3, 5, 7);
+    for (int k = 0; k < n; k += kWidth) {
+      const __m256i r = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(w.words + k));
+      const __m256i i = _mm256_srli_epi64(_mm256_mul_epu32(_mm256_srli_epi64(r, 32), num), 32);
+      const __m256i threshold = _mm256_cvtepu32_epi64(
+          _mm256_i64gather_epi32(reinterpret_cast<const int*>(p.threshold), i, 4));
+      const __m256i alias = _mm256_cvtepu32_epi64(
+          _mm256_i64gather_epi32(reinterpret_cast<const int*>(p.alias), i, 4));
+      const __m256i keep = _mm256_cmpgt_epi64(threshold, _mm256_and_si256(r, low));
+      const __m256i m = _mm256_blendv_epi8(alias, i, keep);
+      _mm_storeu_si128(reinterpret_cast<__m128i*>(w.map + k),
+                       _mm256_castsi256_si128(_mm256_permutevar8x32_epi32(m, pack)));
+    }
+  }
+  static __m256d Gather(const double* base, __m128i i) { return _mm256_i32gather_pd(base, i, 8); }
+  static void Scatter(double* base, __m128i i, __m256d v) {  // no scatter in AVX2
+    alignas(32) double lane[4];
+    alignas(16) int32_t at[4];
+    _mm256_store_pd(lane, v);
+    _mm_store_si128(reinterpret_cast<__m128i*>(at), i);
+    for (int j = 0; j < 4; ++j) base[at[j]] = lane[j];
+  }
+  static __m256i GatherWord(const uint64_t* base, __m128i i) {
+    return _mm256_i32gather_epi64(reinterpret_cast<const long long*>(base), i, 8);
+  }
+  // (w >> 11) 2^-53 exactly: both 32-bit halves convert exactly through the
+  // 2^52 exponent trick and their sum stays below 2^53.
+  static __m256d Uniform(__m256i w) {
+    const __m256i v = _mm256_srli_epi64(w, 11);
+    const __m256i magic = _mm256_set1_epi64x(0x4330000000000000);
+    const __m256d two52 = _mm256_set1_pd(0x1.0p52);
+    const __m256d hi = _mm256_sub_pd(
+        _mm256_castsi256_pd(_mm256_or_si256(_mm256_srli_epi64(v, 32), magic)), two52);
+    const __m256d lo = _mm256_sub_pd(
+        _mm256_castsi256_pd(_mm256_or_si256(
+            _mm256_and_si256(v, _mm256_set1_epi64x(0xffffffff)), magic)), two52);
+    const __m256d whole = _mm256_add_pd(_mm256_mul_pd(hi, _mm256_set1_pd(0x1.0p32)), lo);
+    return _mm256_mul_pd(whole, _mm256_set1_pd(0x1.0p-53));
+  }
+  static __m256d Bit(__m256i w) {
+    return _mm256_castsi256_pd(_mm256_cmpgt_epi64(_mm256_setzero_si256(), w));
   }
   static __m256d Zero() { return _mm256_setzero_pd(); }
-  static __m256d MapIs(const int64_t* map, uint32_t m) {
-    const __m256i v = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(map));
-    return _mm256_castsi256_pd(_mm256_cmpeq_epi64(v, _mm256_set1_epi64x(m)));
+  static __m256i Rotl(__m256i x, int k) {
+    return _mm256_or_si256(_mm256_slli_epi64(x, k), _mm256_srli_epi64(x, 64 - k));
   }
-  static bool Any(__m256d mask) { return _mm256_movemask_pd(mask) != 0; }
+  // Rng::Next for four walkers per register.
+  static void DrawWords(Walkers& w, int n, uint32_t words) {
+    auto load = [](const uint64_t* p) {
+      return _mm256_load_si256(reinterpret_cast<const __m256i*>(p));
+    };
+    auto store = [](uint64_t* p, __m256i v) {
+      _mm256_store_si256(reinterpret_cast<__m256i*>(p), v);
+    };
+    for (int k = 0; k < n; k += kWidth) {
+      __m256i s0 = load(w.s0 + k), s1 = load(w.s1 + k), s2 = load(w.s2 + k), s3 = load(w.s3 + k);
+      for (uint32_t c = 0; c < words; ++c) {
+        _mm256_storeu_si256(reinterpret_cast<__m256i*>(w.words + size_t(c) * kMaxWalkers + k),
+                            _mm256_add_epi64(Rotl(_mm256_add_epi64(s0, s3), 23), s0));
+        const __m256i t = _mm256_slli_epi64(s1, 17);
+        s2 = _mm256_xor_si256(s2, s0);
+        s3 = _mm256_xor_si256(s3, s1);
+        s1 = _mm256_xor_si256(s1, s2);
+        s0 = _mm256_xor_si256(s0, s3);
+        s2 = _mm256_xor_si256(s2, t);
+        s3 = Rotl(s3, 45);
+      }
+      store(w.s0 + k, s0), store(w.s1 + k, s1), store(w.s2 + k, s2), store(w.s3 + k, s3);
+    }
+  }
 };
 
 }  // namespace
 
-void ApplyMapsAvx2(const MapTables& t, Batch& b) { ApplyMapsWith<Avx2Isa>(t, b); }
+void RoundAvx2(const Program& p, Walkers& w, int n) { RoundWith<Avx2Isa>(p, w, n); }
 
 }  // namespace nimbus::flame

@@ -1,10 +1,16 @@
-// @brief The body of flame::ApplyMaps*, written once over an instruction-set
+// @brief The body of flame::Round*, written once over an instruction-set
 // description `Isa` and included by each kernel's translation unit after it
 // has declared its vector operations (see variation_formulas.h). Isa has:
-// T (the number type) and kWidth (lanes per T); Load/Store; Index(map) (a
-// lane's row in the 12-wide tables) and Gather(table, index, j); Zero();
-// MapIs(map, m) (the lanes whose map is m) and Any(mask).
+// T (doubles), kWidth (lanes per T); Load/Store; Index(const int32_t*)
+// (kWidth walker or map indices) and ToDouble(index), Gather(base, index)
+// and Scatter(base, index, T) of doubles, GatherWord(base, index) of random
+// words, Uniform(word) and Bit(word) as the scalar Rng reads a word; Zero();
+// DrawWords(walkers, n, words), which advances walkers [0, n) of their
+// streams by `words` words each; PickMaps and SortByMap, as
+// PickMapsScalar and SortByMapScalar below do them.
 #pragma once
+
+#include <algorithm>
 
 #include "core/chaos/flame_walk.h"
 #include "core/chaos/variation_formulas.h"
@@ -12,62 +18,125 @@
 namespace nimbus::flame {
 namespace {
 
-// Pre-drawn numbers of one term, read column by column.
-template <class Isa>
-struct ColumnDraws {
-  const double* next;
+// The pre-drawn words of one term for the lanes of `index`, in order.
+template <class Isa, class I>
+struct WordDraws {
+  const uint64_t* next;
+  const I& index;
   typename Isa::T Uniform() {
-    const typename Isa::T v = Isa::Load(next);
-    next += kSlots;
-    return v;
+    const auto w = Isa::GatherWord(next, index);
+    next += kMaxWalkers;
+    return Isa::Uniform(w);
   }
-  auto Bit() { return formulas::IsPositive(Uniform()); }
+  auto Bit() {
+    const auto w = Isa::GatherWord(next, index);
+    next += kMaxWalkers;
+    return Isa::Bit(w);
+  }
 };
 
-// p -> A p + b with each lane's own coefficients, in Affine3::Apply's order.
-template <class Isa, class I, class T = typename Isa::T>
-inline formulas::P3<T> ApplyAffine(const double* table, const I& index, const formulas::P3<T>& p) {
+// p -> A p + b with one map's coefficients, in Affine3::Apply's order.
+template <class T>
+inline formulas::P3<T> ApplyAffine(const double* a, const formulas::P3<T>& p) {
   auto row = [&](int r) {
-    return Isa::Gather(table, index, 4 * r) * p.x + Isa::Gather(table, index, 4 * r + 1) * p.y +
-           Isa::Gather(table, index, 4 * r + 2) * p.z + Isa::Gather(table, index, 4 * r + 3);
+    return a[4 * r] * p.x + a[4 * r + 1] * p.y + a[4 * r + 2] * p.z + a[4 * r + 3];
   };
   return {row(0), row(1), row(2)};
 }
 
-template <class M, class T>
-inline formulas::P3<T> SelectP3(const M& m, const formulas::P3<T>& a, const formulas::P3<T>& b) {
-  using formulas::Select;
-  return {Select(m, a.x, b.x), Select(m, a.y, b.y), Select(m, a.z, b.z)};
+// Map m of `t` on the walkers index[0, kWidth): reads (x, y, z), writes
+// (ox, oy, oz); `words` is the column of the map's first word. Every gather
+// comes before any scatter, so an index may repeat (padding).
+template <class Isa>
+inline void ApplyMap(const MapTables& t, uint32_t m, const int32_t* lanes, const uint64_t* words,
+                     const double* x, const double* y, const double* z, double* ox, double* oy,
+                     double* oz) {
+  using T = typename Isa::T;
+  using formulas::P3;
+  const auto index = Isa::Index(lanes);
+  const double* pre = t.pre + 12 * size_t(m);
+  P3<T> q = ApplyAffine<T>(pre, {Isa::Gather(x, index), Isa::Gather(y, index),
+                                  Isa::Gather(z, index)});
+  if (t.has_terms[m]) {
+    P3<T> sum{Isa::Zero(), Isa::Zero(), Isa::Zero()};
+    for (uint32_t j = t.first_term[m]; j < t.first_term[m + 1]; ++j) {
+      const Term& term = t.terms[j];
+      WordDraws<Isa, decltype(index)> draws{words + size_t(term.draw) * kMaxWalkers, index};
+      const P3<T> v = formulas::Variation<T>(VariationKind(term.kind), q, pre, draws);
+      sum = {sum.x + term.weight * v.x, sum.y + term.weight * v.y, sum.z + term.weight * v.z};
+    }
+    q = sum;
+  }
+  if (t.has_post[m]) q = ApplyAffine<T>(t.post + 12 * size_t(m), q);
+  Isa::Scatter(ox, index, q.x);
+  Isa::Scatter(oy, index, q.y);
+  Isa::Scatter(oz, index, q.z);
+}
+
+// AliasTable::Sample on word 0 of each walker, without a branch (a
+// mispredicted coin flip per walker otherwise).
+inline void PickMapsScalar(const Program& p, Walkers& w, int n) {
+  const uint64_t num = p.maps.num_maps;
+  for (int k = 0; k < n; ++k) {
+    const uint64_t r = w.words[k];
+    const uint32_t i = uint32_t(((r >> 32) * num) >> 32);
+    const uint32_t keep = 0u - uint32_t(uint32_t(r) < p.threshold[i]);
+    w.map[k] = (i & keep) | (p.alias[i] & ~keep);
+  }
+}
+
+// ChaosGame's Recolor, kWidth walkers at a time.
+template <class Isa>
+inline void Recolor(const Program& p, Walkers& w, int n) {
+  using T = typename Isa::T;
+  for (int k = 0; k < n; k += Isa::kWidth) {
+    const auto m = Isa::Index(reinterpret_cast<const int32_t*>(w.map + k));
+    const T addr = (Isa::ToDouble(m) + Isa::Load(w.addr + k)) * p.inv_maps;
+    Isa::Store(w.addr + k, addr);
+    const T target = p.color_mode == 2 ? addr : Isa::Gather(p.maps.color, m);
+    const T col = Isa::Load(w.col + k);
+    Isa::Store(w.col + k, col + p.blend * (target - col));
+  }
+}
+
+// Counting sort of walkers [0, n) by map into w.order; group[m] is where
+// map m's walkers begin, group[num_maps] = n.
+inline void SortByMapScalar(uint32_t num_maps, Walkers& w, int n) {
+  uint32_t* start = w.group;
+  std::fill(start, start + num_maps + 1, 0u);
+  for (int k = 0; k < n; ++k) ++start[w.map[k] + 1];
+  for (uint32_t m = 0; m < num_maps; ++m) start[m + 1] += start[m];
+  for (int k = n - 1; k >= 0; --k) w.order[--start[w.map[k] + 1]] = k;
+  // Placing from the back leaves start[m + 1] at map m's first walker.
+  for (uint32_t m = 0; m < num_maps; ++m) start[m] = start[m + 1];
+  start[num_maps] = uint32_t(n);
 }
 
 template <class Isa>
-void ApplyMapsWith(const MapTables& t, Batch& b) {
-  using T = typename Isa::T;
-  using formulas::P3;
-  for (int g = 0; g < b.count; g += Isa::kWidth) {
-    const int64_t* map = b.map + g;
-    const auto index = Isa::Index(map);
-    const P3<T> p{Isa::Load(b.x + g), Isa::Load(b.y + g), Isa::Load(b.z + g)};
-    P3<T> q = ApplyAffine<Isa>(t.pre, index, p);
-    // The weighted sum, each lane over its own map's terms in their order.
-    P3<T> sum{Isa::Zero(), Isa::Zero(), Isa::Zero()};
-    for (uint32_t i = 0; i < t.num_terms; ++i) {
-      const Term& term = t.terms[i];
-      const auto active = Isa::MapIs(map, term.map);
-      if (!Isa::Any(active)) continue;
-      ColumnDraws<Isa> draws{b.draws + size_t(term.draw) * kSlots + g};
-      const P3<T> v =
-          formulas::Variation<T>(VariationKind(term.kind), q, t.pre + 12 * size_t(term.map), draws);
-      const P3<T> added{sum.x + term.weight * v.x, sum.y + term.weight * v.y,
-                        sum.z + term.weight * v.z};
-      sum = SelectP3(active, added, sum);
+void RoundWith(const Program& p, Walkers& w, int n) {
+  constexpr int kW = Isa::kWidth;
+  Isa::DrawWords(w, n, p.words);
+  Isa::PickMaps(p, w, n);
+  if (p.color_mode != 0) Recolor<Isa>(p, w, n);
+  Isa::SortByMap(p.maps.num_maps, w, n);
+  const uint64_t* map_words = w.words + kMaxWalkers;  // word 1
+  for (uint32_t m = 0; m < p.maps.num_maps; ++m) {
+    const int begin = int(w.group[m]), end = int(w.group[m + 1]);
+    int k = begin;
+    for (; k + kW <= end; k += kW)
+      ApplyMap<Isa>(p.maps, m, w.order + k, map_words, w.x, w.y, w.z, w.x, w.y, w.z);
+    if (k < end) {  // the last walker repeated to a whole register
+      int32_t lanes[kW];
+      for (int i = 0; i < kW; ++i) lanes[i] = w.order[std::min(k + i, end - 1)];
+      ApplyMap<Isa>(p.maps, m, lanes, map_words, w.x, w.y, w.z, w.x, w.y, w.z);
     }
-    q = SelectP3(formulas::IsPositive(Isa::Gather(t.has_terms, index, 0)), sum, q);
-    const auto post = formulas::IsPositive(Isa::Gather(t.has_post, index, 0));
-    if (Isa::Any(post)) q = SelectP3(post, ApplyAffine<Isa>(t.post, index, q), q);
-    Isa::Store(b.x + g, q.x);
-    Isa::Store(b.y + g, q.y);
-    Isa::Store(b.z + g, q.z);
+  }
+  if (p.final_map.num_maps == 0) return;
+  const uint64_t* final_words = w.words + size_t(p.final_word) * kMaxWalkers;
+  for (int k = 0; k < n; k += kW) {
+    int32_t lanes[kW];
+    for (int i = 0; i < kW; ++i) lanes[i] = k + i;
+    ApplyMap<Isa>(p.final_map, 0, lanes, final_words, w.x, w.y, w.z, w.fx, w.fy, w.fz);
   }
 }
 

@@ -26,6 +26,8 @@ namespace {
 inline double Sqrt(double a) { return std::sqrt(a); }
 inline double Sin(double a) { return std::sin(a); }
 inline double Cos(double a) { return std::cos(a); }
+// Both at once where the vector library has one call for the two.
+inline void SinCos(double a, double* s, double* c) { *s = std::sin(a), *c = std::cos(a); }
 inline double Tan(double a) { return std::tan(a); }
 inline double Atan2(double y, double x) { return std::atan2(y, x); }
 inline double Exp(double a) { return std::exp(a); }
@@ -74,7 +76,9 @@ inline P3<T> RandomDirection(R& rng) {
   const T phi = 2.0 * kPi * rng.Uniform();
   const T c2 = 1.0 - cz * cz;
   const T sz = Sqrt(Select(IsPositive(c2), c2, 0.0 * c2));
-  return {sz * Cos(phi), sz * Sin(phi), cz};
+  T s, c;
+  SinCos(phi, &s, &c);
+  return {sz * c, sz * s, cz};
 }
 
 /// Variation `kind` (unweighted) at the pre-transformed point `p`. `pre` is
@@ -82,7 +86,8 @@ inline P3<T> RandomDirection(R& rng) {
 /// variations. `rng` supplies Uniform() (a T in [0, 1)) and Bit() (a mask:
 /// the top bit of one raw draw), in the order docs/variations.md gives.
 template <class T, class R>
-P3<T> Variation(VariationKind kind, const P3<T>& p, const double* pre, R& rng) {
+[[gnu::always_inline]] inline P3<T> Variation(VariationKind kind, const P3<T>& p, const double* pre,
+                                             R& rng) {
   const T x = p.x, y = p.y, z = p.z;
   switch (kind) {
     case VariationKind::kLinear:
@@ -93,7 +98,8 @@ P3<T> Variation(VariationKind kind, const P3<T>& p, const double* pre, R& rng) {
       return Scaled<T>(1.0 / ((x * x + y * y + z * z) + kEps), p);
     case VariationKind::kSwirl: {
       const T r2 = x * x + y * y;
-      const T s = Sin(r2), c = Cos(r2);
+      T s, c;
+      SinCos(r2, &s, &c);
       return {x * s - y * c, x * c + y * s, z};
     }
     case VariationKind::kHorseshoe: {
@@ -139,12 +145,22 @@ P3<T> Variation(VariationKind kind, const P3<T>& p, const double* pre, R& rng) {
       return {rho * (p03 + p13), rho * (p03 - p13), z};
     }
     case VariationKind::kJulia: {
-      // Square root of the point as a complex number, then the other root
-      // half of the time, so the attractor gets both branches.
-      const T sr = Sqrt(Sqrt(x * x + y * y));
-      const T half = 0.5 * Atan2(x, y);
-      const T t = Select(rng.Bit(), half + kPi, half);
-      return {sr * Cos(t), sr * Sin(t), z};
+      // The principal square root of u = y + i x (whose argument is
+      // flam3's angle) by the half-angle identities, without atan2, sin or
+      // cos: |re| = sqrt((rho + y) / 2), |im| = sqrt((rho - y) / 2), the
+      // smaller one as |x| / (2 x the larger) to avoid cancellation, im
+      // with the sign of x. Then its negative half of the time, so the
+      // attractor gets both branches.
+      const T rho = Sqrt(x * x + y * y);
+      const T ay = Select(IsNegative(y), 0.0 - y, y), ax = Select(IsNegative(x), 0.0 - x, x);
+      const T big = Sqrt(0.5 * (rho + ay));
+      const T small = Select(IsZero(big), 0.0 * big, ax / (2.0 * big));
+      const auto lower = IsNegative(y);
+      const T re = Select(lower, small, big);
+      const T mag = Select(lower, big, small);
+      const T im = Select(IsNegative(x), 0.0 - mag, mag);
+      const auto other = rng.Bit();
+      return {Select(other, 0.0 - re, re), Select(other, 0.0 - im, im), z};
     }
     case VariationKind::kBent:
       return {Select(IsNegative(x), 2.0 * x, x), Select(IsNegative(y), 0.5 * y, y), z};
@@ -163,7 +179,9 @@ P3<T> Variation(VariationKind kind, const P3<T>& p, const double* pre, R& rng) {
     }
     case VariationKind::kExponential: {
       const T k = Exp(x - 1.0);
-      return {k * Cos(kPi * y), k * Sin(kPi * y), z};
+      T s, c;
+      SinCos(kPi * y, &s, &c);
+      return {k * c, k * s, z};
     }
     case VariationKind::kPower: {
       const PlanarAngle<T> a = Planar(p);

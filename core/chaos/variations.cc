@@ -55,7 +55,26 @@ struct RngDraws {
   bool Bit() { return (rng.Next() >> 63) != 0; }
 };
 
+// Pre-drawn words, read as RngDraws reads fresh ones.
+struct WordDraws {
+  const uint64_t* next;
+  double Uniform() { return double(*next++ >> 11) * 0x1.0p-53; }
+  bool Bit() { return (*next++ >> 63) != 0; }
+};
+
 }  // namespace
+
+Vec3 EvaluateVariation(const VariationTerm& v, Vec3 p, const Affine3& pre,
+                       const uint64_t* words) {
+  const double coef[12] = {pre.m[0][0], pre.m[0][1], pre.m[0][2], pre.m[0][3],
+                           pre.m[1][0], pre.m[1][1], pre.m[1][2], pre.m[1][3],
+                           pre.m[2][0], pre.m[2][1], pre.m[2][2], pre.m[2][3]};
+  WordDraws draws{words};
+  const formulas::P3<double> q = formulas::Variation<double>(v.kind, {p.x, p.y, p.z}, coef, draws);
+  return {q.x, q.y, q.z};
+}
+
+int VariationWords(VariationKind kind) { return formulas::VariationDraws(kind); }
 
 Vec3 EvaluateVariation(const VariationTerm& v, Vec3 p, const Affine3& pre, Rng& rng) {
   const double coef[12] = {pre.m[0][0], pre.m[0][1], pre.m[0][2], pre.m[0][3],

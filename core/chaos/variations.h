@@ -4,6 +4,7 @@
 #pragma once
 
 #include <array>
+#include <cstdint>
 #include <optional>
 #include <string_view>
 #include <vector>
@@ -27,6 +28,13 @@ struct VariationTerm {
 /// variations (waves, popcorn, ...) read. Random variations draw from `rng`.
 /// May return non-finite values; callers detect and re-seed.
 Vec3 EvaluateVariation(const VariationTerm& v, Vec3 p, const Affine3& pre, Rng& rng);
+/// The same with the random words pre-drawn: `words` holds VariationWords
+/// of them, read in the order the Rng version draws (a uniform is word >>
+/// 11 times 2^-53, a bit the top bit of a word).
+Vec3 EvaluateVariation(const VariationTerm& v, Vec3 p, const Affine3& pre,
+                       const uint64_t* words);
+/// Random words one evaluation of `kind` takes (0 for most).
+int VariationWords(VariationKind kind);
 
 /// Canonical lower-case name ("sinusoidal", "polar_doubling", ...).
 std::string_view VariationName(VariationKind kind);

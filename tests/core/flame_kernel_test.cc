@@ -1,5 +1,5 @@
-// The batched flame kernels (core/chaos/flame_walk.h): the scalar kernel
-// is bitwise PointMap::Apply; the AVX2 and AVX-512 kernels agree with it
+// The flame kernels (core/chaos/flame_walk.h): the scalar kernel is
+// bitwise the step docs/chaos_game.md describes; the AVX2 and AVX-512 kernels agree with it
 // within the bound docs/chaos_game.md states; every kernel is reproducible
 // and independent of the thread count.
 #include <gtest/gtest.h>
@@ -7,6 +7,8 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -21,7 +23,6 @@ namespace {
 // The SIMD kernels' error bound against the scalar kernel, in units of the
 // last place of the larger of 1, |input| and |output| (docs/chaos_game.md).
 constexpr double kUlpBound = 16;
-constexpr int kLanes = 16;  // slots per test batch
 
 std::vector<SimdLevel> VectorLevels() {
   std::vector<SimdLevel> levels;
@@ -48,30 +49,62 @@ std::vector<Vec3> TestPoints(int n) {
   return pts;
 }
 
-// Applies `maps` to `pts` in batches of kLanes slots with one kernel; slot
-// k uses map k % maps.size() and point i draws from its own stream (9, i).
-std::vector<Vec3> RunKernel(const std::vector<PointMap>& maps, const std::vector<Vec3>& pts,
-                            SimdLevel level) {
-  const FlameProgram program(maps);
-  const flame::ApplyMapsFn kernel = FlameKernel(level);
-  std::vector<double> draws(std::max(program.draw_columns(), 1u) * flame::kSlots);
-  std::vector<Vec3> out;
-  for (size_t start = 0; start < pts.size(); start += kLanes) {
-    flame::Batch b;
-    b.draws = draws.data();
-    b.count = kLanes;
-    for (int k = 0; k < kLanes; ++k) {
+struct KernelRun {
+  std::vector<Vec3> points;
+  std::vector<uint32_t> maps;  // the map each point took
+};
+
+// One round of one kernel on each point, in blocks of kMaxWalkers walkers
+// with equally likely maps; point i's walker draws from stream (9, i).
+KernelRun RunKernel(const std::vector<PointMap>& maps, const std::vector<Vec3>& pts,
+                    SimdLevel level, std::vector<double> weights = {}) {
+  if (weights.empty()) weights.assign(maps.size(), 1.0);
+  const AliasTable table(weights);
+  const FlameProgram program(maps, std::nullopt, table, 0, 0.5);
+  const flame::RoundFn kernel = FlameKernel(level);
+  constexpr int kN = flame::kMaxWalkers;
+  std::vector<uint64_t> words(size_t(program.program().words) * kN);
+  std::vector<uint32_t> group(maps.size() + 1);
+  auto b = std::make_unique<flame::Walkers>();
+  b->words = words.data();
+  b->group = group.data();
+  KernelRun run;
+  for (size_t start = 0; start < pts.size(); start += kN) {
+    for (int k = 0; k < kN; ++k) {
       const Vec3 p = pts[(start + k) % pts.size()];
-      b.x[k] = p.x, b.y[k] = p.y, b.z[k] = p.z;
-      b.map[k] = int64_t(k % maps.size());
-      Rng rng(9, start + k);
-      program.Draw(uint32_t(b.map[k]), rng, draws.data(), k);
+      b->x[k] = p.x, b->y[k] = p.y, b->z[k] = p.z;
+      const Rng rng(9, start + k);
+      b->s0[k] = rng.state(0), b->s1[k] = rng.state(1);
+      b->s2[k] = rng.state(2), b->s3[k] = rng.state(3);
     }
-    kernel(program.tables(), b);
-    for (int k = 0; k < kLanes && start + k < pts.size(); ++k)
-      out.push_back({b.x[k], b.y[k], b.z[k]});
+    kernel(program.program(), *b, kN);
+    for (int k = 0; k < kN && start + k < pts.size(); ++k) {
+      run.points.push_back({b->x[k], b->y[k], b->z[k]});
+      run.maps.push_back(b->map[k]);
+    }
   }
-  return out;
+  return run;
+}
+
+// What the engine's contract says walker i's step computes: map from word
+// 0 of its stream, then pre, the terms on words 1.., post.
+Vec3 ExpectedStep(const std::vector<PointMap>& maps, Vec3 p, uint64_t stream,
+                  uint32_t* map_out) {
+  const AliasTable table(std::vector<double>(maps.size(), 1.0));
+  Rng rng(9, stream);
+  std::vector<uint64_t> words(16);
+  for (uint64_t& w : words) w = rng.Next();
+  const PointMap& m = maps[table.Sample(words[0])];
+  *map_out = table.Sample(words[0]);
+  const Vec3 q = m.pre.Apply(p);
+  Vec3 sum;
+  const uint64_t* next = words.data() + 1;
+  for (const VariationTerm& t : m.variations) {
+    sum = sum + t.weight * EvaluateVariation(t, q, m.pre, next);
+    next += VariationWords(t.kind);
+  }
+  const Vec3 s = m.variations.empty() ? q : sum;
+  return m.post ? m.post->Apply(s) : s;
 }
 
 double Ulps(double got, double want, double scale) {
@@ -81,18 +114,19 @@ double Ulps(double got, double want, double scale) {
   return std::fabs(got - want) / ulp;
 }
 
-TEST(FlameKernel, ScalarKernelIsBitwisePointMapApply) {
+TEST(FlameKernel, ScalarKernelIsBitwiseTheDocumentedStep) {
   const std::vector<Vec3> pts = TestPoints(160);
   for (VariationKind kind : AllVariations()) {
     SCOPED_TRACE(std::string(VariationName(kind)));
-    const std::vector<PointMap> maps = {OneTermMap(kind), OneTermMap(VariationKind::kLinear)};
-    const std::vector<Vec3> got = RunKernel(maps, pts, SimdLevel::kScalar);
+    const std::vector<PointMap> maps = {OneTermMap(kind), OneTermMap(VariationKind::kLinear),
+                                        OneTermMap(VariationKind::kBlur)};
+    const KernelRun got = RunKernel(maps, pts, SimdLevel::kScalar);
     for (size_t i = 0; i < pts.size(); ++i) {
-      // Lane i's draws come from Rng(9, i), as Apply draws them.
-      Rng rng(9, i);
-      const Vec3 want = maps[i % kLanes % 2].Apply(pts[i], rng);
-      EXPECT_EQ(std::memcmp(&got[i], &want, sizeof(Vec3)), 0)
-          << "point " << i << ": " << got[i].x << " " << want.x;
+      uint32_t map = 0;
+      const Vec3 want = ExpectedStep(maps, pts[i], i, &map);
+      EXPECT_EQ(got.maps[i], map);
+      EXPECT_EQ(std::memcmp(&got.points[i], &want, sizeof(Vec3)), 0)
+          << "point " << i << ": " << got.points[i].x << " " << want.x;
     }
   }
 }
@@ -105,10 +139,10 @@ TEST(FlameKernel, VectorKernelsAgreeWithTheScalarKernelWithinTheBound) {
   for (VariationKind kind : AllVariations()) {
     SCOPED_TRACE(std::string(VariationName(kind)));
     const std::vector<PointMap> maps = {OneTermMap(kind)};
-    const std::vector<Vec3> scalar = RunKernel(maps, pts, SimdLevel::kScalar);
+    const std::vector<Vec3> scalar = RunKernel(maps, pts, SimdLevel::kScalar).points;
     for (SimdLevel level : VectorLevels()) {
       SCOPED_TRACE(std::string(SimdName(level)));
-      const std::vector<Vec3> got = RunKernel(maps, pts, level);
+      const std::vector<Vec3> got = RunKernel(maps, pts, level).points;
       double worst = 0;
       size_t checked = 0;
       for (size_t i = 0; i < pts.size(); ++i) {
@@ -140,11 +174,39 @@ TEST(FlameKernel, Avx2AndAvx512KernelsAgreeBitForBit) {
   for (VariationKind kind : AllVariations()) {
     SCOPED_TRACE(std::string(VariationName(kind)));
     const std::vector<PointMap> maps = {OneTermMap(kind), OneTermMap(VariationKind::kJulia)};
-    const std::vector<Vec3> a = RunKernel(maps, pts, SimdLevel::kAvx2);
-    const std::vector<Vec3> b = RunKernel(maps, pts, SimdLevel::kAvx512);
+    const std::vector<Vec3> a = RunKernel(maps, pts, SimdLevel::kAvx2).points;
+    const std::vector<Vec3> b = RunKernel(maps, pts, SimdLevel::kAvx512).points;
     ASSERT_EQ(a.size(), b.size());
     EXPECT_EQ(std::memcmp(a.data(), b.data(), a.size() * sizeof(Vec3)), 0);
   }
+}
+
+TEST(FlameKernel, VectorKernelsPickTheSameMapsAndAgreeWithManyMaps) {
+  // Eleven maps of unequal weight: the vector alias sampling against the
+  // scalar one, and more maps than the AVX-512 kernel sorts by compress.
+  std::vector<PointMap> maps;
+  std::vector<double> weights;
+  for (int i = 0; i < 11; ++i) {
+    maps.push_back(OneTermMap(AllVariations()[size_t(i * 2) % AllVariations().size()]));
+    weights.push_back(1.0 + i * i);
+  }
+  const std::vector<Vec3> pts = TestPoints(1000);
+  const KernelRun scalar = RunKernel(maps, pts, SimdLevel::kScalar, weights);
+  std::vector<KernelRun> vector_runs;
+  for (SimdLevel level : VectorLevels()) {
+    SCOPED_TRACE(std::string(SimdName(level)));
+    vector_runs.push_back(RunKernel(maps, pts, level, weights));
+    EXPECT_EQ(vector_runs.back().maps, scalar.maps);
+  }
+  // Every map is taken, the heavier ones more often.
+  std::vector<int> taken(maps.size(), 0);
+  for (uint32_t m : scalar.maps) ++taken[m];
+  for (size_t m = 0; m < maps.size(); ++m) EXPECT_GT(taken[m], 0) << m;
+  EXPECT_GT(taken[10], taken[1]);
+  if (vector_runs.size() == 2)
+    EXPECT_EQ(std::memcmp(vector_runs[0].points.data(), vector_runs[1].points.data(),
+                          pts.size() * sizeof(Vec3)),
+              0);
 }
 
 // A coloured flame with post and final transforms and random variations.
@@ -217,6 +279,17 @@ TEST(FlameKernel, EveryKernelIsReproducibleAndIndependentOfThreads) {
     EXPECT_EQ(one.stats.outside, two.stats.outside);
     EXPECT_EQ(one.stats.reseeded, two.stats.reseeded);
   }
+}
+
+TEST(FlameKernel, Avx2AndAvx512EnginesCountTheSame) {
+  if (DetectSimd() < SimdLevel::kAvx512) GTEST_SKIP() << "no AVX-512 on this CPU";
+  ChaosGameParams p = SmallFlame();
+  p.iterations = ChaosGame::kChunkIterations + 333;
+  const FlameRun a = RunFlame(p, SimdLevel::kAvx2, 2);
+  const FlameRun b = RunFlame(p, SimdLevel::kAvx512, 2);
+  EXPECT_EQ(a.counts, b.counts);
+  EXPECT_EQ(a.colours, b.colours);
+  EXPECT_EQ(a.stats.outside, b.stats.outside);
 }
 
 TEST(FlameKernel, VectorKernelsDrawTheSameDensityAsTheScalarKernel) {

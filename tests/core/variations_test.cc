@@ -520,14 +520,14 @@ ChaosGameParams AlwaysOverflows(uint64_t iterations, uint32_t warmup) {
 }
 
 TEST(Variations, EngineReseedsWalkersAVariationSendsToInfinity) {
-  // Every step fails: each of the 16 walkers re-seeds once per warm-up
-  // step, and each plotted step re-seeds and warms up again instead of
-  // plotting. 16 x 3 + 100 x (1 + 3) = 448.
+  // Every step fails: each of the 64 walkers of a flame's chunk re-seeds
+  // once per warm-up step, and each plotted step re-seeds and warms up
+  // again instead of plotting. 64 x 3 + 100 x (1 + 3) = 592.
   auto game = ChaosGame::Create(AlwaysOverflows(100, 3), 2);
   ASSERT_TRUE(game.ok()) << game.status();
   ASSERT_TRUE((*game)->Run(nullptr).ok());
   const ChaosGameStats s = (*game)->stats();
-  EXPECT_EQ(s.reseeded, 448u);
+  EXPECT_EQ(s.reseeded, 592u);
   EXPECT_EQ(s.iterations_done, 100u);
   EXPECT_EQ(s.outside, 0u);
   EXPECT_EQ(s.final_nonfinite, 0u);

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <complex>
 #include <numbers>
+#include <vector>
 
 namespace nimbus::testing {
 namespace {
@@ -11,41 +12,68 @@ namespace {
 constexpr double kPi = std::numbers::pi;
 constexpr double kGuard = 1e-10;  // docs/variations.md: eps
 
-Vec3 Apply(const MapRule rule, const PointMap& map, Vec3 p, Rng& rng) {
+// Random words one evaluation of a variation reads (docs/variations.md):
+// julia one (its top bit), blur and noise three uniforms.
+int Words(VariationKind kind) {
+  switch (kind) {
+    case VariationKind::kJulia:
+      return 1;
+    case VariationKind::kBlur:
+    case VariationKind::kNoise:
+      return 3;
+    default:
+      return 0;
+  }
+}
+
+int MapWords(const PointMap& map) {
+  int n = 0;
+  for (const VariationTerm& t : map.variations) n += Words(t.kind);
+  return n;
+}
+
+// `words` holds the map's words, each term reading its own in turn.
+Vec3 Apply(const MapRule rule, const PointMap& map, Vec3 p, const uint64_t* words) {
   const Vec3 q = map.pre.Apply(p);
   if (rule == MapRule::kAffineOnly) return q;
   Vec3 s = q;
   if (!map.variations.empty()) {
     s = Vec3{};
     for (const VariationTerm& t : map.variations) {
-      const Vec3 v = rule == MapRule::kEngineVariations ? EvaluateVariation(t, q, map.pre, rng)
-                                                        : DocsVariation(t.kind, q, rng);
+      WordCursor cursor{words};
+      const Vec3 v = rule == MapRule::kEngineVariations ? EvaluateVariation(t, q, map.pre, words)
+                                                        : DocsVariation(t.kind, q, cursor);
       s = s + t.weight * v;
+      words += Words(t.kind);
     }
   }
   return map.post ? map.post->Apply(s) : s;
 }
 
 // Uniform direction from two draws, as blur and noise document it.
-Vec3 DocsDirection(Rng& rng) {
+Vec3 DocsDirection(WordCursor& rng) {
   const double cos_polar = 2 * rng.Uniform() - 1;
   const double azimuth = 2 * kPi * rng.Uniform();
   const double sin_polar = std::sqrt(std::max(0.0, 1 - cos_polar * cos_polar));
   return {sin_polar * std::cos(azimuth), sin_polar * std::sin(azimuth), cos_polar};
 }
 
-// One walker: its stream, position and colour coordinates.
+// One walker: its stream, position and colour coordinates, and the words
+// of its last step.
 struct Walker {
   const ChaosGameParams& p;
   const AliasTable& table;
   MapRule rule;
   Rng rng;
+  std::vector<uint64_t> words;  // drawn afresh every step
+  size_t final_word = 0;
   Vec3 pos;
   double addr = 0, col = 0;
 
   bool Step() {
-    const uint32_t m = table.Sample(rng.Next());
-    pos = Apply(rule, p.ifs.maps[m], pos, rng);
+    for (uint64_t& w : words) w = rng.Next();
+    const uint32_t m = table.Sample(words[0]);
+    pos = Apply(rule, p.ifs.maps[m], pos, words.data() + 1);
     if (p.color.mode != ColorMode::kNone) {
       addr = (double(m) + addr) * (1.0 / double(p.ifs.maps.size()));
       const double target = p.color.mode == ColorMode::kAddress ? addr : p.ifs.maps[m].color;
@@ -78,7 +106,7 @@ void Plot(Walker& w, NonlinearReferenceRun& run) {
   Vec3 q = w.pos;
   if (p.ifs.final_map) {
     q = Apply(w.rule == MapRule::kAffineOnly ? MapRule::kEngineVariations : w.rule,
-              *p.ifs.final_map, q, w.rng);
+              *p.ifs.final_map, q, w.words.data() + w.final_word);
     if (!IsFinite(q)) {
       ++run.final_nonfinite;
       ++run.outside;
@@ -131,7 +159,7 @@ bool HasDocsVariation(VariationKind kind) {
   }
 }
 
-Vec3 DocsVariation(VariationKind kind, Vec3 q, Rng& rng) {
+Vec3 DocsVariation(VariationKind kind, Vec3 q, WordCursor& rng) {
   const std::complex<double> w(q.x, q.y);
   const double r2 = Dot(q, q), rho2 = std::norm(w);
   switch (kind) {
@@ -186,13 +214,22 @@ absl::StatusOr<NonlinearReferenceRun> RunNonlinearReference(const ChaosGameParam
   const AliasTable table(params.ifs.probabilities);
   NonlinearReferenceRun run{params.frame.resolution, {}, 0, 0, 0};
   constexpr uint64_t kChunk = ChaosGame::kChunkIterations;
-  constexpr int kW = ChaosGame::kWalkers;
+  // Words per step: one for the map, the most any map reads, the final
+  // transform's. Walkers per chunk: 16 for affine maps whose final
+  // transform draws nothing, 64 otherwise (docs/chaos_game.md).
+  int map_words = 0;
+  for (const PointMap& m : params.ifs.maps) map_words = std::max(map_words, MapWords(m));
+  const int final_words = params.ifs.final_map ? MapWords(*params.ifs.final_map) : 0;
+  const bool affine = params.ifs.AllAffine() && final_words == 0;
+  const uint64_t kW = affine ? 16 : 64;
   for (uint64_t chunk = 0; chunk * kChunk < params.iterations; ++chunk) {
     const uint64_t count = std::min(kChunk, params.iterations - chunk * kChunk);
-    for (int k = 0; k < kW; ++k) {
-      Walker w{params, table, rule, Rng(params.seed, chunk * kW + uint64_t(k)), {}};
+    for (uint64_t k = 0; k < kW; ++k) {
+      Walker w{params, table, rule, Rng(params.seed, chunk * kW + k),
+               std::vector<uint64_t>(size_t(1 + map_words + final_words)),
+               size_t(1 + map_words), {}};
       run.reseeded += w.Restart();
-      for (uint64_t i = uint64_t(k); i < count; i += kW) {
+      for (uint64_t i = k; i < count; i += kW) {
         if (!w.Step()) {
           run.reseeded += 1 + w.Restart();
           continue;

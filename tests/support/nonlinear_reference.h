@@ -48,13 +48,17 @@ struct NonlinearReferenceRun {
 };
 
 /// @brief Runs `params` the simple way: chunk c of kChunkIterations plotted
-/// steps has kWalkers walkers; walker k draws from Rng(seed, kWalkers c + k),
-/// starts at a uniform point of the bounds (then its colour, when coloured),
-/// takes `warmup` unplotted steps (re-seeding non-finite points), and plots
-/// steps k, k + kWalkers, ... of the chunk. A non-finite step re-seeds and
-/// warms the walker up again and plots nothing. Plotted points go through
-/// the final transform (which may draw), then fall in a voxel or outside.
-/// Not supported: chains, arcs, splatting (InvalidArgument).
+/// steps has W walkers (16 when the maps are affine and the final transform
+/// draws nothing, else 64); walker k draws from Rng(seed, W c + k), starts at
+/// a uniform point of the bounds (then its colour, when coloured), takes
+/// `warmup` unplotted steps (re-seeding non-finite points), and plots steps
+/// k, k + W, ... of the chunk. Every step draws the same number of words:
+/// one that picks the map, then as many as the hungriest map's random
+/// variations read (each term its own in turn), then the final transform's.
+/// A non-finite step re-seeds and warms the walker up again and plots
+/// nothing. Plotted points go through the final transform, then fall in a
+/// voxel or outside. Not supported: chains, arcs, splatting
+/// (InvalidArgument).
 absl::StatusOr<NonlinearReferenceRun> RunNonlinearReference(const ChaosGameParams& params,
                                                             MapRule rule);
 
@@ -62,9 +66,17 @@ absl::StatusOr<NonlinearReferenceRun> RunNonlinearReference(const ChaosGameParam
 /// spherical, swirl, julia, bubble, blur, noise and polar_doubling.
 bool HasDocsVariation(VariationKind kind);
 
+/// Pre-drawn random words read in turn: a uniform is word >> 11 times
+/// 2^-53, like Rng::Uniform.
+struct WordCursor {
+  const uint64_t* next;
+  uint64_t Next() { return *next++; }
+  double Uniform() { return double(Next() >> 11) * 0x1.0p-53; }
+};
+
 /// Unweighted variation `kind` at `q`, from the formula in
 /// docs/variations.md (atan2 and complex arithmetic where the engine uses
-/// ratios), drawing from `rng` as often as documented.
-Vec3 DocsVariation(VariationKind kind, Vec3 q, Rng& rng);
+/// ratios), reading from `words` as many as documented.
+Vec3 DocsVariation(VariationKind kind, Vec3 q, WordCursor& words);
 
 }  // namespace nimbus::testing
