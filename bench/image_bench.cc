@@ -2,11 +2,16 @@
 // 2 x 2 supersampling, colour by address, arcs) counted into its picture,
 // against the same walk counted into a plain grid, and the look's cost
 // (box filter, tone mapping, palette, desaturation, glow, PNG write).
-// Also the 2D Sierpinski triangle of bench/compare_flam3.sh as a 1024^2
-// picture on the fast path. Prints figures; asserts nothing.
+// The look's whole cost is also measured as the same picture with and
+// without it: grey counts and a plain develop, against colour by address,
+// palette, desaturation and glow. Also the 2D Sierpinski triangle of
+// bench/compare_flam3.sh as a 1024^2 picture on the fast path, and the
+// explorer's contact sheet of examples/explore.json (64 thumbnails of 256^2,
+// docs/explore.md). Prints figures; asserts nothing.
 //
-// Usage: image_bench [ITERATIONS [THREADS]]   (default 2^28 and 2; the
-// issue's figure is 10^9)
+// Usage: image_bench [ITERATIONS [THREADS [THUMBNAILS [SHEET.png]]]]
+// (default 2^28, 2 and 64; the figures are 10^9 points and 64
+// thumbnails; ITERATIONS 0 runs the contact sheet only; SHEET.png saves it)
 #include <tbb/global_control.h>
 
 #include <chrono>
@@ -16,6 +21,8 @@
 
 #include "core/chaos/auto_frame.h"
 #include "core/chaos/chaos_game.h"
+#include "core/chaos/ifs_explorer.h"
+#include "core/grid/contact_sheet.h"
 #include "core/grid/image_look.h"
 #include "core/io/image_io.h"
 #include "proto/spec_convert.h"
@@ -49,10 +56,49 @@ void Row(const char* what, uint64_t n, double s) {
               double(n) / s / 1e6);
 }
 
+// examples/explore.json with `count` thumbnails: the explorer's contact
+// sheet (drawing, testing, framing, counting, developing, composing).
+int ContactSheetBench(int count, int threads, const char* save_to) {
+  auto spec = spec::LoadSpecFile(std::string(NIMBUS_SOURCE_DIR) + "/examples/explore.json");
+  if (!spec.ok()) return 1;
+  spec->mutable_explore()->set_count(count);
+  auto plan = spec::ConvertSpec(*spec, spec::Limits{});
+  if (!plan.ok()) {
+    std::fprintf(stderr, "%s\n", std::string(plan.status().message()).c_str());
+    return 1;
+  }
+  const ExploreParams& p = plan->explore()->params;
+  std::vector<RgbImage> thumbs;
+  const auto t = Clock::now();
+  auto stats = ExploreIfs(p, threads, nullptr, [&](const ExploreCandidate&, RgbImage im) {
+    thumbs.push_back(std::move(im));
+    return absl::OkStatus();
+  });
+  if (!stats.ok()) return 1;
+  const double explore_s = Since(t);
+  const auto t2 = Clock::now();
+  auto sheet = ComposeContactSheet(
+      thumbs, ContactSheetLayout(int(thumbs.size()), p.thumbnail_size, 0), {}, true);
+  if (!sheet.ok() || !EncodePng8(*sheet).ok()) return 1;
+  const double sheet_s = Since(t2);
+  if (save_to && !WriteImage(save_to, *sheet, ImageFormat::kPng8).ok()) return 1;
+  const double total = explore_s + sheet_s;
+  std::printf("contact sheet: %zu thumbnails of %d^2 (%llu points each) in %.2f s, %.1f "
+              "thumbnails/s\n  (%llu random IFS drawn, %llu contractive; compose + PNG %.3f s)\n",
+              thumbs.size(), p.thumbnail_size,
+              static_cast<unsigned long long>(p.thumbnail_iterations), total,
+              double(thumbs.size()) / total, static_cast<unsigned long long>(stats->attempts),
+              static_cast<unsigned long long>(stats->contractive), sheet_s);
+  return 0;
+}
+
 int Main(int argc, char** argv) {
   const uint64_t iterations = argc > 1 ? std::strtoull(argv[1], nullptr, 10) : uint64_t{1} << 28;
   const int threads = argc > 2 ? std::atoi(argv[2]) : 2;
+  const int thumbnails = argc > 3 ? std::atoi(argv[3]) : 64;
   tbb::global_control limit(tbb::global_control::max_allowed_parallelism, size_t(threads));
+  const char* save_to = argc > 4 ? argv[4] : nullptr;
+  if (iterations == 0) return ContactSheetBench(thumbnails, threads, save_to);  // the sheet only
   auto spec = spec::LoadSpecFile(std::string(NIMBUS_SOURCE_DIR) + "/examples/poster.json");
   if (!spec.ok()) return 1;
   auto plan = spec::ConvertSpec(*spec, spec::Limits{});
@@ -105,6 +151,29 @@ int Main(int argc, char** argv) {
   std::printf("look (filter + develop) = %.1f %% of the walk's %.2f s; poster total %.2f s\n",
               100 * look_s / walk_s, walk_s, walk_s + look_s + png_s);
   std::filesystem::remove(out);
+  *rgb = RgbImage{};
+  *density = ImageDensity{};
+
+  // The same picture without the look: grey counts (no colour per sample),
+  // then a develop with no palette, desaturation or glow.
+  ChaosGameParams grey = pic;
+  grey.color = {};
+  const double grey_walk_s = RunGame(grey, threads, &counts);
+  Row("poster picture without the look (grey)", iterations, grey_walk_s);
+  t = Clock::now();
+  auto grey_density =
+      BoxFilterImage({&counts}, grey.image->width, grey.image->height, ss, ss, nullptr);
+  counts = CountGrid({1, 1, 1});
+  LookParams plain_look;
+  plain_look.colored = false;
+  auto grey_rgb = DevelopImage(*grey_density, plain_look, nullptr);
+  const double grey_look_s = Since(t);
+  const double with = walk_s + look_s, without = grey_walk_s + grey_look_s;
+  std::printf("%-52s %25.2f s\n", "plain filter + develop (grey, no glow)", grey_look_s);
+  std::printf("poster with the look %.2f s (%.1f M points/s), without %.2f s (%.1f M points/s):"
+              " the look costs %.1f %%\n",
+              with, double(iterations) / with / 1e6, without,
+              double(iterations) / without / 1e6, 100 * (with - without) / without);
 
   // The flam3 comparison's Sierpinski triangle, drawn as a 1024^2 picture:
   // affine, no colour, so the fast path walks in pixel space.
@@ -125,7 +194,7 @@ int Main(int argc, char** argv) {
   Row("sierpinski 2D 1024^2 picture, colour (general path)", iterations,
       RunGame(tri, threads, nullptr));
   std::printf("(%d threads; flam3-render side by side: bench/compare_flam3.sh)\n", threads);
-  return 0;
+  return thumbnails > 0 ? ContactSheetBench(thumbnails, threads, save_to) : 0;
 }
 
 }  // namespace

@@ -269,7 +269,16 @@ struct Options {
   double drag_stiffness = 0;
   uint32_t drag_frames = 0;
   nimbus::client::FlameImportOptions flame;  // import-flame
-  bool no_cache = false;     // render, submit
+  bool no_cache = false;     // render, submit, explore
+  struct {
+    std::string name = "explore";
+    int32_t count = 0, size = 0, dim = 0;
+    uint64_t seed = 0;
+    double threshold = 0;
+    std::string maps, measure;
+    std::vector<std::string> variations;
+    const CLI::App* command = nullptr;  // tells which flags were given
+  } explore;
   uint32_t shards = 0;       // render, submit
 };
 
@@ -313,8 +322,8 @@ int PrintValidation(const std::string& spec_path, const v1::JobSpec& spec) {
   if (!memory.ok()) return ExitFor(memory.status());
   const auto r = plan->frame.resolution;
   std::cout << spec_path << ": ok\n"
-            << "  name: " << plan->name << "\n"
-            << "  grid: " << r.x << " x " << r.y << " x " << r.z << "\n";
+            << "  name: " << plan->name << "\n";
+  if (!plan->explore()) std::cout << "  grid: " << r.x << " x " << r.y << " x " << r.z << "\n";
   const std::string peak = absl::StrFormat("  peak memory (estimate): %.1f MiB\n",
                                            double(memory->estimated_bytes) / (1 << 20));
   if (const nimbus::SetIfsPlan* p = plan->set_ifs()) {
@@ -347,6 +356,18 @@ int PrintValidation(const std::string& spec_path, const v1::JobSpec& spec) {
               << absl::StrFormat("  frames: %u at %g fps, %u substeps (dt %g s)\n", p->frames,
                                  p->fps, p->substeps, p->sim.dt)
               << peak;
+  } else if (const nimbus::ExplorePlan* e = plan->explore()) {
+    const nimbus::ExploreParams& p = e->params;
+    const bool sv = p.measure == nimbus::ContractionMeasure::kSingularValue;
+    std::cout << absl::StrFormat("  explore: %d candidates, %dD IFS of %d-%d maps, seed %d\n",
+                                 p.count, p.draw.dimensions, p.draw.min_maps, p.draw.max_maps,
+                                 p.seed)
+              << absl::StrFormat("  keep: %s < %g, at most %d random IFS\n",
+                                 sv ? "largest singular value" : "sum of |det|", p.threshold,
+                                 p.max_attempts)
+              << absl::StrFormat("  thumbnails: %d px, %d iterations each\n", p.thumbnail_size,
+                                 p.thumbnail_iterations)
+              << peak << "  spec sha256: " << nimbus::spec::SpecHash(spec) << "\n";
   } else {
     const nimbus::ChaosGameParams& run = *plan->point_run();
     std::cout << "  maps: " << run.ifs.maps.size() << "\n";
@@ -462,6 +483,97 @@ int RunRender(const Options& o) {
   if (frames.count() > 0)
     std::cerr << absl::StrFormat("wrote %d frames, the last %s\n", frames.count(),
                                  frames.last().string());
+  return 0;
+}
+
+// "a-b" or "a" as a map-count range; INVALID_ARGUMENT naming --maps.
+absl::Status ParseMapRange(const std::string& text, v1::Explore& e) {
+  if (text.empty()) return absl::OkStatus();
+  const std::vector<std::string> parts = absl::StrSplit(text, '-');
+  int lo = 0, hi = 0;
+  if (parts.size() > 2 || !absl::SimpleAtoi(parts[0], &lo) ||
+      !absl::SimpleAtoi(parts.back(), &hi))
+    return absl::InvalidArgumentError(
+        absl::StrCat("--maps: give a count or a range a-b, got \"", text, "\""));
+  if (lo <= 0 || hi <= 0)
+    return absl::InvalidArgumentError(
+        absl::StrCat("--maps: counts must be positive, got \"", text, "\""));
+  e.set_min_maps(lo);
+  e.set_max_maps(hi);
+  return absl::OkStatus();
+}
+
+// The explore spec of `nimbus explore`: a spec file's, or one built from
+// the flags (flags override the file's fields they name).
+absl::StatusOr<v1::JobSpec> ExploreSpec(const Options& o, const CLI::App& cmd) {
+  v1::JobSpec spec;
+  if (!o.spec_path.empty()) {
+    NIMBUS_ASSIGN_OR_RETURN(spec, nimbus::spec::LoadSpecFile(o.spec_path));
+    if (!spec.has_explore())
+      return absl::InvalidArgumentError(o.spec_path + ": not an explore spec (no \"explore\")");
+  } else {
+    spec.set_name(o.explore.name);
+  }
+  if (cmd.count("--name")) spec.set_name(o.explore.name);
+  v1::Explore& e = *spec.mutable_explore();
+  if (cmd.count("--count")) e.set_count(o.explore.count);
+  if (cmd.count("--seed")) e.set_seed(o.explore.seed);
+  if (cmd.count("--size")) e.set_thumbnail_size(o.explore.size);
+  if (cmd.count("--threshold")) e.set_threshold(o.explore.threshold);
+  if (cmd.count("--dim")) e.set_dimensions(o.explore.dim);
+  NIMBUS_RETURN_IF_ERROR(ParseMapRange(o.explore.maps, e));
+  if (!o.explore.measure.empty()) {
+    if (o.explore.measure == "sv") {
+      e.set_measure(v1::CONTRACTION_MEASURE_SINGULAR_VALUE);
+    } else if (o.explore.measure == "det") {
+      e.set_measure(v1::CONTRACTION_MEASURE_DETERMINANT);
+    } else {
+      return absl::InvalidArgumentError("--measure: sv or det, got " + o.explore.measure);
+    }
+  }
+  if (!o.explore.variations.empty()) {
+    e.clear_variations();
+    for (const std::string& v : o.explore.variations) e.add_variations(v);
+  }
+  if (o.no_cache) spec.set_no_cache(true);
+  return spec;
+}
+
+// Explores random IFS (docs/explore.md): submits the spec, shows progress,
+// saves the contact sheet as DIR/NAME.png and the candidates' specs as
+// DIR/NAME.0001.json, ...
+int RunExplore(const Options& o) {
+  auto spec = ExploreSpec(o, *o.explore.command);
+  if (!spec.ok()) return ExitFor(spec.status());
+  // Checked here too, so a bad flag fails before a server starts.
+  if (auto plan = nimbus::spec::ConvertSpec(*spec, nimbus::spec::Limits{}); !plan.ok())
+    return ExitFor(plan.status());
+  auto conn = Connect(o.global);
+  if (!conn.ok()) return ExitFor(conn.status());
+  NimbusClient& client = *conn->client;
+  auto job = client.Submit(*spec);
+  if (!job.ok()) return ExitFor(job.status());
+  std::cerr << "job " << job->id() << " queued"
+            << (conn->embedded ? " (embedded server)" : " on " + o.global.server) << "\n";
+  CancelOnInterrupt canceller(client, job->id());
+  const std::filesystem::path dir(o.out_path.empty() ? "." : o.out_path);
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (ec) return ExitFor(absl::InvalidArgumentError(absl::StrCat("-o ", dir.string(), ": ",
+                                                                 ec.message())));
+  const std::string name = spec->name().empty() ? "nimbus" : spec->name();
+  auto final_job = WatchJob(client, job->id(), o.watch, false);
+  canceller.Stop();
+  if (!final_job.ok()) return ExitFor(final_job.status());
+  if (int rc = Finished(*final_job); rc != 0) return rc;
+  FrameFetcher files(client, job->id(), dir, name);
+  auto full = client.Get(job->id());
+  if (!full.ok()) return ExitFor(full.status());
+  if (auto s = files.FetchNew(*full); !s.ok()) return ExitFor(s);
+  const std::filesystem::path sheet = dir / (name + ".png");
+  if (auto s = client.Fetch(job->id(), sheet); !s.ok()) return ExitFor(s);
+  std::cerr << absl::StrFormat("wrote %s and %d candidate specs (%s.0001.json ...) in %s\n",
+                               sheet.string(), files.count(), name, dir.string());
   return 0;
 }
 
@@ -646,6 +758,30 @@ std::vector<Command> AddCommands(CLI::App& app, Options& o) {
     c->add_option("--shards", o.shards,
                   "split a chaos-game job into this many shards (JobSpec.shards)");
   }
+  auto* explore = app.add_subcommand(
+      "explore", "draw random IFS, save a contact sheet and one spec per candidate");
+  explore->add_option("spec", o.spec_path, "explore spec file (optional; flags override it)");
+  explore->add_option("-o,--output", o.out_path, "folder for NAME.png and NAME.0001.json ...")
+      ->capture_default_str();
+  explore->add_option("--name", o.explore.name, "job and file name")->capture_default_str();
+  // 0 would mean "the default" in the spec: refuse it here instead.
+  explore->add_option("--count", o.explore.count, "candidates to keep (default 16)")
+      ->check(CLI::Range(1, 1024));
+  explore->add_option("--seed", o.explore.seed, "random seed (default 0)");
+  explore->add_option("--size", o.explore.size, "thumbnail side in pixels (default 256)")
+      ->check(CLI::Range(16, 1024));
+  explore->add_option("--threshold", o.explore.threshold,
+                      "keep IFS whose contraction is below this (default 0.9; det: 1.5)")
+      ->check(CLI::Range(1e-6, 16.0));
+  explore->add_option("--maps", o.explore.maps, "maps per IFS, a or a-b (default 3-5)");
+  explore->add_option("--dim", o.explore.dim, "2 or 3 (default 2)")->check(CLI::Range(2, 3));
+  explore->add_option("--measure", o.explore.measure,
+                      "sv (largest singular value, default) or det (sum of |det|)");
+  explore->add_option("--variations", o.explore.variations,
+                      "variation names a map may get (e.g. spherical swirl)");
+  explore->add_flag("--no-cache", o.no_cache, "run even if a finished job had the same spec");
+  AddWatchFlags(explore, o.watch);
+  o.explore.command = explore;
   auto* watch = app.add_subcommand("watch", "follow a job until it ends");
   watch->add_option("job", o.job_id)->required();
   AddWatchFlags(watch, o.watch);
@@ -687,6 +823,7 @@ std::vector<Command> AddCommands(CLI::App& app, Options& o) {
   return {{validate, RunValidate},
           {import, RunImportFlame},
           {render, RunRender},
+          {explore, RunExplore},
           {submit, RunSubmit},
           {watch, RunWatch},
           {fetch, RunFetch},

@@ -71,8 +71,10 @@ absl::Status ConvertView(const v1::ImageOutput& im, ImageView& view) {
   return absl::OkStatus();
 }
 
-absl::Status ConvertLook(const v1::Look& l, LookParams& look, bool* default_glow_radius) {
-  const std::string path = "image.look";
+}  // namespace
+
+absl::Status ConvertLook(const v1::Look& l, const std::string& path, LookParams& look,
+                         bool* default_glow_radius) {
   switch (l.tone_mapping()) {
     case v1::TONE_MAPPING_UNSPECIFIED:
     case v1::TONE_MAPPING_SQRT: look.tone = ToneMapping::kSqrt; break;
@@ -100,8 +102,6 @@ absl::Status ConvertLook(const v1::Look& l, LookParams& look, bool* default_glow
   look.background = ToVec3(bg);
   return absl::OkStatus();
 }
-
-}  // namespace
 
 absl::Status ConvertImage(const v1::JobSpec& spec, JobPlan& job) {
   if (!spec.has_image()) return absl::OkStatus();
@@ -141,7 +141,7 @@ absl::Status ConvertImage(const v1::JobSpec& spec, JobPlan& job) {
     case v1::IMAGE_FORMAT_EXR: out.format = ImageFormat::kExr; break;
     default: return Invalid("image.format", StrCat("unknown value ", int(im.format())));
   }
-  NIMBUS_RETURN_IF_ERROR(ConvertLook(im.look(), out.look, &out.default_glow_radius));
+  NIMBUS_RETURN_IF_ERROR(ConvertLook(im.look(), "image.look", out.look, &out.default_glow_radius));
   out.look.colored = cg->params.color.mode != ColorMode::kNone;
   out.look.palette = job.density.palette;
   out.image_only = im.image_only();

@@ -68,6 +68,12 @@ absl::Status ConvertFieldDetail(const v1::FieldDetail& d, JobPlan& plan);
 absl::Status ConvertJelly(const v1::Jelly& j, const Limits& limits, JobPlan& plan);
 /// JobSpec.image, after the kind's converter: a chaos game's picture.
 absl::Status ConvertImage(const v1::JobSpec& spec, JobPlan& plan);
+/// A picture's look (image.look, explore.look) at `path`; the glow radius
+/// stays 0 when left to its default, which `default_glow_radius` reports.
+absl::Status ConvertLook(const v1::Look& l, const std::string& path, LookParams& look,
+                         bool* default_glow_radius);
+/// The explore generator (convert_explore.cc).
+absl::Status ConvertExplore(const v1::Explore& e, const Limits& limits, JobPlan& plan);
 /// grid.auto_frame, after the kind's converter.
 absl::Status ConvertAutoFrame(const v1::JobSpec& spec, JobPlan& plan);
 

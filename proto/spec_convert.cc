@@ -244,7 +244,12 @@ absl::Status CheckShards(const v1::JobSpec& spec, const JobPlan& job) {
 absl::StatusOr<JobPlan> ConvertSpec(const v1::JobSpec& spec, const Limits& limits) {
   JobPlan job;
   NIMBUS_RETURN_IF_ERROR(ConvertName(spec, job));
-  NIMBUS_ASSIGN_OR_RETURN(job.frame, ConvertGrid(spec, limits));
+  // An exploration frames each candidate itself: its grid is optional.
+  if (spec.has_explore() && !spec.has_grid()) {
+    job.frame = {{1, 1, 1}, {{-1, -1, -1}, {1, 1, 1}}};
+  } else {
+    NIMBUS_ASSIGN_OR_RETURN(job.frame, ConvertGrid(spec, limits));
+  }
   // Every kind's converter sees the output options (colour adds to them).
   NIMBUS_RETURN_IF_ERROR(ConvertOutput(spec.output(), job.density));
   // The job-kind seam: one converter per generator of the spec's oneof.
@@ -270,8 +275,13 @@ absl::StatusOr<JobPlan> ConvertSpec(const v1::JobSpec& spec, const Limits& limit
                        "jelly frames with a velocity grid are not downsampled; set "
                        "jelly.no_velocity_grid or lower grid.resolution");
       break;
+    case v1::JobSpec::kExplore:
+      NIMBUS_RETURN_IF_ERROR(ConvertExplore(spec.explore(), limits, job));
+      if (spec.has_detail()) return Invalid("detail", "does not apply to explore jobs");
+      break;
     case v1::JobSpec::GENERATOR_NOT_SET:
-      return Invalid("generator", "set one of: chaos_game, set_ifs, fractal_field, jelly");
+      return Invalid("generator",
+                     "set one of: chaos_game, set_ifs, fractal_field, jelly, explore");
   }
   if (spec.has_detail()) NIMBUS_RETURN_IF_ERROR(ConvertFieldDetail(spec.detail(), job));
   NIMBUS_RETURN_IF_ERROR(CheckShards(spec, job));

@@ -91,6 +91,7 @@ absl::Status RunKind(const JobPlan& plan, const IfsMatrixPlan& kind, JobContext&
 absl::Status RunKind(const JobPlan& plan, const SetIfsPlan& kind, JobContext& ctx);
 absl::Status RunKind(const JobPlan& plan, const FractalFieldPlan& kind, JobContext& ctx);
 absl::Status RunKind(const JobPlan& plan, const JellyPlan& kind, JobContext& ctx);
+absl::Status RunKind(const JobPlan& plan, const ExplorePlan& kind, JobContext& ctx);
 
 /// Runs `plan` with the runner of its kind.
 absl::Status RunJobPlan(const JobPlan& plan, JobContext& ctx);

@@ -7,6 +7,7 @@
 #include "absl/strings/str_cat.h"
 #include "core/base/overloaded.h"
 #include "core/base/status_macros.h"
+#include "core/grid/contact_sheet.h"
 #include "core/jelly/jelly_render.h"
 
 namespace nimbus::server {
@@ -155,6 +156,33 @@ uint64_t PictureBytes(const JobPlan& plan, const ChaosGamePlan& k, int threads) 
   return ChaosGame::EstimateMemory(p, threads, 0).peak() + pixels * 32;
 }
 
+// An exploration: one thumbnail's chaos game and pilot at a time, its
+// developed pixels (density, colour, RGB and the glow's copy: 32 bytes a
+// pixel), the kept thumbnails (12 bytes a pixel) and the sheet (12, plus 3
+// for the PNG rows).
+absl::StatusOr<MemoryAdmission> AdmitExplore(const ExplorePlan& k, const spec::Limits& limits,
+                                             int threads) {
+  const ExploreParams& p = k.params;
+  ChaosGameParams game;
+  game.ifs.maps.resize(size_t(p.draw.max_maps));
+  game.iterations = p.thumbnail_iterations;
+  game.color = p.color;
+  game.frame.resolution = {p.thumbnail_size, p.thumbnail_size, 1};
+  game.image.emplace();
+  game.image->width = game.image->height = p.thumbnail_size;
+  const uint64_t pixels = uint64_t(p.thumbnail_size) * uint64_t(p.thumbnail_size);
+  const SheetLayout sheet = ContactSheetLayout(p.count, p.thumbnail_size, k.columns);
+  const uint64_t bytes = ChaosGame::EstimateMemory(game, threads, 0).peak() +
+                         p.frame.pilot_iterations * 3 * sizeof(double) + pixels * 32 +
+                         uint64_t(p.count) * pixels * 12 +
+                         uint64_t(sheet.width()) * uint64_t(sheet.height()) * 15;
+  if (bytes > limits.max_memory_bytes)
+    return absl::ResourceExhaustedError(StrCat(
+        "explore.count: the exploration needs up to ", GiB(bytes),
+        " of memory; the server limit is ", GiB(limits.max_memory_bytes)));
+  return MemoryAdmission{bytes, 0};
+}
+
 }  // namespace
 
 absl::StatusOr<MemoryAdmission> AdmitMemory(const JobPlan& plan, const spec::Limits& limits,
@@ -174,7 +202,8 @@ absl::StatusOr<MemoryAdmission> AdmitMemory(const JobPlan& plan, const spec::Lim
           },
           [&](const SetIfsPlan& k) { return AdmitSetIfs(plan, k, limits); },
           [&](const FractalFieldPlan& k) { return AdmitFractalField(plan, k, limits, threads); },
-          [&](const JellyPlan& k) { return AdmitJelly(plan, k, limits); }},
+          [&](const JellyPlan& k) { return AdmitJelly(plan, k, limits); },
+          [&](const ExplorePlan& k) { return AdmitExplore(k, limits, threads); }},
       plan.kind);
 }
 

@@ -33,6 +33,31 @@ absl::Status ForRows(int rows, Interrupter* interrupter, F&& f) {
   return absl::OkStatus();
 }
 
+// Each part's tiles by tile index, so that the filter reads counters
+// straight from their tiles instead of one CountGrid::Get call (and its
+// key arithmetic) per sample.
+struct PartTiles {
+  std::vector<const uint32_t*> counts;
+  std::vector<const uint64_t*> colors;  // null without colour
+};
+
+PartTiles IndexTiles(const CountGrid& g) {
+  const Int3 t = g.tiles();
+  PartTiles out;
+  const size_t n = size_t(t.x) * size_t(t.y) * size_t(t.z);
+  out.counts.assign(n, nullptr);
+  out.colors.assign(n, nullptr);
+  g.ForEachTileWithColor([&](Int3 origin, const uint32_t* counts, const uint64_t* colors) {
+    const size_t i = (size_t(origin.x / CountGrid::kTileDim) * size_t(t.y) +
+                      size_t(origin.y / CountGrid::kTileDim)) *
+                         size_t(t.z) +
+                     size_t(origin.z / CountGrid::kTileDim);
+    out.counts[i] = counts;
+    out.colors[i] = colors;
+  });
+  return out;
+}
+
 }  // namespace
 
 absl::StatusOr<ImageDensity> BoxFilterImage(const std::vector<const CountGrid*>& parts,
@@ -49,6 +74,11 @@ absl::StatusOr<ImageDensity> BoxFilterImage(const std::vector<const CountGrid*>&
   const size_t n = size_t(out.width) * size_t(out.height);
   out.density.assign(n, 0.f);
   out.color.assign(n, 0.f);
+  std::vector<PartTiles> tiles;
+  for (const CountGrid* g : parts) tiles.push_back(IndexTiles(*g));
+  // Folded layout: sample (sx, sy) is voxel (sx, sy >> 5, sy & 31), whose
+  // tile is (sx >> 5, sy >> 10, 0) (every part has the same resolution).
+  const Int3 nt = parts.empty() ? Int3{1, 1, 1} : parts[0]->tiles();
   absl::Status st = ForRows(out.height, interrupter, [&](int row) {
     for (int x = 0; x < out.width; ++x) {
       uint64_t sum = 0, col = 0, used = 0;
@@ -60,9 +90,12 @@ absl::StatusOr<ImageDensity> BoxFilterImage(const std::vector<const CountGrid*>&
           if (sx >= samples_w) break;
           ++used;
           const Int3 v = FoldedImageVoxel(sx, sy);
-          for (const CountGrid* g : parts) {
-            sum += g->Get(v.x, v.y, v.z);
-            if (g->has_color()) col += g->GetColorSum(v.x, v.y, v.z);
+          const size_t tile =
+              (size_t(v.x >> 5) * size_t(nt.y) + size_t(v.y >> 5)) * size_t(nt.z);
+          const uint32_t off = CountGrid::LocalOffset(v.x & 31, v.y & 31, v.z);
+          for (const PartTiles& t : tiles) {
+            if (const uint32_t* c = t.counts[tile]) sum += c[off];
+            if (const uint64_t* c = t.colors[tile]) col += c[off];
           }
         }
       }
@@ -150,21 +183,33 @@ std::array<int, 3> BoxWidths(double sigma) {
   return w;
 }
 
-// One box filter of odd width `width` along a line of `n` values `stride`
-// apart (one channel), edges extended; a running sum in double, so each
-// output costs O(1) whatever the width.
-void BoxLine(float* v, int n, size_t stride, int width, std::vector<float>& line) {
+// One box filter of odd width `width` over the `n` values of `in` into
+// `out`, edges extended; a running sum in double, so each output costs O(1)
+// whatever the width.
+void BoxPass(const float* in, float* out, int n, int width) {
   const int r = width / 2;
-  line.resize(size_t(n));
-  for (int i = 0; i < n; ++i) line[size_t(i)] = v[size_t(i) * stride];
-  auto at = [&](int i) { return double(line[size_t(std::clamp(i, 0, n - 1))]); };
+  auto at = [&](int i) { return double(in[std::clamp(i, 0, n - 1)]); };
   double sum = 0;
   for (int i = -r; i <= r; ++i) sum += at(i);
   const double inv = 1.0 / width;
   for (int i = 0; i < n; ++i) {
-    v[size_t(i) * stride] = float(sum * inv);
+    out[i] = float(sum * inv);
     sum += at(i + r + 1) - at(i - r);
   }
+}
+
+// The three box filters of `widths` along a line of `n` values `stride`
+// apart (one channel): gathered once into `a`, filtered between `a` and
+// `b`, scattered back once.
+void BoxLine(float* v, int n, size_t stride, const std::array<int, 3>& widths,
+             std::vector<float>& a, std::vector<float>& b) {
+  a.resize(size_t(n));
+  b.resize(size_t(n));
+  for (int i = 0; i < n; ++i) a[size_t(i)] = v[size_t(i) * stride];
+  BoxPass(a.data(), b.data(), n, widths[0]);
+  BoxPass(b.data(), a.data(), n, widths[1]);
+  BoxPass(a.data(), b.data(), n, widths[2]);
+  for (int i = 0; i < n; ++i) v[size_t(i) * stride] = b[size_t(i)];
 }
 
 }  // namespace
@@ -178,26 +223,28 @@ void AddGlow(RgbImage& image, double amount, double radius) {
   const int W = image.width, H = image.height;
   std::vector<float> blur = image.rgb;
   tbb::parallel_for(0, H, [&](int y) {
-    std::vector<float> line;
-    for (int c = 0; c < 3; ++c)
-      for (int w : widths) BoxLine(&blur[3 * size_t(y) * W + c], W, 3, w, line);
+    std::vector<float> a, b;
+    for (int c = 0; c < 3; ++c) BoxLine(&blur[3 * size_t(y) * W + c], W, 3, widths, a, b);
   });
   // Columns in blocks of 16, copied out to a contiguous buffer so each
   // filter pass walks memory row by row instead of one cache line per value.
   constexpr int kBlock = 16;
-  tbb::parallel_for(0, (W + kBlock - 1) / kBlock, [&](int b) {
-    const int x0 = b * kBlock, n = std::min(kBlock, W - x0);
+  tbb::parallel_for(0, (W + kBlock - 1) / kBlock, [&](int blk) {
+    const int x0 = blk * kBlock, n = std::min(kBlock, W - x0);
     const size_t row = 3 * size_t(n);
-    std::vector<float> block(row * size_t(H)), line;
+    std::vector<float> block(row * size_t(H)), a, b;
     for (int y = 0; y < H; ++y)
       std::copy_n(&blur[3 * (size_t(y) * W + x0)], row, &block[size_t(y) * row]);
-    for (size_t k = 0; k < row; ++k)
-      for (int w : widths) BoxLine(&block[k], H, row, w, line);
+    for (size_t k = 0; k < row; ++k) BoxLine(&block[k], H, row, widths, a, b);
     for (int y = 0; y < H; ++y)
       std::copy_n(&block[size_t(y) * row], row, &blur[3 * (size_t(y) * W + x0)]);
   });
   const float a = float(amount);
-  for (size_t i = 0; i < image.rgb.size(); ++i) image.rgb[i] += a * blur[i];
+  tbb::parallel_for(0, H, [&](int y) {
+    float* o = &image.rgb[3 * size_t(y) * W];
+    const float* b = &blur[3 * size_t(y) * W];
+    for (size_t i = 0; i < 3 * size_t(W); ++i) o[i] += a * b[i];
+  });
 }
 
 }  // namespace nimbus

@@ -11,7 +11,10 @@ const ChaosGameParams* JobPlan::point_run() const {
                                [](const FractalFieldPlan&) -> const ChaosGameParams* {
                                  return nullptr;
                                },
-                               [](const JellyPlan&) -> const ChaosGameParams* { return nullptr; }},
+                               [](const JellyPlan&) -> const ChaosGameParams* { return nullptr; },
+                               [](const ExplorePlan&) -> const ChaosGameParams* {
+                                 return nullptr;
+                               }},
                     kind);
 }
 
@@ -30,7 +33,8 @@ std::string_view KindName(const JobKindPlan& kind) {
                                [](const IfsMatrixPlan&) { return "ifs_matrix"; },
                                [](const SetIfsPlan&) { return "set_ifs"; },
                                [](const FractalFieldPlan&) { return "fractal_field"; },
-                               [](const JellyPlan&) { return "jelly"; }},
+                               [](const JellyPlan&) { return "jelly"; },
+                               [](const ExplorePlan&) { return "explore"; }},
                     kind);
 }
 

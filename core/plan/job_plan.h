@@ -21,6 +21,7 @@
 #include "core/base/geometry.h"
 #include "core/chaos/auto_frame.h"
 #include "core/chaos/chaos_game.h"
+#include "core/chaos/ifs_explorer.h"
 #include "core/chaos/image_plane.h"
 #include "core/grid/image_look.h"
 #include "core/io/image_io.h"
@@ -53,9 +54,21 @@ struct ChaosGamePlan {
   std::optional<AutoFrameParams> auto_frame;
 };
 
+/// @brief The random IFS explorer (docs/explore.md): thumbnails on a
+/// contact sheet and one spec per kept candidate.
+struct ExplorePlan {
+  ExploreParams params;
+  /// Cells per row of the contact sheet (0: square-ish).
+  int columns = 0;
+  /// The serialised nimbus.v1.JobSpec every candidate's spec starts from,
+  /// made by the spec converter; the runner adds the maps, seed and framing.
+  /// Bytes, so that the plan stays protobuf-free.
+  std::string candidate_template;
+};
+
 /// One alternative per job kind.
-using JobKindPlan =
-    std::variant<ChaosGamePlan, IfsMatrixPlan, SetIfsPlan, FractalFieldPlan, JellyPlan>;
+using JobKindPlan = std::variant<ChaosGamePlan, IfsMatrixPlan, SetIfsPlan, FractalFieldPlan,
+                                 JellyPlan, ExplorePlan>;
 
 /// @brief The units a job's iterating phase counts, for progress.
 struct WorkPlan {
@@ -81,6 +94,7 @@ struct JobPlan {
   const SetIfsPlan* set_ifs() const { return std::get_if<SetIfsPlan>(&kind); }
   const FractalFieldPlan* fractal_field() const { return std::get_if<FractalFieldPlan>(&kind); }
   const JellyPlan* jelly() const { return std::get_if<JellyPlan>(&kind); }
+  const ExplorePlan* explore() const { return std::get_if<ExplorePlan>(&kind); }
   /// The chaos game of a point-IFS job (plain, or the whole matrix
   /// selection); null for set IFS, fractal fields and jelly.
   const ChaosGameParams* point_run() const;
@@ -89,7 +103,8 @@ struct JobPlan {
   const ChaosGameParams* shardable_run() const;
 };
 
-/// "chaos_game", "ifs_matrix", "set_ifs", "fractal_field" or "jelly": for logs and messages.
+/// "chaos_game", "ifs_matrix", "set_ifs", "fractal_field", "jelly" or "explore": for logs
+/// and messages.
 std::string_view KindName(const JobKindPlan& kind);
 
 }  // namespace nimbus

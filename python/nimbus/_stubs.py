@@ -27,7 +27,7 @@ from pathlib import Path
 
 _PACKAGE_DIR = Path(__file__).resolve().parent
 PROTO_FILES = ("maps.proto", "ifs_matrix.proto", "set_ifs.proto", "fractal_field.proto",
-               "jelly.proto", "image.proto",
+               "jelly.proto", "image.proto", "explore.proto",
                "spec.proto", "nimbus_service.proto")
 
 
