@@ -5,15 +5,11 @@
 #include <immintrin.h>
 
 #include "core/chaos/affine_walk.h"
+#include "core/chaos/xoshiro_avx2.h"
 
 namespace nimbus::walk {
 
 namespace {
-
-template <int kBits>
-inline __m256i Rotl(__m256i x) {
-  return _mm256_or_si256(_mm256_slli_epi64(x, kBits), _mm256_srli_epi64(x, 64 - kBits));
-}
 
 // How a lane finds its map's table entries: with up to 4 (or 8) maps the
 // tables sit in one (or two) registers and a lane permute fetches them;
@@ -78,14 +74,7 @@ void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
       __m256i s1 = _mm256_load_si256(reinterpret_cast<const __m256i*>(w.s1 + g));
       __m256i s2 = _mm256_load_si256(reinterpret_cast<const __m256i*>(w.s2 + g));
       __m256i s3 = _mm256_load_si256(reinterpret_cast<const __m256i*>(w.s3 + g));
-      const __m256i r = _mm256_add_epi64(Rotl<23>(_mm256_add_epi64(s0, s3)), s0);
-      const __m256i t = _mm256_slli_epi64(s1, 17);
-      s2 = _mm256_xor_si256(s2, s0);
-      s3 = _mm256_xor_si256(s3, s1);
-      s1 = _mm256_xor_si256(s1, s2);
-      s0 = _mm256_xor_si256(s0, s3);
-      s2 = _mm256_xor_si256(s2, t);
-      s3 = Rotl<45>(s3);
+      const __m256i r = simd::XoshiroNext(s0, s1, s2, s3);
       _mm256_store_si256(reinterpret_cast<__m256i*>(w.s0 + g), s0);
       _mm256_store_si256(reinterpret_cast<__m256i*>(w.s1 + g), s1);
       _mm256_store_si256(reinterpret_cast<__m256i*>(w.s2 + g), s2);

@@ -1,10 +1,12 @@
 // AVX-512 version of the affine walk: eight lanes per register, two register
 // groups per round. Compiled without FMA contraction, so every product and
 // sum rounds exactly as in the scalar kernel and the counts are the same.
-// Includes nothing but the plain data header; see affine_walk.h.
+// Includes nothing but the plain data header (and the shared xoshiro
+// step); see affine_walk.h.
 #include <immintrin.h>
 
 #include "core/chaos/affine_walk.h"
+#include "core/chaos/xoshiro_avx512.h"
 
 // GCC 12's AVX-512 headers start some intrinsics from an undefined register,
 // which -Wmaybe-uninitialized reports; the values are all written.
@@ -71,14 +73,7 @@ void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
     for (int g = 0; g < kLanes; g += 8) {
       // xoshiro256++, eight streams.
       __m512i s0 = Load(w.s0 + g), s1 = Load(w.s1 + g), s2 = Load(w.s2 + g), s3 = Load(w.s3 + g);
-      const __m512i r = _mm512_add_epi64(_mm512_rol_epi64(_mm512_add_epi64(s0, s3), 23), s0);
-      const __m512i t = _mm512_slli_epi64(s1, 17);
-      s2 = _mm512_xor_si512(s2, s0);
-      s3 = _mm512_xor_si512(s3, s1);
-      s1 = _mm512_xor_si512(s1, s2);
-      s0 = _mm512_xor_si512(s0, s3);
-      s2 = _mm512_xor_si512(s2, t);
-      s3 = _mm512_rol_epi64(s3, 45);
+      const __m512i r = simd::XoshiroNext(s0, s1, s2, s3);
       Store(w.s0 + g, s0), Store(w.s1 + g, s1), Store(w.s2 + g, s2), Store(w.s3 + g, s3);
 
       // Alias sampling: i = (r_hi * n) >> 32, keep i if r_lo < threshold[i];

@@ -9,6 +9,10 @@
 // The vector types carry may_alias, which GCC drops (harmlessly) when they
 // are template arguments.
 #pragma GCC diagnostic ignored "-Wignored-attributes"
+// GCC 12's gather intrinsics start from an undefined register, which it
+// reports as uninitialised; every lane is written.
+#pragma GCC diagnostic ignored "-Wuninitialized"
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
 
 namespace nimbus::formulas {
 namespace {
@@ -35,6 +39,7 @@ inline __m256d Select(__m256d m, __m256d a, __m256d b) { return _mm256_blendv_pd
 }  // namespace nimbus::formulas
 
 #include "core/chaos/flame_walk_kernel.h"
+#include "core/chaos/xoshiro_avx2.h"
 
 namespace nimbus::flame {
 namespace {
@@ -97,9 +102,6 @@ struct Avx2Isa {
     return _mm256_castsi256_pd(_mm256_cmpgt_epi64(_mm256_setzero_si256(), w));
   }
   static __m256d Zero() { return _mm256_setzero_pd(); }
-  static __m256i Rotl(__m256i x, int k) {
-    return _mm256_or_si256(_mm256_slli_epi64(x, k), _mm256_srli_epi64(x, 64 - k));
-  }
   // Rng::Next for four walkers per register.
   static void DrawWords(Walkers& w, int n, uint32_t words) {
     auto load = [](const uint64_t* p) {
@@ -112,14 +114,7 @@ struct Avx2Isa {
       __m256i s0 = load(w.s0 + k), s1 = load(w.s1 + k), s2 = load(w.s2 + k), s3 = load(w.s3 + k);
       for (uint32_t c = 0; c < words; ++c) {
         _mm256_storeu_si256(reinterpret_cast<__m256i*>(w.words + size_t(c) * kMaxWalkers + k),
-                            _mm256_add_epi64(Rotl(_mm256_add_epi64(s0, s3), 23), s0));
-        const __m256i t = _mm256_slli_epi64(s1, 17);
-        s2 = _mm256_xor_si256(s2, s0);
-        s3 = _mm256_xor_si256(s3, s1);
-        s1 = _mm256_xor_si256(s1, s2);
-        s0 = _mm256_xor_si256(s0, s3);
-        s2 = _mm256_xor_si256(s2, t);
-        s3 = Rotl(s3, 45);
+                            simd::XoshiroNext(s0, s1, s2, s3));
       }
       store(w.s0 + k, s0), store(w.s1 + k, s1), store(w.s2 + k, s2), store(w.s3 + k, s3);
     }

@@ -13,6 +13,10 @@
 // The vector types carry may_alias, which GCC drops (harmlessly) when they
 // are template arguments.
 #pragma GCC diagnostic ignored "-Wignored-attributes"
+// GCC 12's gather intrinsics start from an undefined register, which it
+// reports as uninitialised; every lane is written.
+#pragma GCC diagnostic ignored "-Wuninitialized"
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
 
 namespace nimbus::formulas {
 namespace {
@@ -42,6 +46,7 @@ inline __m512d Select(__mmask8 m, __m512d a, __m512d b) { return _mm512_mask_ble
 }  // namespace nimbus::formulas
 
 #include "core/chaos/flame_walk_kernel.h"
+#include "core/chaos/xoshiro_avx512.h"
 
 namespace nimbus::flame {
 namespace {
@@ -109,15 +114,8 @@ struct Avx512Isa {
       __m512i s0 = _mm512_load_si512(w.s0 + k), s1 = _mm512_load_si512(w.s1 + k);
       __m512i s2 = _mm512_load_si512(w.s2 + k), s3 = _mm512_load_si512(w.s3 + k);
       for (uint32_t c = 0; c < words; ++c) {
-        const __m512i r = _mm512_add_epi64(_mm512_rol_epi64(_mm512_add_epi64(s0, s3), 23), s0);
-        _mm512_storeu_si512(w.words + size_t(c) * kMaxWalkers + k, r);
-        const __m512i t = _mm512_slli_epi64(s1, 17);
-        s2 = _mm512_xor_si512(s2, s0);
-        s3 = _mm512_xor_si512(s3, s1);
-        s1 = _mm512_xor_si512(s1, s2);
-        s0 = _mm512_xor_si512(s0, s3);
-        s2 = _mm512_xor_si512(s2, t);
-        s3 = _mm512_rol_epi64(s3, 45);
+        _mm512_storeu_si512(w.words + size_t(c) * kMaxWalkers + k,
+                            simd::XoshiroNext(s0, s1, s2, s3));
       }
       _mm512_store_si512(w.s0 + k, s0), _mm512_store_si512(w.s1 + k, s1);
       _mm512_store_si512(w.s2 + k, s2), _mm512_store_si512(w.s3 + k, s3);
