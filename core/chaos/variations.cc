@@ -62,27 +62,29 @@ struct WordDraws {
   bool Bit() { return (*next++ >> 63) != 0; }
 };
 
+// The shared formulas on one point, with the map's pre-affine as 12 numbers.
+template <class Draws>
+Vec3 Evaluate(VariationKind kind, Vec3 p, const Affine3& pre, Draws& draws) {
+  const double coef[12] = {pre.m[0][0], pre.m[0][1], pre.m[0][2], pre.m[0][3],
+                           pre.m[1][0], pre.m[1][1], pre.m[1][2], pre.m[1][3],
+                           pre.m[2][0], pre.m[2][1], pre.m[2][2], pre.m[2][3]};
+  const formulas::P3<double> q = formulas::Variation<double>(kind, {p.x, p.y, p.z}, coef, draws);
+  return {q.x, q.y, q.z};
+}
+
 }  // namespace
 
 Vec3 EvaluateVariation(const VariationTerm& v, Vec3 p, const Affine3& pre,
                        const uint64_t* words) {
-  const double coef[12] = {pre.m[0][0], pre.m[0][1], pre.m[0][2], pre.m[0][3],
-                           pre.m[1][0], pre.m[1][1], pre.m[1][2], pre.m[1][3],
-                           pre.m[2][0], pre.m[2][1], pre.m[2][2], pre.m[2][3]};
   WordDraws draws{words};
-  const formulas::P3<double> q = formulas::Variation<double>(v.kind, {p.x, p.y, p.z}, coef, draws);
-  return {q.x, q.y, q.z};
+  return Evaluate(v.kind, p, pre, draws);
 }
 
 int VariationWords(VariationKind kind) { return formulas::VariationDraws(kind); }
 
 Vec3 EvaluateVariation(const VariationTerm& v, Vec3 p, const Affine3& pre, Rng& rng) {
-  const double coef[12] = {pre.m[0][0], pre.m[0][1], pre.m[0][2], pre.m[0][3],
-                           pre.m[1][0], pre.m[1][1], pre.m[1][2], pre.m[1][3],
-                           pre.m[2][0], pre.m[2][1], pre.m[2][2], pre.m[2][3]};
   RngDraws draws{rng};
-  const formulas::P3<double> q = formulas::Variation<double>(v.kind, {p.x, p.y, p.z}, coef, draws);
-  return {q.x, q.y, q.z};
+  return Evaluate(v.kind, p, pre, draws);
 }
 
 const VariationInfo& GetVariationInfo(VariationKind kind) {
