@@ -28,6 +28,7 @@ Vec3 RandomPoint(Rng& rng, const Bounds& b) {
 
 uint64_t ReachableTiles(const ChaosGameParams& p);
 size_t BufferEntries(const ChaosGameParams& p, uint64_t reachable_tiles);
+uint64_t PoolTiles(const ChaosGameParams& p, bool fast);
 }  // namespace
 
 struct ChaosGame::Worker {
@@ -137,8 +138,8 @@ absl::StatusOr<std::unique_ptr<ChaosGame>> ChaosGame::Create(ChaosGameParams par
   }
   const bool color = p.color.mode != ColorMode::kNone;
   for (int t = 0; t < game->threads_; ++t) game->counts_.emplace_back(p.CountResolution(), color);
-  // Buffers sized once, so memory stays as estimated.
-  const size_t entries = BufferEntries(p, ReachableTiles(p));
+  // Buffers sized once, never above what EstimateMemory counted.
+  const size_t entries = BufferEntries(p, PoolTiles(p, game->fast_));
   for (int t = 0; t < game->threads_; ++t) {
     auto w = std::make_unique<Worker>();
     w->grid = &game->counts_[t];
@@ -221,6 +222,21 @@ size_t BufferEntries(const ChaosGameParams& p, uint64_t reachable_tiles) {
   uint64_t want = std::min(reachable_tiles * per_tile, std::max<uint64_t>(p.iterations, 1));
   if (p.memory_budget > 0) want = std::min(want, p.memory_budget / 8 / entry_bytes);
   return size_t(std::clamp<uint64_t>(want, uint64_t{1} << 16, most));
+}
+
+// The tiles the fast path's bin pool is sized for. A pool for every
+// reachable tile while the attractor touches a few of them only streams
+// through memory between flushes (a 256^3 Sierpinski tetrahedron reaches
+// 512 tiles and touches about 100), so long runs size it by a short pilot's
+// census instead. Results do not depend on the pool, only speed does.
+uint64_t PoolTiles(const ChaosGameParams& p, bool fast) {
+  constexpr uint64_t kPilotPoints = uint64_t{1} << 18;
+  const uint64_t reachable = ReachableTiles(p);
+  // Pilots run far fewer points than this, so they never pilot themselves.
+  if (!fast || p.image || p.iterations < 64 * kPilotPoints) return reachable;
+  auto census = ChaosGame::Pilot(p, kPilotPoints, nullptr);
+  if (!census.ok() || census->estimate == 0) return reachable;
+  return std::min(reachable, census->estimate);
 }
 
 }  // namespace
