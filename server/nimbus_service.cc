@@ -734,7 +734,10 @@ grpc::Status NimbusServiceImpl::Cancel(const Principal& caller, const std::strin
   // replica runs reaches it through the shared store's feed once that
   // worker sees the cancel at its next heartbeat.
   auto live = hub_->Latest(job_id);
-  if (live && live->state() != v1::JOB_STATE_RUNNING) return grpc::Status::OK;
+  if (live && live->state() != v1::JOB_STATE_RUNNING) {
+    out = *live;  // it stopped already: answer with its end, not the stale RUNNING
+    return grpc::Status::OK;
+  }
   if (auto stopped = AwaitStop(job_id)) out = *stopped;
   return grpc::Status::OK;
 }
