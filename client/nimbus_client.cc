@@ -5,7 +5,8 @@
 #include <algorithm>
 #include <chrono>
 #include <fstream>
-#include <future>
+#include <condition_variable>
+#include <mutex>
 #include <map>
 #include <thread>
 
@@ -228,30 +229,61 @@ absl::StatusOr<v1::Job> NimbusClient::Watch(
 
 namespace {
 
-// Writes and hashes a download's chunks on a second thread while the next
-// chunk arrives: one chunk in flight, its buffer handed back for reuse.
+// Writes a download's chunks on a second thread while this one hashes the
+// same bytes and then parses the next chunk: both only read the buffer. Two
+// buffers take turns (the one handed back keeps its capacity), and the
+// thread lives as long as the download, so nothing is allocated per chunk.
 class ChunkWriter {
  public:
-  ChunkWriter(std::ofstream& out, Sha256& hash) : out_(out), hash_(hash) {}
-  ~ChunkWriter() { Wait(); }
-  // Takes `data`'s bytes; leaves it holding a spare buffer.
+  ChunkWriter(std::ofstream& out, Sha256& hash) : out_(out), hash_(hash) {
+    thread_ = std::thread([this] { Run(); });
+  }
+  ~ChunkWriter() {
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      stop_ = true;
+    }
+    cv_.notify_all();
+    thread_.join();
+  }
+  // Takes `data`'s bytes; leaves it holding the previous chunk's buffer.
   void Write(std::string& data) {
     Wait();
     held_.swap(data);
-    pending_ = std::async(std::launch::async, [this] {
-      out_.write(held_.data(), std::streamsize(held_.size()));
-      hash_.Update(held_);
-    });
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      busy_ = true;
+    }
+    cv_.notify_all();
+    hash_.Update(held_);
   }
+  // Returns once the last chunk is written.
   void Wait() {
-    if (pending_.valid()) pending_.get();
+    std::unique_lock<std::mutex> lock(mu_);
+    cv_.wait(lock, [this] { return !busy_; });
   }
 
  private:
+  void Run() {
+    std::unique_lock<std::mutex> lock(mu_);
+    while (true) {
+      cv_.wait(lock, [this] { return busy_ || stop_; });
+      if (!busy_) return;
+      lock.unlock();
+      out_.write(held_.data(), std::streamsize(held_.size()));
+      lock.lock();
+      busy_ = false;
+      cv_.notify_all();
+    }
+  }
+
   std::ofstream& out_;
   Sha256& hash_;
   std::string held_;
-  std::future<void> pending_;
+  std::mutex mu_;
+  std::condition_variable cv_;
+  bool busy_ = false, stop_ = false;
+  std::thread thread_;
 };
 
 }  // namespace
