@@ -158,6 +158,35 @@ void BM_Flame6KernelRound(benchmark::State& state) {
 }
 BENCHMARK(BM_Flame6KernelRound)->Arg(0)->Arg(1)->Arg(2);
 
+// The plot kernel alone (core/chaos/flame_plot.h): one round of 64 walkers
+// of points spread over the picture of BM_Flame6Picture1024, projected and
+// packed into keys with colour; items are walker-steps.
+void BM_Flame6PlotRound(benchmark::State& state) {
+  ChaosGameParams p = Flame6Params(1);
+  p.image = MakeImagePlane({}, p.frame.bounds, 1024, 1024);
+  const SimdLevel level = std::min(SimdLevel(state.range(0)), DetectSimd());
+  state.SetLabel(std::string(SimdName(level)));
+  const CountGrid grid(p.CountResolution(), true);
+  const flame::PlotTarget target = MakePlotTarget(p, grid);
+  const flame::PlotFn plot = FlamePlotter(level);
+  auto w = std::make_unique<flame::Walkers>();
+  Rng rng(2, 0);
+  for (int k = 0; k < flame::kMaxWalkers; ++k) {
+    w->x[k] = rng.Uniform(-2.5, 2.5);
+    w->y[k] = rng.Uniform(-2.5, 2.5);
+    w->z[k] = 0;
+    w->col[k] = rng.Uniform();
+  }
+  auto out = std::make_unique<flame::Plotted>();
+  for (auto _ : state) {
+    plot(target, *w, false, flame::kMaxWalkers, out.get());
+    benchmark::DoNotOptimize(out->key[0]);
+    benchmark::DoNotOptimize(out->inside);
+  }
+  state.SetItemsProcessed(int64_t(state.iterations()) * flame::kMaxWalkers);
+}
+BENCHMARK(BM_Flame6PlotRound)->Arg(0)->Arg(1)->Arg(2);
+
 // A thin attractor on a huge grid: the pilot census and the memory it
 // predicts against what the run really holds.
 void BM_SierpinskiTetrahedron2048(benchmark::State& state) {

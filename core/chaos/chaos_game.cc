@@ -4,11 +4,13 @@
 
 #include <algorithm>
 #include <atomic>
+#include <bit>
 #include <cmath>
 #include <thread>
 
 #include "absl/strings/str_cat.h"
 #include "core/chaos/affine_walk.h"
+#include "core/chaos/key_bins.h"
 #include "core/chaos/tile_bins.h"
 
 namespace nimbus {
@@ -16,8 +18,8 @@ namespace nimbus {
 static_assert(ChaosGame::kWalkers == walk::kLanes);
 
 namespace {
-// Bytes per key in a worker's buffer and its binning scratch.
-constexpr uint64_t kKeyBytes = 2 * sizeof(uint64_t);
+// Bytes per key in a worker's KeyBins.
+constexpr uint64_t kKeyBytes = sizeof(uint64_t);
 
 Vec3 RandomPoint(Rng& rng, const Bounds& b) {
   // Three draws in x, y, z order: the argument order of a braced list is
@@ -33,20 +35,15 @@ uint64_t PoolTiles(const ChaosGameParams& p, bool fast);
 
 struct ChaosGame::Worker {
   CountGrid* grid = nullptr;
-  // General path: 64-bit keys, binned at flush time.
-  std::vector<uint64_t> keys;
-  std::vector<uint64_t> scratch;
-  size_t n = 0;
-  // Fast path: binned as produced.
+  // General path: 64-bit keys (with colour and weight), binned as produced.
+  std::unique_ptr<KeyBins> keys;
+  // Fast path: 32-bit entries, binned as produced.
   std::unique_ptr<TileBins> bins;
   ChaosGameStats stats;
 
-  bool weighted = true;  // false: plain keys, the cheapest increments
-
   void Flush() {
     if (bins) bins->Flush();
-    if (n) grid->AddKeys(keys.data(), n, scratch, weighted);
-    n = 0;
+    if (keys) keys->Flush();
   }
 };
 
@@ -138,18 +135,19 @@ absl::StatusOr<std::unique_ptr<ChaosGame>> ChaosGame::Create(ChaosGameParams par
   }
   const bool color = p.color.mode != ColorMode::kNone;
   for (int t = 0; t < game->threads_; ++t) game->counts_.emplace_back(p.CountResolution(), color);
+  if (game->flame_round_ && !p.ifs.arcs && !p.splat) {
+    game->flame_plot_ = FlamePlotter(game->simd_);
+    game->plot_target_ = MakePlotTarget(p, game->counts_[0]);
+  }
   // Buffers sized once, never above what EstimateMemory counted.
   const size_t entries = BufferEntries(p, PoolTiles(p, game->fast_));
   for (int t = 0; t < game->threads_; ++t) {
     auto w = std::make_unique<Worker>();
     w->grid = &game->counts_[t];
-    if (game->fast_) {
+    if (game->fast_)
       w->bins = std::make_unique<TileBins>(game->counts_[t], entries);
-    } else {
-      w->keys.resize(entries);
-      w->scratch.resize(entries);
-    }
-    w->weighted = p.splat;
+    else
+      w->keys = std::make_unique<KeyBins>(game->counts_[t], entries, p.splat);
     game->workers_.push_back(std::move(w));
   }
   if (p.memory_budget > 0) {
@@ -211,7 +209,7 @@ uint64_t ReachableTiles(const ChaosGameParams& p) {
 // 128 KiB tile (2048 cache lines) into L2 once, so more entries per tile
 // mean more increments per line fetched: ~32768 per reachable tile on the
 // fast path (4-byte entries, at most 2^26 = 256 MiB), ~8192 on the general
-// path (16 bytes per key with its sort scratch, at most 2^25 = 512 MiB).
+// path (8-byte keys, at most 2^25 = 256 MiB).
 // Never more than the whole job plots; with a budget, at most an eighth of
 // it per thread.
 size_t BufferEntries(const ChaosGameParams& p, uint64_t reachable_tiles) {
@@ -241,6 +239,29 @@ uint64_t PoolTiles(const ChaosGameParams& p, bool fast) {
 
 }  // namespace
 
+flame::PlotTarget MakePlotTarget(const ChaosGameParams& p, const CountGrid& grid) {
+  flame::PlotTarget t;
+  const Vec3 vs = p.frame.VoxelSize();
+  for (int a = 0; a < 3; ++a) {
+    t.min[a] = p.frame.bounds.min[a];
+    t.inv_voxel[a] = 1.0 / vs[a];
+    t.res[a] = p.frame.resolution[a];
+  }
+  t.fold_shift = grid.fold_shift(), t.fold_mask = grid.fold_mask();
+  if (const ImagePlane* image = p.image ? &*p.image : nullptr) {
+    t.kind = image->perspective ? flame::PlotTarget::kPerspective : flame::PlotTarget::kOrtho;
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 4; ++c) t.view[4 * r + c] = image->view.m[r][c];
+    t.focal = image->focal, t.cx = image->cx, t.cy = image->cy, t.near = image->near;
+    t.res[0] = image->width, t.res[1] = image->height, t.res[2] = 1;
+    // ImagePlane::Voxel folds rows into the depth of an unfolded grid.
+    t.fold_shift = ImagePlane::kFoldShift, t.fold_mask = ImagePlane::kFoldMask;
+  }
+  t.tiles_y = uint32_t(grid.tiles().y), t.tiles_z = uint32_t(grid.tiles().z);
+  t.color = p.color.mode != ColorMode::kNone;
+  return t;
+}
+
 bool ChaosGame::UsesFastPath(const ChaosGameParams& p) {
   return !p.ifs.final_map && !p.ifs.arcs && !p.splat && p.color.mode == ColorMode::kNone &&
          p.ifs.AllAffine() && !(p.image && p.image->perspective);
@@ -261,7 +282,8 @@ ChaosGameMemory ChaosGame::EstimateMemory(const ChaosGameParams& p, int threads,
   ChaosGameMemory m;
   // The buffers are sized by the geometric bound, as Create sizes them.
   const size_t entries = BufferEntries(p, reachable);
-  const uint64_t buffers = UsesFastPath(p) ? TileBins::Bytes(r, entries) : entries * kKeyBytes;
+  const uint64_t buffers =
+      UsesFastPath(p) ? TileBins::Bytes(r, entries) : KeyBins::Bytes(r, entries);
   m.accumulation = uint64_t(threads) * CountGrid::BoundedMemoryBytes(r, 0, color) +
                    all_tiles * CountGrid::TileBytes(color) + uint64_t(threads) * buffers;
   // Output: the merged grid, plus one VDB leaf (8^3 voxels, with ~15 %
@@ -335,7 +357,7 @@ uint64_t ChaosGame::MemoryBytes() const {
   uint64_t bytes = 0;
   for (const CountGrid& g : counts_) bytes += g.MemoryBytes();
   for (const auto& w : workers_) {
-    bytes += (w->keys.capacity() + w->scratch.capacity()) * 8;
+    if (w->keys) bytes += w->keys->MemoryBytes();
     if (w->bins) bytes += w->bins->MemoryBytes();
   }
   return bytes;
@@ -577,14 +599,11 @@ struct ChaosGame::General {
   const ColorMode color_mode = p.color.mode;
   const double blend = p.color.blend;
   const double inv_maps = 1.0 / double(maps.size());
-  const size_t keys_per_step = p.splat ? 8 : 1;
   Poll poll;
-  // Counters and the key buffer in locals: stores through `w` could alias
-  // them and would keep them in memory.
+  // Counters in locals: stores through `w` could alias them and would keep
+  // them in memory.
   uint64_t reseeded = 0, outside = 0, final_nonfinite = 0;
-  uint64_t* keys = w.keys.data();
-  const size_t cap = w.keys.size();
-  size_t n_keys = w.n;
+  KeyBins& keys = *w.keys;
 
   const uint64_t steps;  // plotted steps of the chunk
 
@@ -592,20 +611,11 @@ struct ChaosGame::General {
       : game(g), w(worker), poll{&g, chunk}, steps(count) {}
   ~General() {
     w.stats.iterations_done += steps;
-    w.n = n_keys;
     w.stats.reseeded += reseeded;
     w.stats.outside += outside;
     w.stats.final_nonfinite += final_nonfinite;
   }
 
-  // Room for one more plotted step in the key buffer.
-  void Reserve() {
-    if (n_keys + keys_per_step <= cap) [[likely]]
-      return;
-    w.n = n_keys;
-    w.Flush();
-    n_keys = 0;
-  }
   uint32_t PickMap(Lane& l) {
     if (!chain) return game.map_table_.Sample(l.rng.Next());
     const ChainState& st = chain->states[l.state];
@@ -663,14 +673,16 @@ struct ChaosGame::General {
     const uint64_t color_bits = color_mode == ColorMode::kNone ? 0 : ColorBits(col);
     if (image) {
       const Int3 v = ImagePlane::Voxel(int(fx), int(fy));
-      keys[n_keys++] = w.grid->Key(v.x, v.y, v.z) | color_bits;
+      keys.Add(w.grid->Key(v.x, v.y, v.z) | color_bits);
       return;
     }
     if (!p.splat) {
-      keys[n_keys++] = w.grid->Key(int(fx), int(fy), int(fz)) | color_bits;
+      keys.Add(w.grid->Key(int(fx), int(fy), int(fz)) | color_bits);
       return;
     }
-    n_keys += AppendSplatKeys(*w.grid, res, fx, fy, fz, color_bits, keys + n_keys);
+    uint64_t splat[8];
+    const size_t corners = AppendSplatKeys(*w.grid, res, fx, fy, fz, color_bits, splat);
+    for (size_t i = 0; i < corners; ++i) keys.Add(splat[i]);
   }
 };
 
@@ -693,7 +705,6 @@ void ChaosGame::RunChunk(uint64_t chunk, Worker& w) {
       // A stopped chunk's counts are thrown away with the job.
       if (g.poll.Tick()) [[unlikely]]
         break;
-      g.Reserve();
       if (!g.Step(l)) [[unlikely]] {
         ++g.reseeded;
         g.WarmUp(l);
@@ -797,6 +808,7 @@ void ChaosGame::RunChunkBatch(uint64_t chunk, Worker& w) {
   const double* px = final_map ? s.fx : s.x;
   const double* py = final_map ? s.fy : s.y;
   const double* pz = final_map ? s.fz : s.z;
+  auto plotted = std::make_unique<flame::Plotted>();
   const uint64_t rounds = (count + uint64_t(n) - 1) / uint64_t(n);
   for (uint64_t j = 0; j < rounds; ++j) {
     // In the last round only the first count % n walkers plot.
@@ -804,16 +816,39 @@ void ChaosGame::RunChunkBatch(uint64_t chunk, Worker& w) {
     if (g.poll.Tick(uint64_t(active))) [[unlikely]]
       break;
     round(prog, s, n);
+    if (flame_plot_) {
+      PlotRound(g, s, final_map, n, active, *plotted, rewarm);
+      continue;
+    }
     for (int k = 0; k < active; ++k) {
       if (!finite(s, k)) [[unlikely]] {
         ++g.reseeded;
         rewarm(k);
         continue;
       }
-      g.Reserve();
       g.Plot({px[k], py[k], pz[k]}, s.col[k], begin + j * uint64_t(n) + uint64_t(k));
     }
   }
+}
+
+// One round's points through the plot kernel: keys of the lanes that land
+// go to the bins, the rest are counted; walkers gone non-finite restart.
+// Lanes are independent, so restarting them after the round's plot
+// changes nothing the one-lane-at-a-time loop would have done.
+template <typename Rewarm>
+void ChaosGame::PlotRound(General& g, const flame::Walkers& s, bool final_map, int n, int active,
+                          flame::Plotted& out, Rewarm& rewarm) {
+  flame_plot_(plot_target_, s, final_map, n, &out);
+  const uint64_t mask = active == 64 ? ~uint64_t{0} : (uint64_t{1} << active) - 1;
+  // Lanes counted by walking their bits: the x86-64 baseline has no popcnt.
+  uint64_t landed = 0, restarted = 0;
+  for (uint64_t m = out.inside & mask; m; m &= m - 1, ++landed)
+    g.keys.Add(out.key[std::countr_zero(m)]);
+  for (uint64_t m = out.bad_final & mask; m; m &= m - 1) ++g.final_nonfinite;
+  for (uint64_t m = out.bad_walker & mask; m; m &= m - 1, ++restarted)
+    rewarm(std::countr_zero(m));
+  g.reseeded += restarted;
+  g.outside += uint64_t(active) - landed - restarted;
 }
 
 absl::Status ChaosGame::RunUntil(uint64_t iterations, Interrupter* interrupter) {

@@ -234,6 +234,11 @@ class ChaosGame {
   // The general path without a chain: the chunk's walkers in one batch,
   // stepped by the flame kernel of the SIMD level (core/chaos/flame_walk.h).
   void RunChunkBatch(uint64_t chunk, Worker& worker);
+  // RunChunkBatch's plotting of one round with the plot kernel
+  // (core/chaos/flame_plot.h), when there are no arcs and no splatting.
+  template <typename Rewarm>
+  void PlotRound(General& g, const flame::Walkers& s, bool final_map, int n, int active,
+                 flame::Plotted& out, Rewarm& rewarm);
   // The fast path (UsesFastPath): the walk kernels of core/affine_walk.h
   // write into per-thread TileBins. Same random streams and arithmetic as
   // RunChunk, so the same counts.
@@ -267,6 +272,10 @@ class ChaosGame {
   // walkers per chunk (kWalkers for affine maps, flame::kMaxWalkers else).
   FlameProgram program_;
   flame::RoundFn flame_round_ = nullptr;
+  // The plot kernel and its target; null where Plot's scalar loop runs
+  // (arcs, splatting).
+  flame::PlotFn flame_plot_ = nullptr;
+  flame::PlotTarget plot_target_;
   int flame_walkers_ = kWalkers;
   // The chain as flat tables for the fast path (walk::ChainTables).
   struct FlatChain {
@@ -274,5 +283,11 @@ class ChaosGame {
   };
   std::optional<FlatChain> flat_chain_;
 };
+
+/// @brief What ChaosGame's Plot computes for points without arcs or
+/// splatting, as the plot kernels' data (core/chaos/flame_plot.h): the
+/// grid's bounds or the picture's projection, and how a voxel packs into
+/// the keys of `grid`, a counter grid of `p`'s CountResolution().
+flame::PlotTarget MakePlotTarget(const ChaosGameParams& p, const CountGrid& grid);
 
 }  // namespace nimbus

@@ -65,4 +65,16 @@ flame::RoundFn FlameKernel(SimdLevel level) {
   return &flame::RoundScalar;
 }
 
+flame::PlotFn FlamePlotter(SimdLevel level) {
+  switch (std::min(level, DetectSimd())) {
+    case SimdLevel::kAvx512:
+      return &flame::PlotAvx512;
+    case SimdLevel::kAvx2:
+      return &flame::PlotAvx2;
+    case SimdLevel::kScalar:
+      break;
+  }
+  return &flame::PlotScalar;
+}
+
 }  // namespace nimbus

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "core/base/cpu_dispatch.h"
+#include "core/chaos/flame_plot.h"
 #include "core/chaos/flame_walk.h"
 #include "core/chaos/point_map.h"
 
@@ -46,5 +47,8 @@ class FlameProgram {
 
 /// The kernel for a SIMD level (never above what the CPU has).
 flame::RoundFn FlameKernel(SimdLevel level);
+/// The plot kernel for a SIMD level (never above what the CPU has); all
+/// levels compute the same keys.
+flame::PlotFn FlamePlotter(SimdLevel level);
 
 }  // namespace nimbus

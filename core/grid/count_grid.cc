@@ -54,46 +54,6 @@ uint32_t* CountGrid::Allocate(uint64_t tile) {
   return table_[tile].get();
 }
 
-void CountGrid::AddKeys(const uint64_t* keys, size_t n, std::vector<uint64_t>& scratch,
-                        bool weighted) {
-  // Small batches or tiny grids gain nothing from binning.
-  if (n < 4096 || table_.size() <= 8) {
-    for (size_t i = 0; i < n; ++i) AddKey(keys[i]);
-    return;
-  }
-  // One counting-sort pass on the tile index, bucketed to at most 1024 bins,
-  // then apply bin by bin: each bin touches few tiles, which stay in L2.
-  const size_t tiles = table_.size();
-  int shift = 0;
-  while ((tiles >> shift) > 1024) ++shift;
-  const size_t bins = (tiles >> shift) + 1;
-  const int bin_shift = 15 + shift;
-  offsets_.assign(bins + 1, 0);
-  for (size_t i = 0; i < n; ++i) offsets_[((keys[i] & kVoxelMask) >> bin_shift) + 1]++;
-  for (size_t b = 0; b < bins; ++b) offsets_[b + 1] += offsets_[b];
-  if (scratch.size() < n) scratch.resize(n);
-  cursor_.assign(offsets_.begin(), offsets_.end() - 1);
-  for (size_t i = 0; i < n; ++i) scratch[cursor_[(keys[i] & kVoxelMask) >> bin_shift]++] = keys[i];
-  if (with_color_) {
-    for (size_t i = 0; i < n; ++i) AddKey(scratch[i]);
-    return;
-  }
-  // Count-only fast path: resolve the tile once per run of equal tiles.
-  size_t i = 0;
-  while (i < n) {
-    const uint64_t tile = (scratch[i] & kVoxelMask) >> 15;
-    uint32_t* t = TileFor(tile);
-    size_t j = i;
-    if (weighted) {
-      for (; j < n && ((scratch[j] & kVoxelMask) >> 15) == tile; ++j)
-        t[scratch[j] & 0x7fff] += WeightOf(scratch[j]);
-    } else {
-      for (; j < n && (scratch[j] >> 15) == tile; ++j) t[scratch[j] & 0x7fff]++;
-    }
-    i = j;
-  }
-}
-
 uint32_t CountGrid::Get(int x, int y, int z) const {
   const uint64_t key = Key(x, y, z);
   const auto& t = table_[key >> 15];

@@ -116,15 +116,13 @@ class CountGrid {
     if (with_color_) ColorTileFor(tile)[off] += uint64_t(add) * (key >> kColorShift);
   }
   void Add(int x, int y, int z, uint32_t n = 1) { AddKey(Key(x, y, z), n); }
-  /// Adds a batch of keys. Keys are binned by tile first so each tile's
-  /// increments run in cache; `scratch` is reused between calls. Pass
-  /// `weighted` if any key carries a weight or colour.
-  void AddKeys(const uint64_t* keys, size_t n, std::vector<uint64_t>& scratch,
-               bool weighted = true);
 
   /// The counters of tile `tile` (allocated on first use), indexed by
   /// LocalOffset: for writers that bin their own increments.
   uint32_t* MutableTile(uint64_t tile) { return TileFor(tile); }
+  /// The colour sums of tile `tile`, after MutableTile(tile) allocated it;
+  /// nullptr without colour.
+  uint64_t* MutableColorTile(uint64_t tile) { return with_color_ ? ColorTileFor(tile) : nullptr; }
 
   uint32_t Get(int x, int y, int z) const;
   /// Sum of the colour coordinates (units of 1/kColorScale); 0 without colour.
@@ -281,7 +279,6 @@ class CountGrid {
 
   std::vector<TilePtr<uint32_t>> table_;
   std::vector<TilePtr<uint64_t>> color_;    // parallel to table_ when with_color_
-  std::vector<uint32_t> offsets_, cursor_;  // AddKeys binning, reused
   size_t allocated_ = 0;
   size_t tile_limit_ = 0;
   bool overflowed_ = false;

@@ -1,0 +1,70 @@
+// Deferred CountGrid keys binned by tile: the write side of the general
+// (flame, chain, splatting, colour) chaos-game path.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include "core/grid/count_grid.h"
+
+namespace nimbus {
+
+/// @brief Collects whole CountGrid keys (voxel, weight and colour bits) in
+/// per-tile bins as they are produced and applies them bin by bin, so a
+/// tile's counters and colour sums are pulled into L2 once per flush and
+/// then take thousands of increments, with the tile pointers resolved once
+/// per run of keys of one tile: no sorting pass. Keys live in blocks from a
+/// fixed pool (as TileBins' entries do); when the pool runs out every bin
+/// is applied and the pool starts over. Counts and colour sums are integer
+/// sums, so the order of application changes nothing.
+///
+/// Not thread-safe: one per thread, each over its thread's CountGrid.
+class KeyBins {
+ public:
+  /// At most this many bins; larger grids put 2^shift tiles in a bin.
+  static constexpr uint32_t kMaxBins = 32768;
+
+  /// `capacity`: keys buffered before a flush (at least one block).
+  /// `weighted`: keys may carry a weight (CountGrid::WithWeight).
+  KeyBins(CountGrid& grid, size_t capacity, bool weighted);
+
+  void Add(uint64_t key) {
+    const uint32_t bin = uint32_t((key & CountGrid::kVoxelMask) >> shift_);
+    Cursor& c = cursors_[bin];
+    if (c.tail == c.end) [[unlikely]]
+      Refill(bin);
+    *c.tail++ = key;
+  }
+  /// Applies every buffered key to the grid.
+  void Flush();
+
+  /// Bytes held: the pool and the bookkeeping.
+  uint64_t MemoryBytes() const;
+  /// What MemoryBytes() will be for a grid of `resolution` and `capacity`.
+  static uint64_t Bytes(Int3 resolution, size_t capacity);
+
+ private:
+  struct Cursor {
+    uint64_t* tail = nullptr;
+    uint64_t* end = nullptr;
+  };
+  static uint32_t BlockSize(size_t capacity, size_t bins);
+  // Gives `bin` a fresh block, flushing everything first if the pool is empty.
+  void Refill(uint32_t bin);
+  void Apply(const uint64_t* begin, const uint64_t* end);
+
+  CountGrid& grid_;
+  bool weighted_ = false;
+  uint32_t shift_ = 15;  // key bits below the bin index
+  uint32_t block_ = 0;   // keys per block
+  uint32_t blocks_ = 0;  // blocks in the pool
+  uint32_t used_ = 0;    // blocks handed out since the last flush
+  std::unique_ptr<uint64_t[]> pool_;
+  std::vector<int32_t> next_;         // per block: the bin's next block, or -1
+  std::vector<int32_t> head_, last_;  // per bin: first and current block, or -1
+  std::vector<Cursor> cursors_;
+};
+
+}  // namespace nimbus
