@@ -80,6 +80,38 @@ BENCHMARK(BM_FernVolume1024)
     ->UseRealTime()
     ->Iterations(1);
 
+// The fast path's two sinks, voxels incremented at once (1) or binned by
+// tile first (0), on attractors of growing extent, 2 threads, the best SIMD
+// level: where ChaosGame's kDirectTiles should sit. Arguments: attractor
+// (0 tetrahedron, 1 fern, 2 octant cloud), resolution, sink. `tiles` is the
+// pilot's estimate of the tiles touched, which picks the sink by default.
+void BM_FastPathSink(benchmark::State& state) {
+  const int res = int(state.range(1));
+  const uint64_t n = uint64_t{1} << 26;
+  ChaosGameParams p = state.range(0) == 0   ? SierpinskiTetrahedronParams(res, n)
+                      : state.range(0) == 1 ? FernVolumeParams(res, n)
+                                            : OctantCloudParams(res, n);
+  p.direct_increments = state.range(2) != 0;
+  for (auto _ : state) {
+    auto game = ChaosGame::Create(p, 2);
+    if (!game.ok()) return state.SkipWithError("create failed");
+    (void)(*game)->Run(nullptr);
+    benchmark::DoNotOptimize((*game)->TakeCounts().AllocatedTiles());
+  }
+  state.SetItemsProcessed(int64_t(state.iterations() * p.iterations));
+  if (auto census = ChaosGame::Pilot(p, uint64_t{1} << 18, nullptr); census.ok())
+    state.counters["tiles"] = double(census->estimate);
+  if (auto bricks = ChaosGame::Pilot(p, uint64_t{1} << 18, nullptr, {8, 8, 8}); bricks.ok())
+    state.counters["hot_bytes"] = double(bricks->estimate * 512 * sizeof(uint32_t));
+}
+BENCHMARK(BM_FastPathSink)
+    ->ArgsProduct({{0}, {256, 512, 1024}, {0, 1}})
+    ->ArgsProduct({{1}, {256, 512}, {0, 1}})
+    ->ArgsProduct({{2}, {128, 256}, {0, 1}})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->Iterations(1);
+
 // bench/compare_flam3.sh's six-variation 2D flame (swirl, spherical, julia,
 // sinusoidal, bubble, polar) at 1024 x 1024 x 1 with colour by map: the
 // flame kernels at each SIMD level.

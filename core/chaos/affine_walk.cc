@@ -65,6 +65,13 @@ inline void Step(const AffineWalk& k, Walkers& w, int l) {
   const uint32_t tile = ((ix >> 5) * k.tiles_y + (iy >> 5)) * k.tiles_z + (iz >> 5);
   const uint32_t leaf = (((ix >> 3) & 3) << 4) | (((iy >> 3) & 3) << 2) | ((iz >> 3) & 3);
   const uint32_t local = (leaf << 9) | ((ix & 7) << 6) | ((iy & 7) << 3) | (iz & 7);
+  if (k.tiles) {
+    uint32_t* counts = k.tiles[tile];
+    if (!counts) [[unlikely]]
+      counts = k.allocate(k.owner, tile);
+    ++counts[local];
+    return;
+  }
   const uint32_t bin = tile >> k.bin_shift;
   const uint32_t entry = ((tile & ((1u << k.bin_shift) - 1)) << 15) | local;
   BinCursor& cur = k.bins[bin];

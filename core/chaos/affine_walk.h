@@ -46,9 +46,10 @@ struct BinCursor {
   uint32_t* end = nullptr;
 };
 
-/// @brief What the kernels read. Points are binned by tile: bin = tile >>
-/// bin_shift, and a bin entry is (tile & (2^bin_shift - 1)) << 15 | the
-/// voxel's offset in its tile (CountGrid::LocalOffset).
+/// @brief What the kernels read. Points either increment their voxel at once
+/// (direct mode: `tiles` set) or are binned by tile: bin = tile >> bin_shift,
+/// and a bin entry is (tile & (2^bin_shift - 1)) << 15 | the voxel's offset
+/// in its tile (CountGrid::LocalOffset).
 struct AffineWalk {
   const double* coef = nullptr;         // 12 per map: the rows of [A | b]
   const uint32_t* threshold = nullptr;  // alias table (AliasTable); unused with a chain
@@ -65,7 +66,11 @@ struct AffineWalk {
   /// (y >> fold_shift, z + (y & fold_mask)). 0 and 0 for a volume.
   uint32_t fold_mask = 0, fold_shift = 0;
   BinCursor* bins = nullptr;
+  /// Direct mode: tiles[t] is tile t's counters, null until `allocate`
+  /// returns them (and stores them in tiles[t]).
+  uint32_t** tiles = nullptr;
   void* owner = nullptr;
+  uint32_t* (*allocate)(void* owner, uint32_t tile) = nullptr;
   /// bins[bin] is full (or has no block yet): give it room for one entry.
   void (*refill)(void* owner, uint32_t bin) = nullptr;
   /// The lane's new point is not finite, or is to be plotted but lies
@@ -97,6 +102,38 @@ inline void PushLanes(const AffineWalk& k, int g, int n, int plot, int finite, i
     if (cur.tail == cur.end) [[unlikely]]
       k.refill(k.owner, bin[l]);
     *cur.tail++ = entry[l];
+  }
+}
+
+// Exits of lanes [g, g + n): the lanes not plotted whose point is not
+// finite, and the plotted ones outside the grid.
+inline void ExitLanes(const AffineWalk& k, int g, int n, int plot, int finite, int inside) {
+  const int all = (1 << n) - 1;
+  int out = ((plot & ~inside) | (~plot & ~finite)) & all;
+  for (; out; out &= out - 1) k.exit(k.owner, g + __builtin_ctz(unsigned(out)));
+}
+
+// Direct mode's last stage: each lane plotted inside the grid increments
+// its voxel (tile[l], local[l]) where it lies; the rest may exit.
+inline void AddLanes(const AffineWalk& k, int g, int n, int plot, int finite, int inside,
+                     const uint32_t* tile, const uint32_t* local) {
+  const int all = (1 << n) - 1;
+  if ((plot & inside & all) != all) [[unlikely]] {
+    ExitLanes(k, g, n, plot, finite, inside);
+    for (int l = 0; l < n; ++l) {
+      if (!((plot & inside) >> l & 1)) continue;
+      uint32_t* t = k.tiles[tile[l]];
+      if (!t) [[unlikely]]
+        t = k.allocate(k.owner, tile[l]);
+      ++t[local[l]];
+    }
+    return;
+  }
+  for (int l = 0; l < n; ++l) {
+    uint32_t* t = k.tiles[tile[l]];
+    if (!t) [[unlikely]]
+      t = k.allocate(k.owner, tile[l]);
+    ++t[local[l]];
   }
 }
 

@@ -194,6 +194,13 @@ void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
                        _mm_or_si128(_mm_or_si128(_mm_slli_epi32(_mm_and_si128(ix, seven), 6),
                                                  _mm_slli_epi32(_mm_and_si128(iy, seven), 3)),
                                     _mm_and_si128(iz, seven)));
+      if (k.tiles) {
+        alignas(16) uint32_t tiles[4], locals[4];
+        _mm_store_si128(reinterpret_cast<__m128i*>(tiles), tile);
+        _mm_store_si128(reinterpret_cast<__m128i*>(locals), local);
+        AddLanes(k, g, 4, plot, finite, inside, tiles, locals);
+        continue;
+      }
       alignas(16) uint32_t bin[4], entry[4];
       _mm_store_si128(reinterpret_cast<__m128i*>(bin), _mm_srl_epi32(tile, bin_shift));
       _mm_store_si128(reinterpret_cast<__m128i*>(entry),

@@ -36,6 +36,37 @@ inline __m512i Gather64(const uint64_t* table, __m512i index) {
 inline __m512i Load(const uint64_t* p) { return _mm512_load_si512(p); }
 inline void Store(uint64_t* p, __m512i v) { _mm512_store_si512(p, v); }
 
+// Direct mode's last stage for lanes [g, g + 8): the tiles' pointers by one
+// gather, the counters' addresses prefetched, and the increments deferred
+// by one round (`pending`, applied here a round later and at the end of
+// the walk): the counter's line then has a round's time to arrive, where
+// an increment at once stalls the walk on its miss. Counts are sums, so
+// their order is free. Lanes that add nothing increment `discard`.
+inline void AddLanes8(const AffineWalk& k, int g, __mmask8 plot, __mmask8 finite,
+                      __mmask8 inside, __m256i tile, __m256i local, uint32_t** pending,
+                      uint32_t* discard) {
+  const __mmask8 add = plot & inside;
+  if (const __mmask8 out = (plot & ~inside) | (~plot & ~finite)) [[unlikely]]
+    for (unsigned m = out; m; m &= m - 1) k.exit(k.owner, g + __builtin_ctz(m));
+  const __m512i none = _mm512_setzero_si512();
+  const auto* table = reinterpret_cast<const long long*>(k.tiles);
+  __m512i ptr = _mm512_mask_i32gather_epi64(none, add, tile, table, 8);
+  if (const __mmask8 missing = _mm512_mask_cmpeq_epi64_mask(add, ptr, none)) [[unlikely]] {
+    alignas(32) uint32_t t[8];
+    _mm256_store_si256(reinterpret_cast<__m256i*>(t), tile);
+    for (unsigned m = missing; m; m &= m - 1) k.allocate(k.owner, t[__builtin_ctz(m)]);
+    ptr = _mm512_mask_i32gather_epi64(none, add, tile, table, 8);
+  }
+  const __m512i addr = _mm512_mask_blend_epi64(
+      add, _mm512_set1_epi64(reinterpret_cast<long long>(discard)),
+      _mm512_add_epi64(ptr, _mm512_slli_epi64(_mm512_cvtepu32_epi64(local), 2)));
+  alignas(64) uint32_t* a[8];
+  _mm512_store_si512(a, addr);
+  for (int l = 0; l < 8; ++l) _mm_prefetch(reinterpret_cast<const char*>(a[l]), _MM_HINT_T0);
+  for (int l = 0; l < 8; ++l) ++*pending[g + l];
+  _mm512_store_si512(pending + g, addr);
+}
+
 template <Lookup kLookup, bool kChain>
 void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
   Tables tab;
@@ -69,6 +100,9 @@ void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
   const __m256i fold_mask = _mm256_set1_epi32(int(k.fold_mask));
   const __m128i fold_shift = _mm_cvtsi32_si128(int(k.fold_shift));
 
+  uint32_t discard = 0;
+  alignas(64) uint32_t* pending[kLanes];
+  for (uint32_t*& p : pending) p = &discard;
   for (uint64_t s = 0; s < steps; ++s) {
     for (int g = 0; g < kLanes; g += 8) {
       // xoshiro256++, eight streams.
@@ -164,6 +198,10 @@ void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
           _mm256_or_si256(_mm256_or_si256(_mm256_slli_epi32(_mm256_and_si256(ix, seven), 6),
                                           _mm256_slli_epi32(_mm256_and_si256(iy, seven), 3)),
                           _mm256_and_si256(iz, seven)));
+      if (k.tiles) {
+        AddLanes8(k, g, plot, finite, inside, tile, local, pending, &discard);
+        continue;
+      }
       alignas(32) uint32_t bin[8], entry[8];
       _mm256_store_si256(reinterpret_cast<__m256i*>(bin), _mm256_srl_epi32(tile, bin_shift));
       _mm256_store_si256(
@@ -172,6 +210,7 @@ void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
       PushLanes(k, g, 8, plot, finite, inside, bin, entry);
     }
   }
+  for (uint32_t* p : pending) ++*p;  // the last round's increments
 }
 
 template <bool kChain>

@@ -31,6 +31,7 @@ Vec3 RandomPoint(Rng& rng, const Bounds& b) {
 uint64_t ReachableTiles(const ChaosGameParams& p);
 size_t BufferEntries(const ChaosGameParams& p, uint64_t reachable_tiles);
 uint64_t PoolTiles(const ChaosGameParams& p, bool fast);
+bool DirectIncrements(const ChaosGameParams& p, uint64_t pool_tiles);
 }  // namespace
 
 struct ChaosGame::Worker {
@@ -140,12 +141,14 @@ absl::StatusOr<std::unique_ptr<ChaosGame>> ChaosGame::Create(ChaosGameParams par
     game->plot_target_ = MakePlotTarget(p, game->counts_[0]);
   }
   // Buffers sized once, never above what EstimateMemory counted.
-  const size_t entries = BufferEntries(p, PoolTiles(p, game->fast_));
+  const uint64_t pool_tiles = PoolTiles(p, game->fast_);
+  const size_t entries = BufferEntries(p, pool_tiles);
+  const bool direct = game->fast_ && DirectIncrements(p, pool_tiles);
   for (int t = 0; t < game->threads_; ++t) {
     auto w = std::make_unique<Worker>();
     w->grid = &game->counts_[t];
     if (game->fast_)
-      w->bins = std::make_unique<TileBins>(game->counts_[t], entries);
+      w->bins = std::make_unique<TileBins>(game->counts_[t], entries, direct);
     else
       w->keys = std::make_unique<KeyBins>(game->counts_[t], entries, p.splat);
     game->workers_.push_back(std::move(w));
@@ -237,6 +240,28 @@ uint64_t PoolTiles(const ChaosGameParams& p, bool fast) {
   return std::min(reachable, census->estimate);
 }
 
+// Whether the fast path increments voxels at once (TileBins' direct mode)
+// rather than binning them: when the attractor's hot counters fit in the
+// caches, binning only adds a write and a read of every point. Hot bytes
+// are estimated by a pilot census of 8^3 bricks (2 KiB of counters each;
+// 8 x 8 x 1 on a thin grid), run only when few tiles are touched; short
+// jobs and pictures go by the tiles alone. Counts do not depend on the
+// choice, only speed does (bench/chaos_game_bench.cc, BM_FastPathSink).
+bool DirectIncrements(const ChaosGameParams& p, uint64_t pool_tiles) {
+  constexpr uint64_t kDirectTiles = 256;                // 32 MiB of tiles at most
+  constexpr uint64_t kDirectBytes = uint64_t{4} << 20;  // hot counters
+  constexpr uint64_t kPilotPoints = uint64_t{1} << 18;
+  if (p.direct_increments) return *p.direct_increments;
+  if (pool_tiles > kDirectTiles) return false;
+  if (p.image || p.iterations < 64 * kPilotPoints) return true;
+  const Int3 r = p.frame.resolution;
+  const Int3 brick{std::min(r.x, 8), std::min(r.y, 8), std::min(r.z, 8)};
+  auto census = ChaosGame::Pilot(p, kPilotPoints, nullptr, brick);
+  if (!census.ok()) return false;
+  const uint64_t brick_bytes = uint64_t(brick.x) * brick.y * brick.z * sizeof(uint32_t);
+  return census->estimate * brick_bytes <= kDirectBytes;
+}
+
 }  // namespace
 
 flame::PlotTarget MakePlotTarget(const ChaosGameParams& p, const CountGrid& grid) {
@@ -295,12 +320,14 @@ ChaosGameMemory ChaosGame::EstimateMemory(const ChaosGameParams& p, int threads,
 }
 
 absl::StatusOr<TileCensus> ChaosGame::Pilot(const ChaosGameParams& params, uint64_t samples,
-                                            Interrupter* interrupter) {
+                                            Interrupter* interrupter, Int3 cell) {
   ChaosGameParams p = params;
   p.image.reset();  // a census of the volume grid's tiles
+  p.direct_increments.reset();
   const Int3 r = params.frame.resolution;
   const Vec3 vs = params.frame.VoxelSize();
-  const Int3 span = CountGrid::TileSpan(r);  // voxels of the real grid per tile
+  // Voxels of the real grid per tile (or cell).
+  const Int3 span = cell.x > 0 ? cell : CountGrid::TileSpan(r);
   p.frame.resolution = {(r.x + span.x - 1) / span.x, (r.y + span.y - 1) / span.y,
                         (r.z + span.z - 1) / span.z};
   // Pilot voxel i covers exactly tile i of the real grid.
@@ -461,6 +488,9 @@ struct ChaosGame::FastChunk {
     lanes.state[l] = state;
   }
   static void Refill(void* self, uint32_t bin) { static_cast<FastChunk*>(self)->bins->Refill(bin); }
+  static uint32_t* Allocate(void* self, uint32_t tile) {
+    return static_cast<FastChunk*>(self)->bins->Allocate(tile);
+  }
   // RunChunk's advance: a non-finite point restarts the walker, a finite
   // one off the grid is counted.
   static void Exit(void* self, int l) {
@@ -517,6 +547,8 @@ void ChaosGame::RunChunkFast(uint64_t chunk, Worker& w) {
   k.bins = c.bins->cursors();
   k.owner = &c;
   k.refill = &FastChunk::Refill;
+  k.tiles = c.bins->tiles();
+  k.allocate = &FastChunk::Allocate;
   k.exit = &FastChunk::Exit;
 
   const uint64_t rounds = count / kWalkers;

@@ -101,6 +101,11 @@ struct ChaosGameParams {
   /// what the CPU has. Affine maps count the same at every level; maps with
   /// variations count the same for a given level (docs/chaos_game.md).
   std::optional<SimdLevel> simd;
+  /// Whether the fast path increments voxels as it goes (true) or bins
+  /// them by tile first (false); unset lets the engine choose by the tiles
+  /// the attractor touches. Counts are the same either way: for tests and
+  /// benchmarks.
+  std::optional<bool> direct_increments;
   /// Bytes the accumulation may hold (0: no limit). A run whose counters
   /// outgrow it stops with ResourceExhausted instead of exhausting the
   /// machine: the safety net behind EstimateMemory.
@@ -215,9 +220,10 @@ class ChaosGame {
   /// @brief Runs `samples` steps of `params` on a grid with one voxel per
   /// tile of the real grid and counts the tiles hit. Cheap (a 2048^3 job's
   /// pilot grid is 64^3); for jobs whose geometric bound is far above what a
-  /// thin attractor really touches.
+  /// thin attractor really touches. With `cell` set, counts cells of that
+  /// many voxels instead of tiles (the fast path's census of 8^3 bricks).
   static absl::StatusOr<TileCensus> Pilot(const ChaosGameParams& params, uint64_t samples,
-                                          Interrupter* interrupter);
+                                          Interrupter* interrupter, Int3 cell = {0, 0, 0});
   /// True when `params` take the fast path: affine maps (drawn
   /// independently or by a chain), no final transform, colour or splatting
   /// (core/affine_walk.h).

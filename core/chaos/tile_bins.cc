@@ -1,7 +1,11 @@
 #include "core/chaos/tile_bins.h"
 
+#include <sys/mman.h>
+
 #include <algorithm>
 #include <bit>
+#include <cstdlib>
+#include <new>
 
 namespace nimbus {
 
@@ -25,14 +29,28 @@ uint32_t TileBins::BlockSize(size_t capacity, size_t bins) {
   return uint32_t(std::clamp<uint64_t>(std::bit_floor(per), 256, 4096));
 }
 
-TileBins::TileBins(CountGrid& grid, size_t capacity) : grid_(grid) {
+TileBins::TileBins(CountGrid& grid, size_t capacity, bool direct)
+    : grid_(grid), direct_(direct) {
   const uint64_t tiles = TileCount(grid.resolution());
+  if (direct) {
+    // All null: the first visit of a tile asks the grid, which returns the
+    // tile it may already hold.
+    tiles_.assign(tiles, nullptr);
+    return;
+  }
   shift_ = ShiftFor(tiles);
   const size_t bins = size_t(((tiles - 1) >> shift_) + 1);
   block_ = BlockSize(capacity, bins);
   blocks_ = uint32_t(std::max<size_t>(capacity / block_, 1));
-  // Not value-initialised: pages are touched only as blocks fill.
-  pool_.reset(new uint32_t[size_t(blocks_) * block_]);
+  // Not value-initialised: pages are touched only as blocks fill. A pool of
+  // thousands of bins writes to as many pages at once: huge pages spare the
+  // TLB (a hint; without THP it keeps 4 KiB pages).
+  const size_t bytes = size_t(blocks_) * block_ * sizeof(uint32_t);
+  constexpr size_t kHuge = size_t{2} << 20;
+  const size_t rounded = (bytes + kHuge - 1) / kHuge * kHuge;
+  pool_.reset(static_cast<uint32_t*>(std::aligned_alloc(kHuge, rounded)));
+  if (!pool_) throw std::bad_alloc();
+  if (rounded > kHuge) madvise(pool_.get(), rounded, MADV_HUGEPAGE);
   next_.assign(blocks_, -1);
   head_.assign(bins, -1);
   last_.assign(bins, -1);
@@ -50,6 +68,11 @@ void TileBins::Refill(uint32_t bin) {
   next_[block] = -1;
   uint32_t* begin = pool_.get() + size_t(block) * block_;
   cursors_[bin] = {begin, begin + block_};
+}
+
+uint32_t* TileBins::Allocate(uint32_t tile) {
+  // Past the grid's tile limit this is its scratch tile, as Apply would use.
+  return tiles_[tile] = grid_.MutableTile(tile);
 }
 
 void TileBins::Apply(uint32_t bin, const uint32_t* begin, const uint32_t* end) {
@@ -84,13 +107,15 @@ void TileBins::Flush() {
 }
 
 uint64_t TileBins::MemoryBytes() const {
+  if (direct_) return tiles_.capacity() * sizeof(uint32_t*);
   return uint64_t(blocks_) * block_ * sizeof(uint32_t) + next_.capacity() * sizeof(int32_t) +
          (head_.capacity() + last_.capacity()) * sizeof(int32_t) +
          cursors_.capacity() * sizeof(walk::BinCursor);
 }
 
-uint64_t TileBins::Bytes(Int3 resolution, size_t capacity) {
+uint64_t TileBins::Bytes(Int3 resolution, size_t capacity, bool direct) {
   const uint64_t tiles = TileCount(resolution);
+  if (direct) return tiles * sizeof(uint32_t*);
   const uint64_t bins = ((tiles - 1) >> ShiftFor(tiles)) + 1;
   const uint32_t block = BlockSize(capacity, bins);
   const uint64_t blocks = std::max<uint64_t>(capacity / block, 1);

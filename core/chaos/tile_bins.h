@@ -4,6 +4,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <cstdlib>
 #include <memory>
 #include <vector>
 
@@ -19,18 +20,30 @@ namespace nimbus {
 /// blocks from a fixed pool; when the pool runs out every bin is applied and
 /// the pool starts over. Memory is fixed at construction.
 ///
+/// In direct mode there are no bins: the kernels increment each voxel as
+/// they go through a table of the grid's tile pointers. That wins when the
+/// cache lines the attractor touches fit in the caches (a few hundred tiles
+/// at most), where binning only adds a write and a read of every entry.
+///
 /// Not thread-safe: one per thread, each over its thread's CountGrid.
 class TileBins {
  public:
   /// At most this many bins; larger grids put 2^shift tiles in a bin.
   static constexpr uint32_t kMaxBins = 32768;
 
-  /// `capacity`: entries buffered before a flush (at least one block).
-  TileBins(CountGrid& grid, size_t capacity);
+  /// `capacity`: entries buffered before a flush (at least one block);
+  /// unused in direct mode.
+  TileBins(CountGrid& grid, size_t capacity, bool direct = false);
 
   /// Cursors for walk::AffineWalk::bins and the shift that goes with them.
   walk::BinCursor* cursors() { return cursors_.data(); }
   uint32_t bin_shift() const { return shift_; }
+
+  /// Direct mode's table for walk::AffineWalk::tiles (null otherwise):
+  /// tile t's counters, or null until Allocate(t).
+  uint32_t** tiles() { return direct_ ? tiles_.data() : nullptr; }
+  /// Tile t's counters, allocated if need be (walk::AffineWalk::allocate).
+  uint32_t* Allocate(uint32_t tile);
 
   /// Gives `bin` a fresh block, flushing everything first if the pool is
   /// empty (walk::AffineWalk::refill).
@@ -41,7 +54,7 @@ class TileBins {
   /// Bytes held: the pool and the bookkeeping.
   uint64_t MemoryBytes() const;
   /// What MemoryBytes() will be for a grid of `resolution` and `capacity`.
-  static uint64_t Bytes(Int3 resolution, size_t capacity);
+  static uint64_t Bytes(Int3 resolution, size_t capacity, bool direct = false);
 
  private:
   static uint32_t BlockSize(size_t capacity, size_t bins);
@@ -52,10 +65,15 @@ class TileBins {
   uint32_t block_ = 0;   // entries per block
   uint32_t blocks_ = 0;  // blocks in the pool
   uint32_t used_ = 0;    // blocks handed out since the last flush
-  std::unique_ptr<uint32_t[]> pool_;
+  struct Free {
+    void operator()(uint32_t* p) const { std::free(p); }
+  };
+  std::unique_ptr<uint32_t[], Free> pool_;
   std::vector<int32_t> next_;         // per block: the bin's next block, or -1
   std::vector<int32_t> head_, last_;  // per bin: first and current block, or -1
   std::vector<walk::BinCursor> cursors_;
+  bool direct_ = false;
+  std::vector<uint32_t*> tiles_;  // direct mode: a copy of the grid's table
 };
 
 }  // namespace nimbus

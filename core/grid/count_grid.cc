@@ -42,16 +42,16 @@ uint32_t* CountGrid::Allocate(uint64_t tile) {
   if (tile_limit_ > 0 && allocated_ >= tile_limit_) {
     overflowed_ = true;
     if (!spill_) {
-      spill_ = ZeroTile<uint32_t>();
+      spill_ = static_cast<uint32_t*>(arena_.Allocate());
       if (with_color_) spill_color_ = ZeroTile<uint64_t>();
     }
-    return spill_.get();
+    return spill_;
   }
-  table_[tile] = ZeroTile<uint32_t>();
+  table_[tile] = static_cast<uint32_t*>(arena_.Allocate());
   if (with_color_) color_[tile] = ZeroTile<uint64_t>();
-  if (!table_[tile] || (with_color_ && !color_[tile])) throw std::bad_alloc();
+  if (with_color_ && !color_[tile]) throw std::bad_alloc();
   ++allocated_;
-  return table_[tile].get();
+  return table_[tile];
 }
 
 uint32_t CountGrid::Get(int x, int y, int z) const {
@@ -70,7 +70,7 @@ uint64_t CountGrid::GetColorSum(int x, int y, int z) const {
 void CountGrid::Merge(const CountGrid& other) {
   for (size_t t = 0; t < other.table_.size(); ++t) {
     if (!other.table_[t]) continue;
-    AddTile(t, other.table_[t].get(), other.with_color_ ? other.color_[t].get() : nullptr);
+    AddTile(t, other.table_[t], other.with_color_ ? other.color_[t].get() : nullptr);
   }
 }
 
@@ -80,7 +80,7 @@ void CountGrid::AddTile(uint64_t t, const uint32_t* src, const uint64_t* colors)
     uint64_t* dst = color_[t].get();
     for (int i = 0; i < kTileVoxels; ++i) dst[i] += colors[i];
   }
-  uint32_t* dst = table_[t].get();
+  uint32_t* dst = table_[t];
   for (int i = 0; i < kTileVoxels; ++i) {
     const uint64_t s = uint64_t(dst[i]) + src[i];
     dst[i] = s > std::numeric_limits<uint32_t>::max() ? std::numeric_limits<uint32_t>::max()

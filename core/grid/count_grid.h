@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "core/base/geometry.h"
+#include "core/grid/tile_arena.h"
 
 namespace nimbus {
 
@@ -159,13 +160,13 @@ class CountGrid {
   template <typename F>
   void ForEachTile(F&& f) const {
     for (size_t t = 0; t < table_.size(); ++t)
-      if (table_[t]) f(TileOrigin(t), table_[t].get());
+      if (table_[t]) f(TileOrigin(t), table_[t]);
   }
   /// Same, with the tile's colour sums (nullptr without colour).
   template <typename F>
   void ForEachTileWithColor(F&& f) const {
     for (size_t t = 0; t < table_.size(); ++t)
-      if (table_[t]) f(TileOrigin(t), table_[t].get(), with_color_ ? color_[t].get() : nullptr);
+      if (table_[t]) f(TileOrigin(t), table_[t], with_color_ ? color_[t].get() : nullptr);
   }
   Int3 TileOrigin(size_t t) const {
     const int z = int(t % tiles_.z), y = int((t / tiles_.z) % tiles_.y),
@@ -244,10 +245,10 @@ class CountGrid {
 
  private:
   uint32_t* TileFor(uint64_t tile) {
-    auto& p = table_[tile];
+    uint32_t* p = table_[tile];
     if (!p) [[unlikely]]
       return Allocate(tile);
-    return p.get();
+    return p;
   }
   uint64_t* ColorTileFor(uint64_t tile) {
     auto& p = color_[tile];
@@ -265,8 +266,9 @@ class CountGrid {
   Int3 tiles_;  // of the stored layout
   uint32_t fold_shift_ = 0, fold_mask_ = 0;
   bool with_color_ = false;
-  // Tiles come from calloc: fresh pages are already zero, so a new tile
-  // costs no memset on top of the kernel's page clearing.
+  // Colour tiles (and counters, in the arena) come from fresh pages, which
+  // are already zero: a new tile costs no memset on top of the kernel's
+  // page clearing.
   struct Free {
     void operator()(void* p) const { std::free(p); }
   };
@@ -277,12 +279,15 @@ class CountGrid {
     return TilePtr<T>(static_cast<T*>(std::calloc(kTileVoxels, sizeof(T))));
   }
 
-  std::vector<TilePtr<uint32_t>> table_;
+  // Counters live in the arena (huge pages for large grids); colour sums,
+  // rare and twice the size, come from calloc.
+  TileArena arena_{kTileVoxels * sizeof(uint32_t)};
+  std::vector<uint32_t*> table_;
   std::vector<TilePtr<uint64_t>> color_;    // parallel to table_ when with_color_
   size_t allocated_ = 0;
   size_t tile_limit_ = 0;
   bool overflowed_ = false;
-  TilePtr<uint32_t> spill_;  // the scratch tile, once needed
+  uint32_t* spill_ = nullptr;  // the scratch tile, once needed
   TilePtr<uint64_t> spill_color_;
 };
 

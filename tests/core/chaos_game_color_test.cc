@@ -340,19 +340,21 @@ std::vector<SimdLevel> SimdLevelsOfThisCpu() {
   return levels;
 }
 
-// The fast path (affine_walk kernels into TileBins) at every SIMD level the
-// CPU has.
+// The fast path (affine_walk kernels into TileBins, binned or incremented
+// at once) at every SIMD level the CPU has.
 TEST(ChaosGameFastPath, MatchesTheReferenceLoopAtEverySimdLevel) {
   ChaosGameParams params = CroppedWithBlowUp(ChaosGame::kChunkIterations * 2 + 777);
   ASSERT_TRUE(ChaosGame::UsesFastPath(params));
-  for (SimdLevel level : SimdLevelsOfThisCpu()) {
-    SCOPED_TRACE(std::string(SimdName(level)));
-    params.simd = level;
-    ChaosGameStats stats;
-    ExpectMatchesReference(params, 2, &stats);
-    EXPECT_GT(stats.outside, params.iterations / 10);
-    EXPECT_GT(stats.reseeded, 1000u);
-  }
+  for (const bool direct : {false, true})
+    for (SimdLevel level : SimdLevelsOfThisCpu()) {
+      SCOPED_TRACE(std::string(SimdName(level)) + (direct ? " direct" : " binned"));
+      params.simd = level;
+      params.direct_increments = direct;
+      ChaosGameStats stats;
+      ExpectMatchesReference(params, 2, &stats);
+      EXPECT_GT(stats.outside, params.iterations / 10);
+      EXPECT_GT(stats.reseeded, 1000u);
+    }
 }
 
 // Each way of finding a map's coefficients in the AVX2 kernel (up to 4 maps:
@@ -373,17 +375,20 @@ TEST(ChaosGameFastPath, SimdLevelsAgreeForEveryMapCount) {
     params.ifs.probabilities.clear();
     for (int i = 0; i < maps; ++i) params.ifs.probabilities.push_back(1.0 + i);
     params.simd = SimdLevel::kScalar;
+    params.direct_increments = false;
     ChaosGameStats scalar_stats;
     const CountGrid scalar = RunGame(params, 1, &scalar_stats);
     EXPECT_GT(scalar.Total(), 0u);
-    for (SimdLevel level : SimdLevelsOfThisCpu()) {
-      SCOPED_TRACE(std::string(SimdName(level)));
-      params.simd = level;
-      ChaosGameStats stats;
-      const CountGrid got = RunGame(params, 2, &stats);
-      ExpectSameGrids(scalar, got);
-      EXPECT_EQ(scalar_stats.outside, stats.outside);
-    }
+    for (const bool direct : {false, true})
+      for (SimdLevel level : SimdLevelsOfThisCpu()) {
+        SCOPED_TRACE(std::string(SimdName(level)) + (direct ? " direct" : " binned"));
+        params.simd = level;
+        params.direct_increments = direct;
+        ChaosGameStats stats;
+        const CountGrid got = RunGame(params, 2, &stats);
+        ExpectSameGrids(scalar, got);
+        EXPECT_EQ(scalar_stats.outside, stats.outside);
+      }
   }
 }
 
@@ -421,14 +426,16 @@ TEST(ChaosGameFastPath, ChainsMatchTheGeneralPathAtEverySimdLevel) {
     EXPECT_GT(want.reseeded, 100u);
     EXPECT_GT(want.outside, 1000u);
 
-    for (SimdLevel level : SimdLevelsOfThisCpu()) {
-      SCOPED_TRACE(std::string(SimdName(level)));
-      params.simd = level;
-      ChaosGameStats got;
-      ExpectSameGrids(reference, RunGame(params, 2, &got));
-      EXPECT_EQ(got.reseeded, want.reseeded);
-      EXPECT_EQ(got.outside, want.outside);
-    }
+    for (const bool direct : {false, true})
+      for (SimdLevel level : SimdLevelsOfThisCpu()) {
+        SCOPED_TRACE(std::string(SimdName(level)) + (direct ? " direct" : " binned"));
+        params.simd = level;
+        params.direct_increments = direct;
+        ChaosGameStats got;
+        ExpectSameGrids(reference, RunGame(params, 2, &got));
+        EXPECT_EQ(got.reseeded, want.reseeded);
+        EXPECT_EQ(got.outside, want.outside);
+      }
   }
 }
 

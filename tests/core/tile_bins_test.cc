@@ -7,8 +7,10 @@
 #include <algorithm>
 #include <map>
 #include <tuple>
+#include <vector>
 
 #include "core/base/random.h"
+#include "core/grid/tile_arena.h"
 
 namespace nimbus {
 namespace {
@@ -63,6 +65,50 @@ TEST(TileBins, SeveralTilesPerBinOnHugeGrids) {
   CountGrid grid({2048, 2048, 2048});
   EXPECT_EQ(TileBins(grid, 1 << 16).bin_shift(), 3u);
   RunAndCompare({2048, 2048, 2048}, 1 << 16, 200'000);
+}
+
+TEST(TileBins, DirectModeHandsOutTheGridsTiles) {
+  CountGrid grid({100, 64, 64});
+  TileBins bins(grid, 1 << 16, /*direct=*/true);
+  ASSERT_NE(bins.tiles(), nullptr);
+  EXPECT_EQ(TileBins(grid, 1 << 16).tiles(), nullptr);  // binned: no table
+  const uint32_t t = uint32_t(grid.TileCount() - 1);
+  EXPECT_EQ(bins.tiles()[t], nullptr);
+  uint32_t* counts = bins.Allocate(t);
+  EXPECT_EQ(bins.tiles()[t], counts);
+  EXPECT_EQ(grid.MutableTile(t), counts);
+  ++counts[CountGrid::LocalOffset(1, 2, 3)];
+  const Int3 o = grid.TileOrigin(t);
+  EXPECT_EQ(grid.Get(o.x + 1, o.y + 2, o.z + 3), 1u);
+  bins.Flush();  // nothing buffered
+  EXPECT_EQ(grid.Total(), 1u);
+  EXPECT_EQ(bins.MemoryBytes(), TileBins::Bytes({100, 64, 64}, 1 << 16, true));
+  EXPECT_LT(bins.MemoryBytes(), TileBins::Bytes({100, 64, 64}, 1 << 16));
+}
+
+// CountGrid's tiles come from a TileArena: zeroed, distinct, and spread over
+// several 2 MiB blocks once there are more than 16.
+TEST(TileArena, HandsOutZeroedDistinctTiles) {
+  constexpr size_t kBytes = CountGrid::kTileVoxels * sizeof(uint32_t);
+  TileArena arena(kBytes);
+  std::vector<uint32_t*> tiles;
+  for (int i = 0; i < 40; ++i) {
+    auto* t = static_cast<uint32_t*>(arena.Allocate());
+    ASSERT_EQ(uintptr_t(t) % kBytes, 0u);  // blocks are 2 MiB aligned
+    EXPECT_TRUE(std::all_of(t, t + CountGrid::kTileVoxels, [](uint32_t v) { return v == 0; }));
+    std::fill(t, t + CountGrid::kTileVoxels, uint32_t(i + 1));
+    tiles.push_back(t);
+  }
+  for (int i = 0; i < 40; ++i) EXPECT_EQ(tiles[size_t(i)][CountGrid::kTileVoxels - 1], i + 1u);
+  // Moving a grid moves its arena: the tiles stay valid, nothing is freed twice.
+  CountGrid a({256, 256, 256});
+  for (int x = 0; x < 256; x += 32) a.Add(x, 5, 7, 3);
+  CountGrid b = std::move(a);
+  a = CountGrid({64, 64, 64});
+  a.Add(1, 1, 1);
+  EXPECT_EQ(b.Total(), 24u);
+  EXPECT_EQ(b.Get(224, 5, 7), 3u);
+  EXPECT_EQ(a.Total(), 1u);
 }
 
 TEST(TileBins, MemoryIsFixedAndPredicted) {
