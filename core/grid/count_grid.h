@@ -125,6 +125,14 @@ class CountGrid {
   /// nullptr without colour.
   uint64_t* MutableColorTile(uint64_t tile) { return with_color_ ? ColorTileFor(tile) : nullptr; }
 
+  /// Read-only counters (colour sums) of tile `tile`, nullptr if never
+  /// allocated (or without colour): for readers that visit leaves in an
+  /// order of their own, e.g. a VDB tree's.
+  const uint32_t* TileOrNull(uint64_t tile) const { return table_[tile].get(); }
+  const uint64_t* ColorTileOrNull(uint64_t tile) const {
+    return with_color_ ? color_[tile].get() : nullptr;
+  }
+
   uint32_t Get(int x, int y, int z) const;
   /// Sum of the colour coordinates (units of 1/kColorScale); 0 without colour.
   uint64_t GetColorSum(int x, int y, int z) const;

@@ -6,6 +6,7 @@
 
 #include <filesystem>
 #include <string>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "core/base/geometry.h"
@@ -33,6 +34,17 @@ openvdb::GridPtrVecPtr ReadAllGrids(const std::filesystem::path& path);
 /// other failures INTERNAL. Removes the partial file on failure.
 absl::Status WriteGridsAtomically(const std::filesystem::path& path,
                                   const openvdb::GridPtrVec& grids);
+/// WriteDensityVdb and WriteIntegerCountsVdb by building every grid whole
+/// and writing them with OpenVDB's own writer: the path of downsampled
+/// results, and the reference the streamed writer (vdb_stream.h) must match
+/// byte for byte.
+absl::Status WriteBuiltDensityVdb(const std::filesystem::path& path, const CountGrid& counts,
+                                  const GridFrame& frame, const DensityOptions& options,
+                                  const Metadata& metadata,
+                                  const std::vector<Vec3Field>& fields = {});
+absl::Status WriteBuiltIntegerCountsVdb(const std::filesystem::path& path,
+                                        const CountGrid& counts, const GridFrame& frame,
+                                        const DensityOptions& options, const Metadata& metadata);
 /// Tests only: every later write fails with `error` (errno) once a file
 /// would grow past `fail_after_bytes`; -1 turns the fault off.
 void SetWriteFaultForTesting(int64_t fail_after_bytes, int error);

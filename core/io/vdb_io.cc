@@ -15,6 +15,7 @@
 #include <cstring>
 #include <fstream>
 #include <mutex>
+#include <optional>
 #include <sstream>
 #include <vector>
 
@@ -22,6 +23,7 @@
 #include "core/base/sha256.h"
 #include "core/io/metadata_keys.h"
 #include "core/io/vdb_internal.h"
+#include "core/io/vdb_stream.h"
 
 namespace nimbus {
 
@@ -191,18 +193,18 @@ class ArchiveWriter : public openvdb::io::Archive {
   }
 };
 
+using ArchiveFn = std::function<void(std::ostream&)>;
+
 // Writes the archive to `tmp`, fsyncs it and checks its size on disk.
 absl::Status WriteChecked(const std::filesystem::path& path, const std::filesystem::path& tmp,
-                          const openvdb::GridPtrVec& grids) {
+                          const ArchiveFn& write_archive) {
   const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   if (fd < 0) return WriteError(path, errno, "cannot create " + tmp.filename().string());
   CheckedFileBuf buf(fd);
   std::ostream os(&buf);
   absl::Status st;
   try {
-    ArchiveWriter archive;
-    archive.setCompression(openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK);
-    archive.WriteTo(os, grids);
+    write_archive(os);
     os.flush();
   } catch (const std::exception& e) {
     if (buf.error() == 0)
@@ -234,11 +236,14 @@ void SetWriteFaultForTesting(int64_t fail_after_bytes, int error) {
   g_fail_after = fail_after_bytes;
 }
 
-absl::Status WriteGridsAtomically(const std::filesystem::path& path,
-                                  const openvdb::GridPtrVec& grids) {
+namespace {
+// Writes an archive through a temporary file renamed into place (see
+// WriteGridsAtomically).
+absl::Status WriteArchiveAtomically(const std::filesystem::path& path,
+                                    const ArchiveFn& write_archive) {
   const std::filesystem::path tmp = path.string() + ".partial";
   std::error_code ec;
-  absl::Status st = WriteChecked(path, tmp, grids);
+  absl::Status st = WriteChecked(path, tmp, write_archive);
   // The UUID is stamped in place (36 bytes, no new blocks), then synced.
   if (st.ok()) st = StampContentUuid(tmp);
   if (st.ok()) {
@@ -256,6 +261,21 @@ absl::Status WriteGridsAtomically(const std::filesystem::path& path,
   }
   SyncDir(path.parent_path());
   return absl::OkStatus();
+}
+}  // namespace
+
+absl::Status WriteGridsAtomically(const std::filesystem::path& path,
+                                  const openvdb::GridPtrVec& grids) {
+  return WriteArchiveAtomically(path, [&](std::ostream& os) {
+    ArchiveWriter archive;
+    archive.setCompression(kArchiveCompression);
+    archive.WriteTo(os, grids);
+  });
+}
+
+absl::Status WriteStreamedAtomically(const std::filesystem::path& path,
+                                     const std::vector<GridProducer>& grids) {
+  return WriteArchiveAtomically(path, [&](std::ostream& os) { WriteStreamedArchive(os, grids); });
 }
 
 absl::Status StampContentUuid(const std::filesystem::path& path) {
@@ -538,8 +558,247 @@ openvdb::GridPtrVec BuildGrids(const CountGrid& counts, const GridFrame& fine_fr
   return out;
 }
 
+// ---- Results written leaf by leaf (no downsampling) ----
+//
+// The grids of a result are never built: each is a tree of buffer-less
+// leaves (the counts' topology) whose values are computed from the count
+// tiles leaf by leaf as the file is written, one grid after another
+// (vdb_stream.h). The bytes are those of BuildGrids' grids written whole.
+
+using vdb_internal::EncodedGrid;
+using vdb_internal::EncodeLeaves;
+using vdb_internal::GridProducer;
+
+// The 512 counters (and colour sums, when `cs`) of the voxel leaf at `o`,
+// in LeafNode order, as CountGrid::ForEachLeaf hands them out.
+void GatherLeaf(const CountGrid& counts, const openvdb::Coord& o, uint32_t* v, uint64_t* cs) {
+  if (!counts.folded()) {
+    // Unfolded, a voxel leaf is 512 consecutive counters of one tile.
+    const uint64_t key = counts.Key(o.x(), o.y(), o.z());
+    const uint64_t tile = key >> 15, off = key & 0x7fff;
+    std::memcpy(v, counts.TileOrNull(tile) + off, 512 * sizeof(uint32_t));
+    if (cs) std::memcpy(cs, counts.ColorTileOrNull(tile) + off, 512 * sizeof(uint64_t));
+    return;
+  }
+  // Folded, only the z = 0 slice exists, scattered over a tile's rows.
+  std::memset(v, 0, 512 * sizeof(uint32_t));
+  if (cs) std::memset(cs, 0, 512 * sizeof(uint64_t));
+  for (int i = 0; i < 8; ++i)
+    for (int k = 0; k < 8; ++k) {
+      const uint64_t key = counts.Key(o.x() + i, o.y() + k, 0);
+      const uint64_t tile = key >> 15, off = key & 0x7fff;
+      v[(i << 6) | (k << 3)] = counts.TileOrNull(tile)[off];
+      if (cs) cs[(i << 6) | (k << 3)] = counts.ColorTileOrNull(tile)[off];
+    }
+}
+
+// A tree of buffer-less leaves, one per leaf of counts, active where counted.
+template <typename TreeT>
+void AddCountLeaves(const CountGrid& counts, TreeT& tree) {
+  using LeafT = typename TreeT::LeafNodeType;
+  counts.ForEachLeaf([&](Int3 o, const uint32_t* v, const uint64_t*) {
+    typename LeafT::NodeMaskType mask;
+    for (int i = 0; i < 512; ++i)
+      if (v[i]) mask.setOn(i);
+    auto* leaf = new LeafT(openvdb::PartialCreate(), openvdb::Coord(o.x, o.y, o.z));
+    leaf->setValueMask(mask);
+    tree.addLeaf(leaf);
+  });
+}
+
+// A buffer-less copy of `from`'s leaves in another value type.
+template <typename TreeT>
+void CopyLeafMasks(const openvdb::FloatTree& from, TreeT& tree) {
+  using LeafT = typename TreeT::LeafNodeType;
+  for (auto it = from.cbeginLeaf(); it; ++it) {
+    auto* leaf = new LeafT(openvdb::PartialCreate(), it->origin());
+    leaf->setValueMask(it->getValueMask());
+    tree.addLeaf(leaf);
+  }
+}
+
+// What a streamed result writes, shared by its grid producers.
+struct StreamedResult {
+  const CountGrid& counts;
+  GridFrame frame;
+  const DensityOptions& options;
+  const Metadata& metadata;
+  Normaliser norm;
+  openvdb::FloatTree::Ptr topology;  // buffer-less, the density's leaves
+  bool color = false;
+
+  StreamedResult(const CountGrid& c, const GridFrame& f, const DensityOptions& o,
+                 const Metadata& m)
+      : counts(c), frame(f), options(o), metadata(m), norm(o, c.Max()),
+        topology(std::make_shared<openvdb::FloatTree>()),
+        color(o.color && c.has_color()) {
+    AddCountLeaves(counts, *topology);
+  }
+
+  // An empty grid of the result on the counts' topology, conventions applied.
+  template <typename GridT>
+  typename GridT::Ptr Grid(const std::string& name, openvdb::GridClass cls) const {
+    auto grid = NewGrid<GridT>(name, frame, cls);
+    CopyLeafMasks(*topology, grid->tree());
+    FinishGrid(*grid, frame, options.conventions, 1);
+    return grid;
+  }
+
+  // Encodes `grid` with value(count, colour sum) on each counted voxel,
+  // then finish(leaf) and chunk(leaves, n) as EncodeLeaves takes them.
+  template <typename GridT, typename Value, typename Finish, typename Chunk>
+  EncodedGrid Encode(typename GridT::Ptr grid, bool colors, const Value& value,
+                     const Finish& finish, const Chunk& chunk) const {
+    using LeafT = typename GridT::TreeType::LeafNodeType;
+    auto fill = [&](const LeafT&, LeafT& leaf) {
+      uint32_t v[512];
+      uint64_t cs[512];
+      GatherLeaf(counts, leaf.origin(), v, colors ? cs : nullptr);
+      for (int i = 0; i < 512; ++i)
+        if (v[i]) leaf.setValueOnly(i, value(v[i], colors ? cs[i] : 0));
+      finish(leaf);
+    };
+    return EncodeLeaves<GridT>(grid, fill, chunk);
+  }
+  template <typename GridT, typename Value>
+  EncodedGrid Encode(typename GridT::Ptr grid, bool colors, const Value& value) const {
+    return Encode<GridT>(grid, colors, value, [](auto&) {}, [](const auto*, size_t) {});
+  }
+
+  EncodedGrid Density() const;
+  std::vector<GridProducer> Producers(bool int64_counts) const;
+};
+
+EncodedGrid StreamedResult::Density() const {
+  auto grid = Grid<openvdb::FloatGrid>(options.grid_name, openvdb::GRID_FOG_VOLUME);
+  // nimbus_suggested_density sums the written densities in tree order,
+  // as SuggestedDensityOf reads them from a built grid.
+  double sum = 0;
+  auto modulate = [&](openvdb::FloatTree::LeafNodeType& leaf) {
+    if (options.modulation) Modulate(options.modulation, frame, leaf);
+  };
+  auto add = [&](const openvdb::FloatTree::LeafNodeType* leaves, size_t n) {
+    for (size_t j = 0; j < n; ++j)
+      for (auto it = leaves[j].cbeginValueOn(); it; ++it) sum += *it;
+  };
+  EncodedGrid out = Encode<openvdb::FloatGrid>(
+      grid, false, [&](uint32_t c, uint64_t) { return norm(c); }, modulate, add);
+  grid->insertMeta("nimbus_max_count", openvdb::Int64Metadata(int64_t(counts.Max())));
+  grid->insertMeta("nimbus_total_count", openvdb::Int64Metadata(int64_t(counts.Total())));
+  grid->insertMeta("nimbus_density_mapping", openvdb::StringMetadata(MappingName(options.mapping)));
+  if (options.mapping == DensityMapping::kGamma)
+    grid->insertMeta("nimbus_density_gamma", openvdb::DoubleMetadata(options.gamma));
+  if (color)
+    grid->insertMeta("nimbus_palette",
+                     openvdb::StringMetadata(options.palette.is_sine() ? "sine" : "stops"));
+  const uint64_t n = grid->activeVoxelCount();
+  const openvdb::Vec3d h = grid->voxelSize();
+  grid->insertMeta(meta_key::kSuggestedDensity,
+                   openvdb::DoubleMetadata(SuggestedDensity(
+                       n, n ? sum / double(n) : 0.0, std::cbrt(h.x() * h.y() * h.z()))));
+  for (const auto& [k, v] : metadata) AddMeta(*grid, k, v);
+  return out;
+}
+
+// The producers of BuildGrids' grids, in its order.
+std::vector<GridProducer> StreamedResult::Producers(bool int64_counts) const {
+  std::vector<GridProducer> out;
+  const double inv_scale = 1.0 / CountGrid::kColorScale;
+  auto coord = [inv_scale](uint32_t c, uint64_t cs) { return double(cs) * inv_scale / double(c); };
+  if (!int64_counts) out.push_back({options.grid_name, [this] { return Density(); }});
+  if (color && !int64_counts)
+    out.push_back({"Cd", [this, coord] {
+      auto g = Grid<openvdb::Vec3SGrid>("Cd", openvdb::GRID_UNKNOWN);
+      return Encode<openvdb::Vec3SGrid>(g, true, [&](uint32_t c, uint64_t cs) {
+        const Vec3 rgb = options.palette.Eval(coord(c, cs));
+        return openvdb::Vec3s(float(rgb.x), float(rgb.y), float(rgb.z));
+      });
+    }});
+  if (options.address_grid && counts.has_color() && !int64_counts)
+    out.push_back({"address", [this, coord] {
+      auto g = Grid<openvdb::FloatGrid>("address", openvdb::GRID_UNKNOWN);
+      return Encode<openvdb::FloatGrid>(
+          g, true, [&](uint32_t c, uint64_t cs) { return float(coord(c, cs)); });
+    }});
+  if (options.raw_counts != RawCounts::kNone && !int64_counts)
+    out.push_back({"counts", [this] {
+      auto g = Grid<openvdb::FloatGrid>("counts", openvdb::GRID_UNKNOWN);
+      return Encode<openvdb::FloatGrid>(g, false, [](uint32_t c, uint64_t) { return float(c); });
+    }});
+  if (int64_counts)
+    out.push_back({"counts", [this] {
+      auto g = Grid<openvdb::Int64Grid>("counts", openvdb::GRID_UNKNOWN);
+      g->insertMeta("nimbus_max_count", openvdb::Int64Metadata(int64_t(counts.Max())));
+      g->insertMeta("nimbus_total_count", openvdb::Int64Metadata(int64_t(counts.Total())));
+      for (const auto& [k, v] : metadata) AddMeta(*g, k, v);
+      return Encode<openvdb::Int64Grid>(g, false,
+                                        [](uint32_t c, uint64_t) { return int64_t(c); });
+    }});
+  return out;
+}
+
+// An in-memory grid as a producer's output: its leaves copied as they are.
+template <typename GridT>
+EncodedGrid EncodeBuilt(typename GridT::Ptr grid) {
+  using LeafT = typename GridT::TreeType::LeafNodeType;
+  return EncodeLeaves<GridT>(
+      grid,
+      [](const LeafT& topo, LeafT& leaf) {
+        std::copy(topo.buffer().data(), topo.buffer().data() + LeafT::SIZE, leaf.buffer().data());
+      },
+      [](const LeafT*, size_t) {});
+}
+
+// Calls f(offset, value) for every voxel of the 8^3 leaf at `o` inside
+// the volume, offset in LeafNode order.
+template <typename F>
+void ForEachLeafVoxel(const FloatVolume& volume, const openvdb::Coord& o, F&& f) {
+  const Int3 r = volume.frame.resolution;
+  const int nx = std::min(8, r.x - o.x()), ny = std::min(8, r.y - o.y()),
+            nz = std::min(8, r.z - o.z());
+  for (int i = 0; i < nx; ++i)
+    for (int j = 0; j < ny; ++j) {
+      const float* row = &volume.values[(size_t(o.x() + i) * r.y + (o.y() + j)) * r.z + o.z()];
+      for (int k = 0; k < nz; ++k) f((i << 6) | (j << 3) | k, row[k]);
+    }
+}
+
+// A fog volume written leaf by leaf: the grid WriteFloatVolumeVdb builds
+// (non-zero voxels active), never held whole.
+absl::Status WriteStreamedFogVolume(const std::filesystem::path& path, const FloatVolume& volume,
+                                    const Metadata& metadata,
+                                    const OutputConventions& conventions) {
+  using LeafT = openvdb::FloatTree::LeafNodeType;
+  auto produce = [&] {
+    auto grid = NewGrid<openvdb::FloatGrid>(volume.grid_name, volume.frame,
+                                            openvdb::GRID_FOG_VOLUME);
+    const Int3 r = volume.frame.resolution;
+    for (int x = 0; x < r.x; x += 8)
+      for (int y = 0; y < r.y; y += 8)
+        for (int z = 0; z < r.z; z += 8) {
+          LeafT::NodeMaskType mask;
+          ForEachLeafVoxel(volume, openvdb::Coord(x, y, z), [&](int i, float v) {
+            if (v != 0.f) mask.setOn(i);
+          });
+          if (mask.isOff()) continue;
+          auto* leaf = new LeafT(openvdb::PartialCreate(), openvdb::Coord(x, y, z));
+          leaf->setValueMask(mask);
+          grid->tree().addLeaf(leaf);
+        }
+    FinishGrid(*grid, volume.frame, conventions, 1);
+    for (const auto& [k, v] : metadata) AddMeta(*grid, k, v);
+    auto fill = [&](const LeafT&, LeafT& leaf) {
+      ForEachLeafVoxel(volume, leaf.origin(), [&](int i, float v) {
+        if (v != 0.f) leaf.setValueOnly(i, v);
+      });
+    };
+    return EncodeLeaves<openvdb::FloatGrid>(grid, fill, [](const LeafT*, size_t) {});
+  };
+  return vdb_internal::WriteStreamedAtomically(path, {{volume.grid_name, produce}});
+}
+
 // Vectors are world-space quantities: a Z-up file turns them with the grid.
-openvdb::GridBase::Ptr BuildVec3Grid(const Vec3Field& field, const GridFrame& frame,
+openvdb::Vec3SGrid::Ptr BuildVec3Grid(const Vec3Field& field, const GridFrame& frame,
                                      const OutputConventions& conventions) {
   auto grid = NewGrid<openvdb::Vec3SGrid>(field.name, frame, openvdb::GRID_UNKNOWN);
   grid->setVectorType(openvdb::VEC_CONTRAVARIANT_RELATIVE);
@@ -619,6 +878,31 @@ absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid&
                              const GridFrame& frame, const DensityOptions& options,
                              const Metadata& metadata, const std::vector<Vec3Field>& fields) {
   InitOpenVdb();
+  if (OutputDownsampleFactor(counts, options) == 1) {
+    // Leaf by leaf, one grid at a time: no grid is ever held whole.
+    std::optional<StreamedResult> result;
+    try {
+      result.emplace(counts, frame, options, metadata);
+    } catch (const std::exception& e) {
+      return absl::InternalError(
+          absl::StrCat("building the grids of ", path.string(), ": ", e.what()));
+    }
+    std::vector<GridProducer> producers = result->Producers(false);
+    for (const Vec3Field& f : fields)
+      producers.push_back({f.name, [&] {
+        return EncodeBuilt<openvdb::Vec3SGrid>(BuildVec3Grid(f, frame, options.conventions));
+      }});
+    return vdb_internal::WriteStreamedAtomically(path, producers);
+  }
+  return vdb_internal::WriteBuiltDensityVdb(path, counts, frame, options, metadata, fields);
+}
+
+namespace vdb_internal {
+
+absl::Status WriteBuiltDensityVdb(const std::filesystem::path& path, const CountGrid& counts,
+                                  const GridFrame& frame, const DensityOptions& options,
+                                  const Metadata& metadata, const std::vector<Vec3Field>& fields) {
+  InitOpenVdb();
   openvdb::GridPtrVec grids;
   try {
     grids = BuildGrids(counts, frame, options, metadata);
@@ -632,6 +916,8 @@ absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid&
   return vdb_internal::WriteGridsAtomically(path, grids);
 }
 
+}  // namespace vdb_internal
+
 absl::Status WriteFloatVolumeVdb(const std::filesystem::path& path, const FloatVolume& volume,
                                  const Metadata& metadata, const OutputConventions& conventions) {
   InitOpenVdb();
@@ -639,6 +925,7 @@ absl::Status WriteFloatVolumeVdb(const std::filesystem::path& path, const FloatV
   if (volume.values.size() != size_t(r.Volume()))
     return absl::InvalidArgumentError(absl::StrCat("float volume: ", volume.values.size(),
                                                    " values for ", r.Volume(), " voxels"));
+  if (!volume.level_set) return WriteStreamedFogVolume(path, volume, metadata, conventions);
   openvdb::GridPtrVec grids;
   try {
     auto grid = NewGrid<openvdb::FloatGrid>(
@@ -668,12 +955,34 @@ absl::Status WriteIntegerCountsVdb(const std::filesystem::path& path, const Coun
                                    const GridFrame& frame, const DensityOptions& options,
                                    const Metadata& metadata) {
   InitOpenVdb();
+  // The result's options (its downsampling factor), without its grids.
+  DensityOptions o = options;
+  o.color = o.address_grid = false;
+  o.raw_counts = RawCounts::kInteger;
+  if (OutputDownsampleFactor(counts, o) == 1) {
+    std::optional<StreamedResult> result;
+    try {
+      result.emplace(counts, frame, o, metadata);
+    } catch (const std::exception& e) {
+      return absl::InternalError(absl::StrCat("building the counts grid of ", path.string(),
+                                              ": ", e.what()));
+    }
+    return vdb_internal::WriteStreamedAtomically(path, result->Producers(true));
+  }
+  return vdb_internal::WriteBuiltIntegerCountsVdb(path, counts, frame, options, metadata);
+}
+
+namespace vdb_internal {
+
+absl::Status WriteBuiltIntegerCountsVdb(const std::filesystem::path& path,
+                                        const CountGrid& counts, const GridFrame& frame,
+                                        const DensityOptions& options, const Metadata& metadata) {
+  InitOpenVdb();
+  DensityOptions o = options;
+  o.color = o.address_grid = false;
+  o.raw_counts = RawCounts::kInteger;
   openvdb::GridPtrVec grids;
   try {
-    // The result's options (its downsampling factor), without its grids.
-    DensityOptions o = options;
-    o.color = o.address_grid = false;
-    o.raw_counts = RawCounts::kInteger;
     grids = BuildGrids(counts, frame, o, metadata, true);
     grids.erase(grids.begin());  // the density grid lives in the result
     grids[0]->insertMeta("nimbus_max_count", openvdb::Int64Metadata(int64_t(counts.Max())));
@@ -685,6 +994,8 @@ absl::Status WriteIntegerCountsVdb(const std::filesystem::path& path, const Coun
   }
   return vdb_internal::WriteGridsAtomically(path, grids);
 }
+
+}  // namespace vdb_internal
 
 absl::StatusOr<std::vector<int64_t>> ReadIntegerCountsVdb(const std::filesystem::path& path,
                                                           Int3 resolution) {
