@@ -118,18 +118,221 @@ inline int NextBit(const uint64_t* row, int from, int x1, uint64_t flip) {
 }
 
 // Box-relative ranges of the last two passes that queries need: rows
-// [ylo[x], yhi[x]) of each x column in every slice (pass 2) and slices
-// [zlo, zhi) of each (x, y) column (pass 3, indexed y * size.x + x). An
-// empty range (lo >= hi) means the column is not needed.
+// [ylo, yhi) of each x column of each slice (pass 2, indexed z * size.x +
+// x) and slices [zlo, zhi) of each (x, y) column (pass 3, indexed
+// y * size.x + x). An empty range (lo >= hi) means the column is not
+// needed. `reach_y` (per pass-2 line) and `reach_z` (per pass-3 column)
+// bound how far, in voxels, a site can lie from the positions the line
+// writes and still matter (see SiteReach). Pass 1 computes rows
+// [row_lo, row_hi) of each slice only: the sites and rows pass 2 reads.
 struct NeedRanges {
-  std::vector<int> ylo, yhi, zlo, zhi;
+  std::vector<int> ylo, yhi, zlo, zhi, reach_y, reach_z, row_lo, row_hi;
 };
 
+// Each slice's rows that its pass-2 lines read: their ranges widened by
+// their reaches (none when no line of the slice is needed).
+void SliceRows(Int3 b, NeedRanges& need) {
+  need.row_lo.assign(size_t(b.z), 0);
+  need.row_hi.assign(size_t(b.z), 0);
+  for (int zi = 0; zi < b.z; ++zi) {
+    int lo = b.y, hi = 0;
+    for (size_t i = size_t(zi) * b.x; i < size_t(zi + 1) * b.x; ++i) {
+      if (need.ylo[i] >= need.yhi[i]) continue;
+      lo = std::min(lo, need.ylo[i] - need.reach_y[i]);
+      hi = std::max(hi, need.yhi[i] + need.reach_y[i]);
+    }
+    need.row_lo[size_t(zi)] = std::max(0, lo);
+    need.row_hi[size_t(zi)] = std::min(b.y, hi);
+  }
+}
+
 void AllRanges(Int3 b, NeedRanges& need) {
-  need.ylo.assign(size_t(b.x), 0);
-  need.yhi.assign(size_t(b.x), b.y);
+  need.ylo.assign(size_t(b.x) * b.z, 0);
+  need.yhi.assign(size_t(b.x) * b.z, b.y);
+  need.reach_y.assign(size_t(b.x) * b.z, b.y);
   need.zlo.assign(size_t(b.x) * b.y, 0);
   need.zhi.assign(size_t(b.x) * b.y, b.z);
+  need.reach_z.assign(size_t(b.x) * b.y, b.z);
+  SliceRows(b, need);
+}
+
+// Integer weights k with w_a = k_a 2^e for every axis, when they exist and
+// are small (k_a <= 2^16). The double arithmetic of the passes (products
+// of w, positions and their differences, below 2^53 2^e) is then exact,
+// which is what makes site pruning safe: see SiteReach.
+std::optional<Int3> ExactWeights(double wx, double wy, double wz) {
+  const double w[3] = {wx, wy, wz};
+  int64_t odd[3];
+  int low[3];  // w_a = odd_a 2^low_a
+  for (int a = 0; a < 3; ++a) {
+    if (!(w[a] >= 0x1p-900 && w[a] <= 0x1p900)) return std::nullopt;
+    int e;
+    const double m = std::frexp(w[a], &e);  // w = m 2^e, m in [0.5, 1)
+    int64_t mant = int64_t(std::ldexp(m, 53));
+    low[a] = e - 53;
+    while (!(mant & 1)) {
+      mant >>= 1;
+      ++low[a];
+    }
+    odd[a] = mant;
+  }
+  const int e = std::min({low[0], low[1], low[2]});
+  int k[3];
+  for (int a = 0; a < 3; ++a) {
+    if (low[a] - e > 16 || odd[a] > (int64_t{1} << 16)) return std::nullopt;
+    const int64_t v = odd[a] << (low[a] - e);
+    if (v > (int64_t{1} << 16)) return std::nullopt;
+    k[a] = int(v);
+  }
+  return Int3{k[0], k[1], k[2]};
+}
+
+// Bits of the box's rows, x from word w0, one row of nw words per (y, z).
+struct BoxBits {
+  Int3 size;
+  int w0 = 0, nw = 0;
+  std::vector<uint64_t> bits;
+  uint64_t* Row(int yi, int zi) { return bits.data() + (size_t(zi) * size.y + yi) * nw; }
+};
+
+BoxBits CopyBits(const VoxelSet& set, const VoxelBox& box) {
+  BoxBits b{box.Size(), box.min.x >> 6, (box.max.x >> 6) - (box.min.x >> 6) + 1, {}};
+  b.bits.resize(size_t(b.nw) * b.size.y * b.size.z);
+  for (int zi = 0; zi < b.size.z; ++zi)
+    for (int yi = 0; yi < b.size.y; ++yi)
+      std::copy_n(set.Row(box.min.y + yi, box.min.z + zi) + b.w0, b.nw, b.Row(yi, zi));
+  return b;
+}
+
+// Grows `d` by one voxel in the 26-neighbourhood (clipped to the box):
+// along x by shifting words, then along y and z by or-ing neighbour rows.
+void DilateOnce(BoxBits& d, std::vector<uint64_t>& tmp) {
+  const int nw = d.nw;
+  for (int zi = 0; zi < d.size.z; ++zi)
+    for (int yi = 0; yi < d.size.y; ++yi) {
+      uint64_t* r = d.Row(yi, zi);
+      uint64_t carry_lo = 0;
+      for (int w = 0; w < nw; ++w) {
+        const uint64_t v = r[w], next = w + 1 < nw ? r[w + 1] : 0;
+        r[w] = v | (v << 1) | carry_lo | (v >> 1) | (next << 63);
+        carry_lo = v >> 63;
+      }
+    }
+  // Along y, then z: or each row with its two neighbours (read from a copy).
+  tmp = d.bits;
+  for (int zi = 0; zi < d.size.z; ++zi)
+    for (int yi = 0; yi < d.size.y; ++yi) {
+      uint64_t* r = d.Row(yi, zi);
+      const uint64_t* t = tmp.data() + (r - d.bits.data());
+      for (int w = 0; w < nw; ++w)
+        r[w] |= (yi > 0 ? t[w - nw] : 0) | (yi + 1 < d.size.y ? t[w + nw] : 0);
+    }
+  tmp = d.bits;
+  const size_t plane = size_t(nw) * d.size.y;
+  for (int zi = 0; zi < d.size.z; ++zi) {
+    uint64_t* r = d.Row(0, zi);
+    const uint64_t* t = tmp.data() + (r - d.bits.data());
+    for (size_t w = 0; w < plane; ++w)
+      r[w] |= (zi > 0 ? t[w - plane] : 0) | (zi + 1 < d.size.z ? t[w + plane] : 0);
+  }
+}
+
+// For every (x, y) column of the box, a Chebyshev radius r such that each
+// query of the column lies within r voxels (per axis) of a member, or -1
+// when that takes more than max_r (radius[y * size.x + x]). The set is
+// grown one voxel at a time; a column's radius is the first growth that
+// covers all its queries.
+void ColumnRadii(const VoxelSet& set, const VoxelSet& q, const VoxelBox& box, int max_r,
+                 std::vector<int>& radius) {
+  BoxBits d = CopyBits(set, box);
+  const BoxBits qb = CopyBits(q, box);
+  const Int3 b = box.Size();
+  radius.assign(size_t(b.x) * b.y, 0);
+  std::vector<uint64_t> tmp, open(size_t(qb.nw) * b.y);
+  for (int r = 1; r <= max_r + 1; ++r) {
+    // Columns with a query outside the set grown by r - 1 need at least r.
+    std::fill(open.begin(), open.end(), 0);
+    bool any = false;
+    for (int zi = 0; zi < b.z; ++zi)
+      for (int yi = 0; yi < b.y; ++yi) {
+        const uint64_t* qr = qb.bits.data() + (size_t(zi) * b.y + yi) * qb.nw;
+        const uint64_t* dr = d.Row(yi, zi);
+        for (int w = 0; w < qb.nw; ++w) {
+          const uint64_t u = qr[w] & ~dr[w];
+          open[size_t(yi) * qb.nw + w] |= u;
+          any |= u != 0;
+        }
+      }
+    if (!any) return;
+    for (int yi = 0; yi < b.y; ++yi)
+      for (int w = 0; w < qb.nw; ++w)
+        for (uint64_t bits = open[size_t(yi) * qb.nw + w]; bits; bits &= bits - 1) {
+          const int xi = ((qb.w0 + w) << 6) + std::countr_zero(bits) - box.min.x;
+          if (xi >= 0 && xi < b.x) radius[size_t(yi) * b.x + xi] = r > max_r ? -1 : r;
+        }
+    if (r <= max_r) DilateOnce(d, tmp);
+  }
+}
+
+// How far along axis a (integer weight k_a) a site may lie from a query
+// and still be its nearest, when the query has a member within Chebyshev
+// radius r: that member is at squared distance at most U = r^2 (k_x + k_y +
+// k_z) (in units of the common power of two), so a site more than
+// sqrt(U / k_a) voxels away along a is strictly worse, and so is a pass-2
+// value computed without the sites beyond that reach (it is then either
+// exact or above U). With exact arithmetic the envelope walk returns the
+// lowest-position site among the minima, so dropping sites that are
+// strictly worse at every query changes no result, ties included.
+int SiteReach(Int3 k, int r, int ka) {
+  const int64_t u = int64_t(r) * r * (int64_t(k.x) + k.y + k.z);
+  int64_t l = int64_t(std::sqrt(double(u) / double(ka)));
+  while ((l + 1) * (l + 1) * ka <= u) ++l;
+  while (l * l * ka > u) --l;
+  return int(l);
+}
+
+// Site reaches from the column radii (-1 or none: unbounded), then the
+// pass-2 rows from the pass-3 columns: slice z of column x needs row y when
+// (x, y) has queries whose slice range, widened by the column's reach,
+// holds z; the pass-2 line takes the largest reach along y of those columns.
+// Unbounded columns reach every slice, so they are merged per x at the end
+// (one pass over the lines instead of one per column).
+void RowsFromColumns(Int3 b, Int3 k, const std::vector<int>& radius, NeedRanges& need) {
+  need.ylo.assign(size_t(b.x) * b.z, 0);
+  need.yhi.assign(size_t(b.x) * b.z, 0);
+  need.reach_y.assign(size_t(b.x) * b.z, 0);
+  need.reach_z.assign(size_t(b.x) * b.y, b.z);
+  std::vector<int> all_lo(size_t(b.x), b.y), all_hi(size_t(b.x), 0);  // unbounded rows per x
+  for (int yi = 0; yi < b.y; ++yi)
+    for (int xi = 0; xi < b.x; ++xi) {
+      const size_t c = size_t(yi) * b.x + xi;
+      if (need.zlo[c] >= need.zhi[c]) continue;
+      const int r = radius.empty() ? -1 : radius[c];
+      if (r < 0) {
+        all_lo[size_t(xi)] = std::min(all_lo[size_t(xi)], yi);
+        all_hi[size_t(xi)] = yi + 1;
+        continue;
+      }
+      const int ry = SiteReach(k, r, k.y), rz = SiteReach(k, r, k.z);
+      need.reach_z[c] = rz;
+      const int z1 = std::max(0, need.zlo[c] - rz), z2 = std::min(b.z, need.zhi[c] + rz);
+      for (int zi = z1; zi < z2; ++zi) {
+        const size_t i = size_t(zi) * b.x + xi;
+        if (need.ylo[i] >= need.yhi[i]) need.ylo[i] = yi;
+        need.yhi[i] = yi + 1;
+        need.reach_y[i] = std::max(need.reach_y[i], ry);
+      }
+    }
+  for (int zi = 0; zi < b.z; ++zi)
+    for (int xi = 0; xi < b.x; ++xi) {
+      if (all_lo[size_t(xi)] >= all_hi[size_t(xi)]) continue;
+      const size_t i = size_t(zi) * b.x + xi;
+      const bool empty = need.ylo[i] >= need.yhi[i];
+      need.ylo[i] = empty ? all_lo[size_t(xi)] : std::min(need.ylo[i], all_lo[size_t(xi)]);
+      need.yhi[i] = empty ? all_hi[size_t(xi)] : std::max(need.yhi[i], all_hi[size_t(xi)]);
+      need.reach_y[i] = b.y;
+    }
+  SliceRows(b, need);
 }
 
 // The ranges from the query voxels inside `box`. Two word-level sweeps
@@ -163,15 +366,6 @@ void QueryRanges(const VoxelSet& q, const VoxelBox& box, NeedRanges& need) {
   };
   sweep(0, 1, need.zlo, 0);
   sweep(b.z - 1, -1, need.zhi, 1);
-  need.ylo.assign(size_t(b.x), 0);
-  need.yhi.assign(size_t(b.x), 0);
-  for (int yi = 0; yi < b.y; ++yi)
-    for (int xi = 0; xi < b.x; ++xi) {
-      const size_t i = size_t(yi) * b.x + xi;
-      if (need.zlo[i] >= need.zhi[i]) continue;
-      if (need.ylo[xi] >= need.yhi[xi]) need.ylo[xi] = yi;
-      need.yhi[xi] = yi + 1;
-    }
 }
 
 }  // namespace
@@ -208,10 +402,19 @@ absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
 
   // Which parts of the last two passes the queries need.
   NeedRanges need;
-  if (options.queries)
+  if (options.queries) {
     QueryRanges(*options.queries, box, need);
-  else
+    // Queries close to the set (the usual case in a median iteration) bound
+    // how far the useful sites lie; past kMaxRadius the test costs more than
+    // it saves, and the lines keep all their sites.
+    constexpr int kMaxRadius = 8;
+    const std::optional<Int3> k = ExactWeights(h.x * h.x, h.y * h.y, h.z * h.z);
+    std::vector<int> radius;  // empty: every column unbounded
+    if (k) ColumnRadii(set, *options.queries, box, kMaxRadius, radius);
+    RowsFromColumns(b, k.value_or(Int3{1, 1, 1}), radius, need);
+  } else {
     AllRanges(b, need);
+  }
 
   Interrupter& intr = OrNull(interrupter);
   std::atomic<bool> cancelled{false};
@@ -233,7 +436,7 @@ absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
     const int x1 = box.max.x;
     for (int zi = r.begin(); zi < r.end() && keep_going(); ++zi) {
       const int z = z0 + zi;
-      for (int yi = 0; yi < b.y; ++yi) {
+      for (int yi = need.row_lo[size_t(zi)]; yi < need.row_hi[size_t(zi)]; ++yi) {
         const int y = y0 + yi;
         PackedVoxel* const at = F + size_t(zi) * plane + size_t(yi) * b.x - x0;  // by lattice x
         const uint64_t* row = set.Row(y, z);
@@ -279,36 +482,54 @@ absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
     for (int zi = r.begin(); zi < r.end() && keep_going(); ++zi) {
       PackedVoxel* slice = F + size_t(zi) * plane;
       rows.clear();
-      for (int yi = 0; yi < b.y; ++yi)
+      for (int yi = need.row_lo[size_t(zi)]; yi < need.row_hi[size_t(zi)]; ++yi)
         if (slice[size_t(yi) * b.x] != kNoVoxel) rows.push_back(yi);
       if (rows.empty()) continue;  // every column stays kNoVoxel
-      const int m = int(rows.size());
-      for (int i = 0; i < m; ++i) s.pos[i] = y0 + rows[size_t(i)];
+      const int* ylo = need.ylo.data() + size_t(zi) * b.x;
+      const int* yhi = need.yhi.data() + size_t(zi) * b.x;
+      const int* ry = need.reach_y.data() + size_t(zi) * b.x;
+      // Sites of rows [first, last) of the slice's site list.
+      auto sites_between = [&](int from, int to) {
+        const int first = int(std::lower_bound(rows.begin(), rows.end(), from) - rows.begin());
+        const int last = int(std::lower_bound(rows.begin(), rows.end(), to) - rows.begin());
+        return std::pair<int, int>{first, last};
+      };
       for (int xb = 0; xb < b.x; xb += kBlock) {
         const int nb = std::min(kBlock, b.x - xb);
         int lo = b.y, hi = 0;  // rows some column of the block needs
         for (int j = 0; j < nb; ++j)
-          if (need.ylo[xb + j] < need.yhi[xb + j]) {
-            lo = std::min(lo, need.ylo[xb + j]);
-            hi = std::max(hi, need.yhi[xb + j]);
+          if (ylo[xb + j] < yhi[xb + j]) {
+            lo = std::min(lo, ylo[xb + j]);
+            hi = std::max(hi, yhi[xb + j]);
           }
         if (lo >= hi) continue;
-        // The tile needs the site rows and the rows written back.
-        for (int yi : rows)
+        // The tile needs the site rows within reach and the rows written back.
+        int reach = 0;
+        for (int j = 0; j < nb; ++j) reach = std::max(reach, ry[xb + j]);
+        const auto [s0, s1] = sites_between(lo - reach, hi + reach);
+        for (int i = s0; i < s1; ++i) {
+          const int yi = rows[size_t(i)];
           if (yi < lo || yi >= hi)
             CopyRow<kBlock>(slice + size_t(yi) * b.x + xb, nb, tile.data() + size_t(yi) * kBlock);
+        }
         for (int yi = lo; yi < hi; ++yi)
           CopyRow<kBlock>(slice + size_t(yi) * b.x + xb, nb, tile.data() + size_t(yi) * kBlock);
         for (int j = 0; j < nb; ++j) {
-          if (need.ylo[xb + j] >= need.yhi[xb + j]) continue;
+          if (ylo[xb + j] >= yhi[xb + j]) continue;
           const int x = x0 + xb + j;
           PackedVoxel* col = tile.data() + j;
+          const auto [i0, i1] =
+              sites_between(ylo[xb + j] - ry[xb + j], yhi[xb + j] + ry[xb + j]);
+          if (i0 >= i1) continue;  // no site within reach: no query reads these rows
+          const int m = i1 - i0;
           for (int i = 0; i < m; ++i) {
-            const PackedVoxel f = col[size_t(rows[size_t(i)]) * kBlock];
-            s.c[i] = wx * Square(int(f & 1023u) - x) + wpp_y[size_t(rows[size_t(i)])];
+            const int yi = rows[size_t(i0 + i)];
+            const PackedVoxel f = col[size_t(yi) * kBlock];
+            s.pos[i] = y0 + yi;
+            s.c[i] = wx * Square(int(f & 1023u) - x) + wpp_y[size_t(yi)];
             s.f[i] = f;
           }
-          EnvelopeLine(s, m, wy, y0, need.ylo[xb + j], need.yhi[xb + j], col, kBlock);
+          EnvelopeLine(s, m, wy, y0, ylo[xb + j], yhi[xb + j], col, kBlock);
         }
         for (int yi = lo; yi < hi; ++yi)
           CopyRow<kBlock>(tile.data() + size_t(yi) * kBlock, nb, slice + size_t(yi) * b.x + xb);
@@ -331,6 +552,7 @@ absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
       PackedVoxel* layer = F + size_t(yi) * b.x;
       const int* zlo = need.zlo.data() + size_t(yi) * b.x;
       const int* zhi = need.zhi.data() + size_t(yi) * b.x;
+      const int* rz = need.reach_z.data() + size_t(yi) * b.x;
       for (int xb = 0; xb < b.x; xb += kBlock) {
         const int nb = std::min(kBlock, b.x - xb);
         int lo = b.z, hi = 0;  // slices some column of the block needs
@@ -340,14 +562,18 @@ absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
             hi = std::max(hi, zhi[xb + j]);
           }
         if (lo >= hi) continue;
-        for (int zi = 0; zi < b.z; ++zi)
+        // Sites lie within reach of the slices written (see SiteReach).
+        int reach = 0;
+        for (int j = 0; j < nb; ++j) reach = std::max(reach, rz[xb + j]);
+        for (int zi = std::max(0, lo - reach); zi < std::min(b.z, hi + reach); ++zi)
           CopyRow<kBlock>(layer + size_t(zi) * plane + xb, nb, tile.data() + size_t(zi) * kBlock);
         for (int j = 0; j < nb; ++j) {
           if (zlo[xb + j] >= zhi[xb + j]) continue;
           const int x = x0 + xb + j;
           PackedVoxel* col = tile.data() + j;
           int m = 0;
-          for (int zi = 0; zi < b.z; ++zi) {
+          const int z2 = std::min(b.z, zhi[xb + j] + rz[xb + j]);
+          for (int zi = std::max(0, zlo[xb + j] - rz[xb + j]); zi < z2; ++zi) {
             const PackedVoxel f = col[size_t(zi) * kBlock];
             if (f == kNoVoxel) continue;
             s.pos[m] = z0 + zi;

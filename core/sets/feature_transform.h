@@ -39,8 +39,9 @@ inline double SquaredDistance(Int3 a, Int3 b, Vec3 h) {
 /// kNoVoxel when the set is empty.
 struct FeatureField {
   VoxelBox box;
-  // x fastest, then y, then z, over `box`. Every entry is written by the
-  // transform, so the buffer skips the zero fill (core/base/big_buffer.h).
+  // x fastest, then y, then z, over `box`. The transform writes every entry
+  // it reads, so the buffer skips the zero fill (core/base/big_buffer.h);
+  // with queries, entries no query needs may be left as they were.
   std::vector<PackedVoxel, BigBufferAllocator<PackedVoxel>> nearest;
 
   size_t Index(int x, int y, int z) const {
@@ -57,7 +58,9 @@ struct FeatureTransformOptions {
   /// on the hull of this box and the set's bounding box, which keeps it exact.
   std::optional<VoxelBox> box;
   /// When set, results are only guaranteed at these voxels: lines of the
-  /// last two passes that hold no query are skipped.
+  /// last two passes that hold no query are skipped, and with exact
+  /// arithmetic so are sites out of reach of queries near the set
+  /// (docs/condensation.md#feature-transform).
   const VoxelSet* queries = nullptr;
 };
 

@@ -174,6 +174,56 @@ TEST(FeatureTransform, RestrictedBoxAgreesWithWholeLattice) {
   queries.ForEach([&](int x, int y, int z) { ASSERT_EQ(part.At(x, y, z), whole.At(x, y, z)); });
 }
 
+// With voxel sizes whose squares are small multiples of one power of two,
+// the transform's arithmetic is exact, and the nearest member it returns is
+// the lowest (z, y, x) among the equally near ones: the rule that lets it
+// drop sites out of reach of queries near the set.
+Int3 LowestNearest(const VoxelSet& s, Int3 v, Vec3 h) {
+  double best = 1e300;
+  Int3 arg{-1, -1, -1};
+  s.ForEach([&](int x, int y, int z) {  // row order: z, then y, then x ascending
+    const double d = SquaredDistance(v, {x, y, z}, h);
+    if (d < best) {
+      best = d;
+      arg = {x, y, z};
+    }
+  });
+  return arg;
+}
+
+TEST(FeatureTransform, QueriesNearTheSetGiveTheWholeLatticeAnswer) {
+  Rng rng(13, 0);
+  const Vec3 sizes[3] = {{0.0625, 0.0625, 0.0625}, {0.0625, 0.125, 0.25}, {0.375, 0.25, 0.25}};
+  for (int trial = 0; trial < 12; ++trial) {
+    const Int3 r{20 + int(rng.Next() % 50), 10 + int(rng.Next() % 30), 10 + int(rng.Next() % 30)};
+    const VoxelSet s = RandomSet(r, rng.Uniform(0.001, 0.02), rng);
+    if (s.Empty()) continue;
+    // Queries at every distance: most within a few voxels of the set (the
+    // pruned case), a few far (columns that keep all their sites).
+    VoxelSet near = s;
+    for (int grow = int(rng.Next() % 4); grow >= 0; --grow) {
+      const VoxelSet was = near;
+      for (const Int3 d : {Int3{1, 0, 0}, Int3{-1, 0, 0}, Int3{0, 1, 0}, Int3{0, -1, 0},
+                           Int3{0, 0, 1}, Int3{0, 0, -1}})
+        near = near | ShiftSet(was, d);
+    }
+    const VoxelSet queries = ((near & RandomSet(r, 0.3, rng)) | RandomSet(r, 0.002, rng)) - s;
+    if (queries.Empty()) continue;
+    const Vec3 h = sizes[trial % 3];
+    const FeatureField whole = *ComputeFeatureTransform(s, h);
+    FeatureTransformOptions o;
+    o.box = queries.BoundingBox();
+    o.queries = &queries;
+    FeatureField part;
+    ASSERT_TRUE(ComputeFeatureTransform(s, h, o, part).ok());
+    queries.ForEach([&](int x, int y, int z) {
+      ASSERT_EQ(part.At(x, y, z), whole.At(x, y, z)) << "trial " << trial;
+      ASSERT_EQ(UnpackVoxel(whole.At(x, y, z)), LowestNearest(s, {x, y, z}, h))
+          << "trial " << trial << " at " << x << "," << y << "," << z;
+    });
+  }
+}
+
 TEST(FeatureTransform, HausdorffDistance) {
   const GridFrame f = Cube(32);
   const Vec3 h = f.VoxelSize();
