@@ -128,7 +128,7 @@ class CountGrid {
   /// Read-only counters (colour sums) of tile `tile`, nullptr if never
   /// allocated (or without colour): for readers that visit leaves in an
   /// order of their own, e.g. a VDB tree's.
-  const uint32_t* TileOrNull(uint64_t tile) const { return table_[tile].get(); }
+  const uint32_t* TileOrNull(uint64_t tile) const { return table_[tile]; }
   const uint64_t* ColorTileOrNull(uint64_t tile) const {
     return with_color_ ? color_[tile].get() : nullptr;
   }
