@@ -4,9 +4,8 @@
 
 #include <cstddef>
 #include <cstdint>
-#include <memory>
-#include <vector>
 
+#include "core/chaos/bin_pool.h"
 #include "core/grid/count_grid.h"
 
 namespace nimbus {
@@ -16,23 +15,20 @@ namespace nimbus {
 /// tile's counters and colour sums are pulled into L2 once per flush and
 /// then take thousands of increments, with the tile pointers resolved once
 /// per run of keys of one tile: no sorting pass. Keys live in blocks from a
-/// fixed pool (as TileBins' entries do); when the pool runs out every bin
+/// fixed pool (BinPool, as TileBins' entries do); when the pool runs out every bin
 /// is applied and the pool starts over. Counts and colour sums are integer
 /// sums, so the order of application changes nothing.
 ///
 /// Not thread-safe: one per thread, each over its thread's CountGrid.
 class KeyBins {
  public:
-  /// At most this many bins; larger grids put 2^shift tiles in a bin.
-  static constexpr uint32_t kMaxBins = 32768;
-
   /// `capacity`: keys buffered before a flush (at least one block).
   /// `weighted`: keys may carry a weight (CountGrid::WithWeight).
   KeyBins(CountGrid& grid, size_t capacity, bool weighted);
 
   void Add(uint64_t key) {
     const uint32_t bin = uint32_t((key & CountGrid::kVoxelMask) >> shift_);
-    Cursor& c = cursors_[bin];
+    Cursor& c = pool_.cursors()[bin];
     if (c.tail == c.end) [[unlikely]]
       Refill(bin);
     *c.tail++ = key;
@@ -50,21 +46,18 @@ class KeyBins {
     uint64_t* tail = nullptr;
     uint64_t* end = nullptr;
   };
-  static uint32_t BlockSize(size_t capacity, size_t bins);
+  using Pool = BinPool<uint64_t, Cursor>;
   // Gives `bin` a fresh block, flushing everything first if the pool is empty.
   void Refill(uint32_t bin);
   void Apply(const uint64_t* begin, const uint64_t* end);
+  auto ApplyFn() {
+    return [this](uint32_t, const uint64_t* begin, const uint64_t* end) { Apply(begin, end); };
+  }
 
   CountGrid& grid_;
   bool weighted_ = false;
   uint32_t shift_ = 15;  // key bits below the bin index
-  uint32_t block_ = 0;   // keys per block
-  uint32_t blocks_ = 0;  // blocks in the pool
-  uint32_t used_ = 0;    // blocks handed out since the last flush
-  std::unique_ptr<uint64_t[]> pool_;
-  std::vector<int32_t> next_;         // per block: the bin's next block, or -1
-  std::vector<int32_t> head_, last_;  // per bin: first and current block, or -1
-  std::vector<Cursor> cursors_;
+  Pool pool_;
 };
 
 }  // namespace nimbus

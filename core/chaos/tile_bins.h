@@ -4,11 +4,10 @@
 
 #include <cstddef>
 #include <cstdint>
-#include <cstdlib>
-#include <memory>
 #include <vector>
 
 #include "core/chaos/affine_walk.h"
+#include "core/chaos/bin_pool.h"
 #include "core/grid/count_grid.h"
 
 namespace nimbus {
@@ -29,14 +28,14 @@ namespace nimbus {
 class TileBins {
  public:
   /// At most this many bins; larger grids put 2^shift tiles in a bin.
-  static constexpr uint32_t kMaxBins = 32768;
+  static constexpr uint32_t kMaxBins = BinPool<uint32_t, walk::BinCursor>::kMaxBins;
 
   /// `capacity`: entries buffered before a flush (at least one block);
   /// unused in direct mode.
   TileBins(CountGrid& grid, size_t capacity, bool direct = false);
 
   /// Cursors for walk::AffineWalk::bins and the shift that goes with them.
-  walk::BinCursor* cursors() { return cursors_.data(); }
+  walk::BinCursor* cursors() { return pool_.cursors(); }
   uint32_t bin_shift() const { return shift_; }
 
   /// Direct mode's table for walk::AffineWalk::tiles (null otherwise):
@@ -57,21 +56,17 @@ class TileBins {
   static uint64_t Bytes(Int3 resolution, size_t capacity, bool direct = false);
 
  private:
-  static uint32_t BlockSize(size_t capacity, size_t bins);
+  using Pool = BinPool<uint32_t, walk::BinCursor>;
   void Apply(uint32_t bin, const uint32_t* begin, const uint32_t* end);
+  auto ApplyFn() {
+    return [this](uint32_t bin, const uint32_t* begin, const uint32_t* end) {
+      Apply(bin, begin, end);
+    };
+  }
 
   CountGrid& grid_;
-  uint32_t shift_ = 0;
-  uint32_t block_ = 0;   // entries per block
-  uint32_t blocks_ = 0;  // blocks in the pool
-  uint32_t used_ = 0;    // blocks handed out since the last flush
-  struct Free {
-    void operator()(uint32_t* p) const { std::free(p); }
-  };
-  std::unique_ptr<uint32_t[], Free> pool_;
-  std::vector<int32_t> next_;         // per block: the bin's next block, or -1
-  std::vector<int32_t> head_, last_;  // per bin: first and current block, or -1
-  std::vector<walk::BinCursor> cursors_;
+  uint32_t shift_ = 0;  // tile-index bits below the bin index
+  Pool pool_;           // none in direct mode
   bool direct_ = false;
   std::vector<uint32_t*> tiles_;  // direct mode: a copy of the grid's table
 };
