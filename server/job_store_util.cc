@@ -41,4 +41,13 @@ TimeMs WallClockMs() {
       .count();
 }
 
+std::string RedactUrl(const std::string& url) {
+  const size_t scheme = url.find("://");
+  const size_t at = url.find('@');
+  if (scheme == std::string::npos || at == std::string::npos || at < scheme) return url;
+  const size_t colon = url.find(':', scheme + 3);
+  if (colon == std::string::npos || colon > at) return url;
+  return absl::StrCat(url.substr(0, colon), ":***", url.substr(at));
+}
+
 }  // namespace nimbus::server

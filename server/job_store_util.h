@@ -26,4 +26,8 @@ uint64_t ViewBytes(const JobRecord& r);
 /// `now` (start-up recovery, cascades): the honest end time there.
 TimeMs WallClockMs();
 
+/// `url` without its password ("postgresql://user:***@host/db"), for
+/// messages and logs.
+std::string RedactUrl(const std::string& url);
+
 }  // namespace nimbus::server

@@ -31,6 +31,7 @@
 #include "server/bounded_text.h"
 #include "server/job_store.h"
 #include "server/job_store_util.h"
+#include "server/postgres_module.h"
 
 namespace nimbus::server {
 namespace {
@@ -184,16 +185,6 @@ std::string StateName(JobState s) {
     case JobState::kCancelled: return "CANCELLED";
   }
   return absl::StrCat("state ", static_cast<int>(s));
-}
-
-// The URL without its password, for messages and logs.
-std::string RedactUrl(const std::string& url) {
-  const size_t scheme = url.find("://");
-  const size_t at = url.find('@');
-  if (scheme == std::string::npos || at == std::string::npos || at < scheme) return url;
-  const size_t colon = url.find(':', scheme + 3);
-  if (colon == std::string::npos || colon > at) return url;
-  return absl::StrCat(url.substr(0, colon), ":***", url.substr(at));
 }
 
 // An early return out of a transaction body: the status to hand back.
@@ -1040,15 +1031,9 @@ absl::StatusOr<std::optional<JobRecord>> PostgresJobStore::FindCached(
   });
 }
 
-bool IsPostgresUrl(const std::string& url) {
-  return absl::StartsWith(url, "postgresql://") || absl::StartsWith(url, "postgres://");
-}
-
-absl::StatusOr<std::unique_ptr<JobStore>> OpenPostgresJobStore(const std::string& url) {
-  if (!IsPostgresUrl(url))
-    return absl::InvalidArgumentError(
-        absl::StrCat("--store ", RedactUrl(url), ": expected postgresql://… or postgres://…"));
-  return PostgresJobStore::Open(url);
+extern "C" NIMBUS_POSTGRES_EXPORT void NimbusOpenPostgresJobStore(
+    const std::string& url, absl::StatusOr<std::unique_ptr<JobStore>>& out) {
+  out = PostgresJobStore::Open(url);
 }
 
 #undef NIMBUS_PG_COLUMNS
