@@ -26,7 +26,7 @@ struct LineScratch {
   // site arrays): the pop test then reads adjacent entries, not scattered
   // ones through a level of indirection.
   std::vector<double> hc;
-  std::vector<int> hp;
+  std::vector<double> hp;  // integer positions, held as doubles: no conversions in the loops
   std::vector<PackedVoxel> hf;
   void Reserve(int n) {
     pos.resize(n);
@@ -64,7 +64,7 @@ void EnvelopeLine(LineScratch& s, int m, double w, int q0, int lo, int hi, Packe
   const int* p = s.pos.data();
   const PackedVoxel* f = s.f.data();
   double* hc = s.hc.data();
-  int* hp = s.hp.data();
+  double* hp = s.hp.data();
   PackedVoxel* hf = s.hf.data();
   int k = 0;
   hc[0] = c[0];
@@ -72,12 +72,11 @@ void EnvelopeLine(LineScratch& s, int m, double w, int q0, int lo, int hi, Packe
   hf[0] = f[0];
   for (int i = 1; i < m; ++i) {
     const double ci = c[i];
-    const int pi = p[i];
+    const double pi = p[i];  // differences of these are exact, as the ints' were
     // Pop the top while the new parabola overtakes it no later than it
     // overtakes the one below.
     while (k > 0) {
-      if ((hc[k] - hc[k - 1]) * double(pi - hp[k]) < (ci - hc[k]) * double(hp[k] - hp[k - 1]))
-        break;
+      if ((hc[k] - hc[k - 1]) * (pi - hp[k]) < (ci - hc[k]) * (hp[k] - hp[k - 1])) break;
       --k;
     }
     ++k;
@@ -91,12 +90,16 @@ void EnvelopeLine(LineScratch& s, int m, double w, int q0, int lo, int hi, Packe
   // products are monotone in q too), so the walk stops where it would have.
   // The current pair's differences stay in registers; once the last
   // parabola is reached it wins every remaining position.
+  // q = q0 + i is counted in a double (exact for integers), so the test
+  // rounds exactly as 2.0 * w * (q0 + i) * dp did.
+  const double w2 = 2.0 * w;
   int h = 0, i = lo;
+  double q = double(q0 + lo);
   while (h < k && i < hi) {
-    const double dc = hc[h + 1] - hc[h], dp = double(hp[h + 1] - hp[h]);
+    const double dc = hc[h + 1] - hc[h], dp = hp[h + 1] - hp[h];
     const PackedVoxel fu = hf[h];
     // Positions where the next parabola is not strictly lower stay with u.
-    for (; i < hi && !(dc < 2.0 * w * (q0 + i) * dp); ++i) out[size_t(i) * stride] = fu;
+    for (; i < hi && !(dc < w2 * q * dp); ++i, q += 1.0) out[size_t(i) * stride] = fu;
     if (i < hi) ++h;
   }
   const PackedVoxel last = hf[h];
@@ -204,36 +207,83 @@ BoxBits CopyBits(const VoxelSet& set, const VoxelBox& box) {
   return b;
 }
 
-// Grows `d` by one voxel in the 26-neighbourhood (clipped to the box):
-// along x by shifting words, then along y and z by or-ing neighbour rows.
-void DilateOnce(BoxBits& d, std::vector<uint64_t>& tmp) {
-  const int nw = d.nw;
-  for (int zi = 0; zi < d.size.z; ++zi)
-    for (int yi = 0; yi < d.size.y; ++yi) {
+// Rows [y0, y1] of slices [z0, z1] of a BoxBits, words [w0, w1] of each
+// (inclusive, box-relative); empty when y0 > y1.
+struct BitRegion {
+  int y0 = 0, y1 = -1, z0 = 0, z1 = -1, w0 = 0, w1 = -1;
+  bool Empty() const { return y0 > y1; }
+  void Add(int y, int z, int w) {
+    if (Empty()) {
+      *this = {y, y, z, z, w, w};
+      return;
+    }
+    y0 = std::min(y0, y);
+    y1 = std::max(y1, y);
+    z0 = std::min(z0, z);
+    z1 = std::max(z1, z);
+    w0 = std::min(w0, w);
+    w1 = std::max(w1, w);
+  }
+  // Grown by e rows and slices and by `words` words, clipped to the box.
+  BitRegion Grown(int e, int words, const BoxBits& d) const {
+    return {std::max(0, y0 - e),         std::min(d.size.y - 1, y1 + e),
+            std::max(0, z0 - e),         std::min(d.size.z - 1, z1 + e),
+            std::max(0, w0 - words),     std::min(d.nw - 1, w1 + words)};
+  }
+};
+
+// Grows `d` by one voxel in the 26-neighbourhood (clipped to the box),
+// exactly inside `e` and to a subset of the grown set elsewhere (bits are
+// only added, from neighbours), which is all ColumnRadii needs. Separable
+// and in place: along x by shifting words (over e grown by one row, slice
+// and word, what the y and z steps read), then along y and z by or-ing
+// neighbour rows, the overwritten row or slice kept in a small buffer.
+void DilateOnce(BoxBits& d, const BitRegion& e, std::vector<uint64_t>& prev,
+                std::vector<uint64_t>& cur) {
+  const BitRegion g = e.Grown(1, 1, d);
+  const int nw = d.nw, ww = g.w1 - g.w0 + 1;
+  for (int zi = g.z0; zi <= g.z1; ++zi)
+    for (int yi = g.y0; yi <= g.y1; ++yi) {
       uint64_t* r = d.Row(yi, zi);
-      uint64_t carry_lo = 0;
-      for (int w = 0; w < nw; ++w) {
+      uint64_t carry_lo = g.w0 > 0 ? r[g.w0 - 1] >> 63 : 0;
+      for (int w = g.w0; w <= g.w1; ++w) {
         const uint64_t v = r[w], next = w + 1 < nw ? r[w + 1] : 0;
         r[w] = v | (v << 1) | carry_lo | (v >> 1) | (next << 63);
         carry_lo = v >> 63;
       }
     }
-  // Along y, then z: or each row with its two neighbours (read from a copy).
-  tmp = d.bits;
-  for (int zi = 0; zi < d.size.z; ++zi)
-    for (int yi = 0; yi < d.size.y; ++yi) {
-      uint64_t* r = d.Row(yi, zi);
-      const uint64_t* t = tmp.data() + (r - d.bits.data());
-      for (int w = 0; w < nw; ++w)
-        r[w] |= (yi > 0 ? t[w - nw] : 0) | (yi + 1 < d.size.y ? t[w + nw] : 0);
+  // Along y for slices g.z0..g.z1 (the z step reads them), rows of e.
+  prev.resize(size_t(ww));
+  cur.resize(size_t(ww));
+  for (int zi = g.z0; zi <= g.z1; ++zi) {
+    if (e.y0 > 0) std::copy_n(d.Row(e.y0 - 1, zi) + g.w0, ww, prev.data());
+    for (int yi = e.y0; yi <= e.y1; ++yi) {
+      uint64_t* r = d.Row(yi, zi) + g.w0;
+      std::copy_n(r, ww, cur.data());
+      const uint64_t* next = yi + 1 < d.size.y ? d.Row(yi + 1, zi) + g.w0 : nullptr;
+      for (int w = 0; w < ww; ++w)
+        r[w] |= (yi > 0 ? prev[size_t(w)] : 0) | (next ? next[w] : 0);
+      prev.swap(cur);
     }
-  tmp = d.bits;
-  const size_t plane = size_t(nw) * d.size.y;
-  for (int zi = 0; zi < d.size.z; ++zi) {
-    uint64_t* r = d.Row(0, zi);
-    const uint64_t* t = tmp.data() + (r - d.bits.data());
-    for (size_t w = 0; w < plane; ++w)
-      r[w] |= (zi > 0 ? t[w - plane] : 0) | (zi + 1 < d.size.z ? t[w + plane] : 0);
+  }
+  // Along z, rows of e: the slice below as it was before this step.
+  const int rows = e.y1 - e.y0 + 1;
+  prev.resize(size_t(ww) * rows);
+  cur.resize(size_t(ww) * rows);
+  auto save = [&](int zi, std::vector<uint64_t>& to) {
+    for (int yi = e.y0; yi <= e.y1; ++yi)
+      std::copy_n(d.Row(yi, zi) + g.w0, ww, to.data() + size_t(yi - e.y0) * ww);
+  };
+  if (e.z0 > 0) save(e.z0 - 1, prev);
+  for (int zi = e.z0; zi <= e.z1; ++zi) {
+    save(zi, cur);
+    for (int yi = e.y0; yi <= e.y1; ++yi) {
+      uint64_t* r = d.Row(yi, zi) + g.w0;
+      const uint64_t* below = prev.data() + size_t(yi - e.y0) * ww;
+      const uint64_t* above = zi + 1 < d.size.z ? d.Row(yi, zi + 1) + g.w0 : nullptr;
+      for (int w = 0; w < ww; ++w) r[w] |= (zi > 0 ? below[w] : 0) | (above ? above[w] : 0);
+    }
+    prev.swap(cur);
   }
 }
 
@@ -241,36 +291,43 @@ void DilateOnce(BoxBits& d, std::vector<uint64_t>& tmp) {
 // query of the column lies within r voxels (per axis) of a member, or -1
 // when that takes more than max_r (radius[y * size.x + x]). The set is
 // grown one voxel at a time; a column's radius is the first growth that
-// covers all its queries.
+// covers all its queries. Queries covered once stay covered, so each round
+// looks only at the region of the queries still open, and the growth is
+// computed exactly only where later rounds can look (that region, widened
+// by the growths left); elsewhere the grown set may lag, never run ahead.
 void ColumnRadii(const VoxelSet& set, const VoxelSet& q, const VoxelBox& box, int max_r,
                  std::vector<int>& radius) {
   BoxBits d = CopyBits(set, box);
   const BoxBits qb = CopyBits(q, box);
   const Int3 b = box.Size();
   radius.assign(size_t(b.x) * b.y, 0);
-  std::vector<uint64_t> tmp, open(size_t(qb.nw) * b.y);
+  std::vector<uint64_t> prev, cur, open(size_t(qb.nw) * b.y);
+  BitRegion region{0, b.y - 1, 0, b.z - 1, 0, qb.nw - 1};  // holds every open query
   for (int r = 1; r <= max_r + 1; ++r) {
     // Columns with a query outside the set grown by r - 1 need at least r.
     std::fill(open.begin(), open.end(), 0);
-    bool any = false;
-    for (int zi = 0; zi < b.z; ++zi)
-      for (int yi = 0; yi < b.y; ++yi) {
+    BitRegion found;
+    for (int zi = region.z0; zi <= region.z1; ++zi)
+      for (int yi = region.y0; yi <= region.y1; ++yi) {
         const uint64_t* qr = qb.bits.data() + (size_t(zi) * b.y + yi) * qb.nw;
         const uint64_t* dr = d.Row(yi, zi);
-        for (int w = 0; w < qb.nw; ++w) {
+        for (int w = region.w0; w <= region.w1; ++w) {
           const uint64_t u = qr[w] & ~dr[w];
           open[size_t(yi) * qb.nw + w] |= u;
-          any |= u != 0;
+          if (u) found.Add(yi, zi, w);
         }
       }
-    if (!any) return;
-    for (int yi = 0; yi < b.y; ++yi)
-      for (int w = 0; w < qb.nw; ++w)
+    if (found.Empty()) return;
+    for (int yi = found.y0; yi <= found.y1; ++yi)
+      for (int w = found.w0; w <= found.w1; ++w)
         for (uint64_t bits = open[size_t(yi) * qb.nw + w]; bits; bits &= bits - 1) {
           const int xi = ((qb.w0 + w) << 6) + std::countr_zero(bits) - box.min.x;
           if (xi >= 0 && xi < b.x) radius[size_t(yi) * b.x + xi] = r > max_r ? -1 : r;
         }
-    if (r <= max_r) DilateOnce(d, tmp);
+    // Later rounds read the grown set only at the open queries, after at
+    // most max_r - r more growths: within max_r + 1 - r voxels of them.
+    region = found;
+    if (r <= max_r) DilateOnce(d, found.Grown(max_r + 1 - r, 1, d), prev, cur);
   }
 }
 
@@ -298,40 +355,52 @@ int SiteReach(Int3 k, int r, int ka) {
 // Unbounded columns reach every slice, so they are merged per x at the end
 // (one pass over the lines instead of one per column).
 void RowsFromColumns(Int3 b, Int3 k, const std::vector<int>& radius, NeedRanges& need) {
+  // Per x, lines by slice (lo, hi, reach), so the loop over a column's
+  // slices below is contiguous and branch-free; yi grows, so the min and
+  // max give the first and last column exactly as in row order.
+  std::vector<int> lo(size_t(b.z)), hi(size_t(b.z)), reach(size_t(b.z));
   need.ylo.assign(size_t(b.x) * b.z, 0);
   need.yhi.assign(size_t(b.x) * b.z, 0);
   need.reach_y.assign(size_t(b.x) * b.z, 0);
   need.reach_z.assign(size_t(b.x) * b.y, b.z);
-  std::vector<int> all_lo(size_t(b.x), b.y), all_hi(size_t(b.x), 0);  // unbounded rows per x
-  for (int yi = 0; yi < b.y; ++yi)
-    for (int xi = 0; xi < b.x; ++xi) {
+  for (int xi = 0; xi < b.x; ++xi) {
+    std::fill(lo.begin(), lo.end(), b.y);
+    std::fill(hi.begin(), hi.end(), 0);
+    std::fill(reach.begin(), reach.end(), 0);
+    int all_lo = b.y, all_hi = 0;  // rows of unbounded columns
+    for (int yi = 0; yi < b.y; ++yi) {
       const size_t c = size_t(yi) * b.x + xi;
       if (need.zlo[c] >= need.zhi[c]) continue;
       const int r = radius.empty() ? -1 : radius[c];
       if (r < 0) {
-        all_lo[size_t(xi)] = std::min(all_lo[size_t(xi)], yi);
-        all_hi[size_t(xi)] = yi + 1;
+        all_lo = std::min(all_lo, yi);
+        all_hi = yi + 1;
         continue;
       }
       const int ry = SiteReach(k, r, k.y), rz = SiteReach(k, r, k.z);
       need.reach_z[c] = rz;
       const int z1 = std::max(0, need.zlo[c] - rz), z2 = std::min(b.z, need.zhi[c] + rz);
       for (int zi = z1; zi < z2; ++zi) {
-        const size_t i = size_t(zi) * b.x + xi;
-        if (need.ylo[i] >= need.yhi[i]) need.ylo[i] = yi;
-        need.yhi[i] = yi + 1;
-        need.reach_y[i] = std::max(need.reach_y[i], ry);
+        lo[size_t(zi)] = std::min(lo[size_t(zi)], yi);
+        hi[size_t(zi)] = std::max(hi[size_t(zi)], yi + 1);
+        reach[size_t(zi)] = std::max(reach[size_t(zi)], ry);
       }
     }
-  for (int zi = 0; zi < b.z; ++zi)
-    for (int xi = 0; xi < b.x; ++xi) {
-      if (all_lo[size_t(xi)] >= all_hi[size_t(xi)]) continue;
+    // Unbounded columns reach every slice with every site.
+    for (int zi = 0; zi < b.z; ++zi) {
       const size_t i = size_t(zi) * b.x + xi;
-      const bool empty = need.ylo[i] >= need.yhi[i];
-      need.ylo[i] = empty ? all_lo[size_t(xi)] : std::min(need.ylo[i], all_lo[size_t(xi)]);
-      need.yhi[i] = empty ? all_hi[size_t(xi)] : std::max(need.yhi[i], all_hi[size_t(xi)]);
-      need.reach_y[i] = b.y;
+      const size_t z = size_t(zi);
+      if (all_lo < all_hi) {
+        need.ylo[i] = std::min(lo[z], all_lo);
+        need.yhi[i] = std::max(hi[z], all_hi);
+        need.reach_y[i] = b.y;
+      } else if (lo[z] < hi[z]) {
+        need.ylo[i] = lo[z];
+        need.yhi[i] = hi[z];
+        need.reach_y[i] = reach[z];
+      }
     }
+  }
   SliceRows(b, need);
 }
 

@@ -17,6 +17,7 @@
 #include "absl/strings/str_cat.h"
 #include "core/base/random.h"
 #include "core/base/status_macros.h"
+#include "core/sets/cube_image.h"
 
 namespace nimbus {
 namespace {
@@ -50,6 +51,14 @@ inline Int3 Midpoint(Int3 a, Int3 f, unsigned round_up) {
           (a.z + f.z + int((round_up >> 2) & 1)) >> 1};
 }
 
+// std::lround for |v| < 2^31, inline (the portable build calls libm for
+// it): truncation, then the fraction v - trunc(v), which is exact, decides.
+inline int RoundHalfAway(double v) {
+  const int64_t i = int64_t(v);
+  const double f = v - double(i);
+  return int(i + (f >= 0.5) - (f <= -0.5));
+}
+
 inline int Chebyshev(Int3 a, Int3 b) {
   return std::max({std::abs(a.x - b.x), std::abs(a.y - b.y), std::abs(a.z - b.z)});
 }
@@ -81,89 +90,22 @@ inline bool Coherent(Int3 a, Int3 fa, Int3 n, Int3 fn) {
   return Coherent(MotionOf(a, fa), MotionOf(n, fn), {n.x - a.x, n.y - a.y, n.z - a.z});
 }
 
-// Sets every voxel whose index lies in the closed tetrahedron p[0..3]
-// (exact integer tests, so tetrahedra sharing a face leave no crack).
-// Voxels already set are skipped before any arithmetic (most are: the
-// images of neighbouring cubes overlap); for the others, the four
-// orientations "v in place of corner i" are affine in v, so they are
-// evaluated from face normals prepared on the first such voxel. The
-// integer arithmetic is exact, so this equals evaluating each
-// orientation determinant directly.
-void FillTetrahedron(const Int3 p[4], VoxelSet& out) {
-  auto sub = [](Int3 a, Int3 b) { return std::array<int64_t, 3>{a.x - b.x, a.y - b.y, a.z - b.z}; };
-  auto cross = [](const std::array<int64_t, 3>& a, const std::array<int64_t, 3>& b) {
-    return std::array<int64_t, 3>{a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
-                                  a[0] * b[1] - a[1] * b[0]};
-  };
-  const auto e1 = sub(p[1], p[0]), e2 = sub(p[2], p[0]), e3 = sub(p[3], p[0]);
-  const std::array<int64_t, 3> n1 = cross(e2, e3);  // opposite p[1]
-  const int64_t vol = e1[0] * n1[0] + e1[1] * n1[1] + e1[2] * n1[2];
-  if (vol == 0) return;  // flat: the edge bridges cover it
-  Int3 lo = p[0], hi = p[0];
-  for (int i = 1; i < 4; ++i) {
-    lo = {std::min(lo.x, p[i].x), std::min(lo.y, p[i].y), std::min(lo.z, p[i].z)};
-    hi = {std::max(hi.x, p[i].x), std::max(hi.y, p[i].y), std::max(hi.z, p[i].z)};
-  }
-  const Int3 res = out.resolution();
-  lo = {std::max(lo.x, 0), std::max(lo.y, 0), std::max(lo.z, 0)};
-  hi = {std::min(hi.x, res.x - 1), std::min(hi.y, res.y - 1), std::min(hi.z, res.z - 1)};
-  // s_i(v) = normal[i] . (v - base[i]): the orientation with v in place of
-  // corner i (s_0 through corner 1, the others through corner 0).
-  std::array<int64_t, 3> normal[4];
-  bool prepared = false;
-  for (int z = lo.z; z <= hi.z; ++z)
-    for (int y = lo.y; y <= hi.y; ++y) {
-      uint64_t* row = out.MutableRow(y, z);
-      for (int x = lo.x; x <= hi.x; ++x) {
-        std::atomic_ref<uint64_t> word(row[x >> 6]);
-        const uint64_t bit = uint64_t{1} << (x & 63);
-        if (word.load(std::memory_order_relaxed) & bit) continue;
-        if (!prepared) {
-          const std::array<int64_t, 3> m0 = cross(sub(p[2], p[1]), sub(p[3], p[1]));
-          normal[0] = {-m0[0], -m0[1], -m0[2]};
-          normal[1] = n1;
-          normal[2] = cross(e3, e1);
-          normal[3] = cross(e1, e2);
-          prepared = true;
-        }
-        const int64_t s0 = normal[0][0] * (x - p[1].x) + normal[0][1] * (y - p[1].y) +
-                           normal[0][2] * (z - p[1].z);
-        const int64_t dx = x - p[0].x, dy = y - p[0].y, dz = z - p[0].z;
-        const int64_t s1 = normal[1][0] * dx + normal[1][1] * dy + normal[1][2] * dz;
-        const int64_t s2 = normal[2][0] * dx + normal[2][1] * dy + normal[2][2] * dz;
-        const int64_t s3 = normal[3][0] * dx + normal[3][1] * dy + normal[3][2] * dz;
-        const bool inside = vol > 0 ? (s0 >= 0 && s1 >= 0 && s2 >= 0 && s3 >= 0)
-                                    : (s0 <= 0 && s1 <= 0 && s2 <= 0 && s3 <= 0);
-        if (inside) word.fetch_or(bit, std::memory_order_relaxed);
-      }
-    }
-}
-
-// True when every voxel of the box spanned by the eight points, clipped to
-// the lattice, is set in `out` (read bit by bit as other threads add bits:
-// a stale zero only costs a fill that changes nothing).
-bool AllSet(const VoxelSet& out, const Int3 (&p)[8]) {
-  Int3 lo = p[0], hi = p[0];
-  for (int i = 1; i < 8; ++i) {
-    lo = {std::min(lo.x, p[i].x), std::min(lo.y, p[i].y), std::min(lo.z, p[i].z)};
-    hi = {std::max(hi.x, p[i].x), std::max(hi.y, p[i].y), std::max(hi.z, p[i].z)};
-  }
-  const Int3 res = out.resolution();
-  lo = {std::max(lo.x, 0), std::max(lo.y, 0), std::max(lo.z, 0)};
-  hi = {std::min(hi.x, res.x - 1), std::min(hi.y, res.y - 1), std::min(hi.z, res.z - 1)};
-  for (int z = lo.z; z <= hi.z; ++z)
-    for (int y = lo.y; y <= hi.y; ++y) {
-      // The words are updated through atomic_ref by other threads.
-      uint64_t* row = const_cast<uint64_t*>(out.Row(y, z));
-      for (int w = lo.x >> 6; w <= hi.x >> 6; ++w) {
-        const int b0 = w == lo.x >> 6 ? lo.x & 63 : 0, b1 = w == hi.x >> 6 ? hi.x & 63 : 63;
-        const uint64_t want = (~uint64_t{0} >> (63 - b1)) & (~uint64_t{0} << b0);
-        std::atomic_ref<uint64_t> word(row[w]);
-        if ((word.load(std::memory_order_relaxed) & want) != want) return false;
-      }
-    }
-  return true;
-}
+// The 28 pairs of a cube's corners (i < j, in that order) with the step
+// from corner i to corner j: a table, so the coherence tests of a cube do
+// not recompute them.
+struct CornerPair {
+  int i, j;
+  Int3 d;
+};
+constexpr std::array<CornerPair, 28> kCornerPairs = [] {
+  std::array<CornerPair, 28> pairs{};
+  int n = 0;
+  for (int i = 0; i < 8; ++i)
+    for (int j = i + 1; j < 8; ++j)
+      pairs[n++] = {
+          i, j, {(j & 1) - (i & 1), ((j >> 1) & 1) - ((i >> 1) & 1), (j >> 2) - (i >> 2)}};
+  return pairs;
+}();
 
 absl::Status CheckPair(const VoxelSet& a, const VoxelSet& b, const GridFrame& frame) {
   NIMBUS_RETURN_IF_ERROR(ValidateSetFrame(frame));
@@ -344,19 +286,11 @@ absl::Status AddMidpoints(const VoxelSet& moving, const VoxelSet& source, const 
     // The tetrahedra only add voxels inside the corners' images' box: when
     // the median has already set all of those (common: neighbouring cubes'
     // images overlap), the fill and its 28 coherence tests can be skipped.
-    if (AllSet(out, img)) return;
-    for (int i = 0; i < 8; ++i)
-      for (int j = i + 1; j < 8; ++j) {
-        const Int3 d{(j & 1) - (i & 1), ((j >> 1) & 1) - ((i >> 1) & 1), (j >> 2) - (i >> 2)};
-        if (!Coherent(motion[i], motion[j], d)) return;
-      }
-    // Six tetrahedra around the diagonal 0-7 tile the cube.
-    static constexpr int kTets[6][4] = {{0, 1, 3, 7}, {0, 1, 5, 7}, {0, 2, 3, 7},
-                                        {0, 2, 6, 7}, {0, 4, 5, 7}, {0, 4, 6, 7}};
-    for (const auto& t : kTets) {
-      const Int3 p[4] = {img[t[0]], img[t[1]], img[t[2]], img[t[3]]};
-      FillTetrahedron(p, out);
-    }
+    const VoxelBox box = CubeImageBox(img, res);
+    if (BoxFilled(out, box)) return;
+    for (const CornerPair& p : kCornerPairs)
+      if (!Coherent(motion[p.i], motion[p.j], p.d)) return;
+    FillCubeImage(img, box, out);
   };
   tbb::parallel_for(slabs, [&](const tbb::blocked_range<int>& r) {
     if (cancelled) return;
@@ -395,9 +329,9 @@ absl::Status AddMidpoints(const VoxelSet& moving, const VoxelSet& source, const 
             if (k & 1) stretched = true;
             for (int s = 1; s < gap; ++s) {
               const double t = double(s) / gap;
-              SetAtomic(out, m.x + int(std::lround((mn.x - m.x) * t)),
-                        m.y + int(std::lround((mn.y - m.y) * t)),
-                        m.z + int(std::lround((mn.z - m.z) * t)));
+              SetAtomic(out, m.x + RoundHalfAway((mn.x - m.x) * t),
+                        m.y + RoundHalfAway((mn.y - m.y) * t),
+                        m.z + RoundHalfAway((mn.z - m.z) * t));
             }
           }
           if (stretched) {
@@ -433,6 +367,19 @@ absl::Status AddMidpoints(const VoxelSet& moving, const VoxelSet& source, const 
             if (k & 1) moves[k] = mv;
           }
           uint32_t rank = here.first[w];
+          // Ranks of the moving neighbours along +y and +z, counted as x
+          // grows (each cursor only moves forward) instead of a popcount
+          // per lookup.
+          struct Cursor {
+            uint32_t rank;
+            uint64_t ahead;  // moving voxels of the word not counted yet
+            uint32_t At(int b) {
+              for (; ahead && std::countr_zero(ahead) < b; ahead &= ahead - 1) ++rank;
+              return rank;
+            }
+          };
+          Cursor up{moves[3] ? around[3].first[w] : 0, moves[3]};
+          Cursor far{moves[5] ? around[5].first[w] : 0, moves[5]};
           for (uint64_t bits = mov; bits; bits &= bits - 1, ++rank) {
             const int b = std::countr_zero(bits), x = (w << 6) + b;
             // A pair shows a gap only when the images are two or more
@@ -459,8 +406,8 @@ absl::Status AddMidpoints(const VoxelSet& moving, const VoxelSet& source, const 
                      uint32_t(int(q >> 20) - int(pm >> 20) + 1) > 2u;
             };
             need = need || (((moves[1] >> b) & 1) && apart(rank + 1)) ||
-                   (((moves[3] >> b) & 1) && apart(rank_in(around[3], x))) ||
-                   (((moves[5] >> b) & 1) && apart(rank_in(around[5], x)));
+                   (((moves[3] >> b) & 1) && apart(up.At(b))) ||
+                   (((moves[5] >> b) & 1) && apart(far.At(b)));
             if (need) bridge(x, rank);
           }
         }

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <deque>
 
+#include "core/sets/cube_image.h"
 #include "core/sets/feature_transform.h"
 #include "core/base/random.h"
 #include "core/sets/shapes.h"
@@ -485,6 +486,39 @@ TEST(Median, FillsGapsWhereTheNearestPointMapIsContinuous) {
   EXPECT_EQ(EnclosedEmptyVoxels(*LeftMedian(far_ball, box, f)), 0);
   EXPECT_EQ(EnclosedEmptyVoxels(*LeftMedian(torus, far_ball, f)), 0);
   EXPECT_EQ(EnclosedEmptyVoxels(*LeftMedian(CowAt48(), far_ball, f)), 0);
+}
+
+TEST(Median, CubeImageFillMatchesPerTetrahedronTests) {
+  // The gap filling's one-pass fill of a cube's image against a voxel-by-
+  // voxel test of each tetrahedron: stretched, folded, flat and clipped
+  // corner images, into sets that already hold some of the voxels.
+  Rng rng(77, 0);
+  const Int3 res{70, 40, 40};
+  for (int trial = 0; trial < 400; ++trial) {
+    const Int3 at{int(rng.Next() % 60) - 2, int(rng.Next() % 30), int(rng.Next() % 30)};
+    const int spread = 1 + trial % 6;
+    Int3 img[8];
+    for (int c = 0; c < 8; ++c) {
+      auto jitter = [&] { return int(rng.Next() % (2 * spread + 1)) - spread; };
+      img[c] = {at.x + 2 * (c & 1) + jitter(), at.y + 2 * ((c >> 1) & 1) + jitter(),
+                at.z + 2 * (c >> 2) + jitter()};
+      if (trial % 10 == 0) img[c].z = at.z;  // flat: no tetrahedron has volume
+    }
+    const VoxelBox box = CubeImageBox(img, res);
+    VoxelSet before = RandomSet(res, trial % 3 == 0 ? 0.0 : 0.3, rng);
+    VoxelSet got = before;
+    FillCubeImage(img, box, got);
+    const VoxelSet want = before | testing::BruteForceCubeImage(img, box, res);
+    ASSERT_EQ(got, want) << "trial " << trial;
+    if (trial % 10 == 0) {
+      EXPECT_EQ(got, before) << "trial " << trial;
+    }
+    bool full = true;
+    for (int z = box.min.z; z <= box.max.z; ++z)
+      for (int y = box.min.y; y <= box.max.y; ++y)
+        for (int x = box.min.x; x <= box.max.x; ++x) full = full && want.Get(x, y, z);
+    EXPECT_EQ(BoxFilled(got, box), full) << "trial " << trial;
+  }
 }
 
 TEST(Median, RejectsBadInput) {

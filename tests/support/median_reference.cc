@@ -106,4 +106,48 @@ VoxelSet VoxelSetOf(Int3 resolution, const std::vector<Int3>& voxels) {
   return s;
 }
 
+namespace {
+
+// det[b - a, c - a, d - a]: positive when d lies on the left of (a, b, c).
+int64_t Orientation(Int3 a, Int3 b, Int3 c, Int3 d) {
+  const int64_t u[3] = {b.x - a.x, b.y - a.y, b.z - a.z};
+  const int64_t v[3] = {c.x - a.x, c.y - a.y, c.z - a.z};
+  const int64_t w[3] = {d.x - a.x, d.y - a.y, d.z - a.z};
+  return u[0] * (v[1] * w[2] - v[2] * w[1]) - u[1] * (v[0] * w[2] - v[2] * w[0]) +
+         u[2] * (v[0] * w[1] - v[1] * w[0]);
+}
+
+// Closed tetrahedron test: replacing each corner by q keeps the volume's
+// sign or makes it zero.
+bool InTetrahedron(const Int3 (&t)[4], Int3 q) {
+  const int64_t vol = Orientation(t[0], t[1], t[2], t[3]);
+  if (vol == 0) return false;
+  for (int i = 0; i < 4; ++i) {
+    Int3 s[4] = {t[0], t[1], t[2], t[3]};
+    s[i] = q;
+    const int64_t o = Orientation(s[0], s[1], s[2], s[3]);
+    if (vol > 0 ? o < 0 : o > 0) return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+VoxelSet BruteForceCubeImage(const Int3 (&img)[8], const VoxelBox& box, Int3 resolution) {
+  static constexpr int kTets[6][4] = {{0, 1, 3, 7}, {0, 1, 5, 7}, {0, 2, 3, 7},
+                                      {0, 2, 6, 7}, {0, 4, 5, 7}, {0, 4, 6, 7}};
+  VoxelSet out(resolution);
+  for (int z = box.min.z; z <= box.max.z; ++z)
+    for (int y = box.min.y; y <= box.max.y; ++y)
+      for (int x = box.min.x; x <= box.max.x; ++x)
+        for (const auto& k : kTets) {
+          const Int3 t[4] = {img[k[0]], img[k[1]], img[k[2]], img[k[3]]};
+          if (InTetrahedron(t, {x, y, z})) {
+            out.Set(x, y, z);
+            break;
+          }
+        }
+  return out;
+}
+
 }  // namespace nimbus::testing

@@ -38,6 +38,12 @@ bool Admits(const ReferenceMedian& ref, const VoxelSet& got, std::string* why = 
 std::vector<unsigned> AdmittingRoundings(const VoxelSet& a, const VoxelSet& b, Vec3 h,
                                          bool both_sides, const VoxelSet& got);
 
+/// @brief The voxels of `box` inside one of the six closed tetrahedra
+/// {0,1,3,7}, {0,1,5,7}, {0,2,3,7}, {0,2,6,7}, {0,4,5,7}, {0,4,6,7} of the
+/// points img[0..7] (non-flat ones only), each tested by the signs of its
+/// four orientation determinants computed from scratch.
+VoxelSet BruteForceCubeImage(const Int3 (&img)[8], const VoxelBox& box, Int3 resolution);
+
 /// A set holding exactly `voxels`.
 VoxelSet VoxelSetOf(Int3 resolution, const std::vector<Int3>& voxels);
 
