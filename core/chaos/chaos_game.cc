@@ -873,9 +873,8 @@ void ChaosGame::PlotRound(General& g, const flame::Walkers& s, bool final_map, i
   flame_plot_(plot_target_, s, final_map, n, &out);
   const uint64_t mask = active == 64 ? ~uint64_t{0} : (uint64_t{1} << active) - 1;
   // Lanes counted by walking their bits: the x86-64 baseline has no popcnt.
-  uint64_t landed = 0, restarted = 0;
-  for (uint64_t m = out.inside & mask; m; m &= m - 1, ++landed)
-    g.keys.Add(out.key[std::countr_zero(m)]);
+  const uint64_t landed = g.keys.AddLanes(out.key, out.inside & mask);
+  uint64_t restarted = 0;
   for (uint64_t m = out.bad_final & mask; m; m &= m - 1) ++g.final_nonfinite;
   for (uint64_t m = out.bad_walker & mask; m; m &= m - 1, ++restarted)
     rewarm(std::countr_zero(m));

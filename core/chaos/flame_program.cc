@@ -20,6 +20,7 @@ void FlameProgram::Tables::Add(const PointMap& map) {
   has_post.push_back(map.post.has_value());
   has_terms.push_back(!map.variations.empty());
   color.push_back(map.color);
+  words.push_back(MapWords(map));
   uint32_t draw = 0;
   for (const VariationTerm& v : map.variations) {
     terms.push_back({uint32_t(v.kind), v.weight, draw});
@@ -29,8 +30,8 @@ void FlameProgram::Tables::Add(const PointMap& map) {
 }
 
 flame::MapTables FlameProgram::Tables::View() const {
-  return {pre.data(),        post.data(),  has_post.data(),  has_terms.data(),
-          first_term.data(), terms.data(), color.data(),     uint32_t(color.size())};
+  return {pre.data(),   post.data(),  has_post.data(),        has_terms.data(), first_term.data(),
+          terms.data(), color.data(), uint32_t(color.size()), words.data()};
 }
 
 FlameProgram::FlameProgram(const std::vector<PointMap>& maps,

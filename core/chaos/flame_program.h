@@ -36,7 +36,7 @@ class FlameProgram {
   struct Tables {
     std::vector<double> pre, post, color;
     std::vector<uint8_t> has_post, has_terms;
-    std::vector<uint32_t> first_term;
+    std::vector<uint32_t> first_term, words;
     std::vector<flame::Term> terms;
     void Add(const PointMap& map);
     flame::MapTables View() const;

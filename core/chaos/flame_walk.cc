@@ -11,6 +11,7 @@ namespace {
 struct ScalarIsa {
   using T = double;
   static constexpr int kWidth = 1;
+  static constexpr bool kStaged = false;
   static double Load(const double* p) { return *p; }
   static void Store(double* p, double v) { *p = v; }
   static int32_t Index(const int32_t* lanes) { return lanes[0]; }
@@ -18,8 +19,10 @@ struct ScalarIsa {
   static void PickMaps(const Program& p, Walkers& w, int n) { PickMapsScalar(p, w, n); }
   static void SortByMap(uint32_t maps, Walkers& w, int n) { SortByMapScalar(maps, w, n); }
   static double Gather(const double* base, int32_t i) { return base[i]; }
+  static double LookupMaps(const double* table, uint32_t, int32_t i) { return table[i]; }
   static void Scatter(double* base, int32_t i, double v) { base[i] = v; }
   static uint64_t GatherWord(const uint64_t* base, int32_t i) { return base[i]; }
+  static uint64_t LoadWord(const uint64_t* p) { return *p; }
   static double Uniform(uint64_t w) { return double(w >> 11) * 0x1.0p-53; }
   static bool Bit(uint64_t w) { return (w >> 63) != 0; }
   static double Zero() { return 0.0; }

@@ -20,6 +20,13 @@ namespace nimbus::flame {
 /// Walkers a Walkers block holds; a round steps a multiple of kAlign.
 inline constexpr int kMaxWalkers = 64;
 inline constexpr int kAlign = 8;
+/// The staged map pass (Walkers::sx) takes at most this many maps and
+/// random words per map application; other programs go by walker index.
+inline constexpr int kStageMaps = 8;
+inline constexpr int kStageWords = 4;
+/// Staging room: every map's run starts on a kAlign boundary, and loads
+/// may run kAlign lanes past a run's end.
+inline constexpr int kStage = kMaxWalkers + (kStageMaps + 1) * kAlign;
 
 /// @brief One weighted variation term. `draw` is the first of the words the
 /// term reads, counted from its map's first (formulas::VariationDraws).
@@ -42,6 +49,7 @@ struct MapTables {
   const Term* terms = nullptr;
   const double* color = nullptr;
   uint32_t num_maps = 0;
+  const uint32_t* words = nullptr;  // per map: the random words it reads
 };
 
 /// @brief What a round needs of the job. Each step a walker draws `words`
@@ -74,6 +82,14 @@ struct alignas(64) Walkers {
   int32_t order[kMaxWalkers];
   uint64_t* words = nullptr;
   uint32_t* group = nullptr;
+  // The staged map pass (AVX-512): each map's walkers copied into one run,
+  // points and words, so the map reads and writes whole registers instead
+  // of gathering and scattering by walker index. Run m is
+  // [stage_begin[m], stage_end[m]), padded with its last walker to a whole
+  // register.
+  alignas(64) double sx[kStage], sy[kStage], sz[kStage];
+  alignas(64) uint64_t sw[kStageWords][kStage];
+  uint32_t stage_begin[kStageMaps], stage_end[kStageMaps];
 };
 
 /// One step of walkers [0, n), n a multiple of kAlign: draw, pick, recolour,

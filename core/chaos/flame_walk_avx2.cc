@@ -34,6 +34,7 @@ inline __m256d IsNegative(__m256d a) { return _mm256_cmp_pd(a, _mm256_setzero_pd
 inline __m256d IsZero(__m256d a) { return _mm256_cmp_pd(a, _mm256_setzero_pd(), _CMP_EQ_OQ); }
 inline __m256d IsPositive(__m256d a) { return _mm256_cmp_pd(a, _mm256_setzero_pd(), _CMP_GT_OQ); }
 inline __m256d Select(__m256d m, __m256d a, __m256d b) { return _mm256_blendv_pd(b, a, m); }
+inline bool AllZero(__m256d a) { return _mm256_movemask_pd(IsZero(a)) == 0xf; }
 
 }  // namespace
 }  // namespace nimbus::formulas
@@ -47,6 +48,7 @@ namespace {
 struct Avx2Isa {
   using T = __m256d;
   static constexpr int kWidth = 4;
+  static constexpr bool kStaged = false;  // no compress in AVX2
   static __m256d Load(const double* p) { return _mm256_load_pd(p); }
   static void Store(double* p, __m256d v) { _mm256_store_pd(p, v); }
   static __m128i Index(const int32_t* lanes) {
@@ -74,6 +76,7 @@ struct Avx2Isa {
     }
   }
   static __m256d Gather(const double* base, __m128i i) { return _mm256_i32gather_pd(base, i, 8); }
+  static __m256d LookupMaps(const double* table, uint32_t, __m128i i) { return Gather(table, i); }
   static void Scatter(double* base, __m128i i, __m256d v) {  // no scatter in AVX2
     alignas(32) double lane[4];
     alignas(16) int32_t at[4];
@@ -83,6 +86,9 @@ struct Avx2Isa {
   }
   static __m256i GatherWord(const uint64_t* base, __m128i i) {
     return _mm256_i32gather_epi64(reinterpret_cast<const long long*>(base), i, 8);
+  }
+  static __m256i LoadWord(const uint64_t* p) {
+    return _mm256_loadu_si256(reinterpret_cast<const __m256i*>(p));
   }
   // (w >> 11) 2^-53 exactly: both 32-bit halves convert exactly through the
   // 2^52 exponent trick and their sum stays below 2^53.

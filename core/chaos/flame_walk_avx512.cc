@@ -41,6 +41,7 @@ inline __mmask8 IsPositive(__m512d a) {
   return _mm512_cmp_pd_mask(a, _mm512_setzero_pd(), _CMP_GT_OQ);
 }
 inline __m512d Select(__mmask8 m, __m512d a, __m512d b) { return _mm512_mask_blend_pd(m, b, a); }
+inline bool AllZero(__m512d a) { return IsZero(a) == 0xff; }
 
 }  // namespace
 }  // namespace nimbus::formulas
@@ -54,22 +55,38 @@ namespace {
 struct Avx512Isa {
   using T = __m512d;
   static constexpr int kWidth = 8;
+  static constexpr bool kStaged = true;
   static __m512d Load(const double* p) { return _mm512_load_pd(p); }
   static void Store(double* p, __m512d v) { _mm512_store_pd(p, v); }
   static __m256i Index(const int32_t* lanes) {
     return _mm256_loadu_si256(reinterpret_cast<const __m256i*>(lanes));
   }
   static __m512d ToDouble(__m256i i) { return _mm512_cvtepi32_pd(i); }
+  // Entry i of a per-map table for eight walkers: with at most eight maps
+  // the table sits in one register and a permute looks it up (gathers
+  // cost far more), else a gather.
+  static __m512i Lookup(const uint32_t* table, uint32_t maps, __m512i i) {
+    if (maps > 8) return _mm512_cvtepu32_epi64(_mm512_i64gather_epi32(i, table, 4));
+    const __m512i row = _mm512_cvtepu32_epi64(
+        _mm512_castsi512_si256(_mm512_maskz_loadu_epi32(__mmask16((1u << maps) - 1), table)));
+    return _mm512_permutexvar_epi64(i, row);
+  }
+  static __m512d LookupMaps(const double* table, uint32_t maps, __m256i i) {
+    if (maps > 8) return Gather(table, i);
+    const __m512d row = _mm512_maskz_loadu_pd(__mmask8((1u << maps) - 1), table);
+    return _mm512_permutexvar_pd(_mm512_cvtepu32_epi64(i), row);
+  }
   // AliasTable::Sample, eight words at a time: the 32 x 32-bit product picks
   // the column, the low half of the word decides between it and its alias.
   static void PickMaps(const Program& p, Walkers& w, int n) {
-    const __m512i num = _mm512_set1_epi64(p.maps.num_maps);
+    const uint32_t maps = p.maps.num_maps;
+    const __m512i num = _mm512_set1_epi64(maps);
     const __m512i low = _mm512_set1_epi64(0xffffffff);
     for (int k = 0; k < n; k += kWidth) {
       const __m512i r = _mm512_loadu_si512(w.words + k);
       const __m512i i = _mm512_srli_epi64(_mm512_mul_epu32(_mm512_srli_epi64(r, 32), num), 32);
-      const __m512i threshold = _mm512_cvtepu32_epi64(_mm512_i64gather_epi32(i, p.threshold, 4));
-      const __m512i alias = _mm512_cvtepu32_epi64(_mm512_i64gather_epi32(i, p.alias, 4));
+      const __m512i threshold = Lookup(p.threshold, maps, i);
+      const __m512i alias = Lookup(p.alias, maps, i);
       const __mmask8 keep = _mm512_cmplt_epu64_mask(_mm512_and_si512(r, low), threshold);
       _mm256_storeu_si256(reinterpret_cast<__m256i*>(w.map + k),
                           _mm512_cvtepi64_epi32(_mm512_mask_blend_epi64(keep, alias, i)));
@@ -101,6 +118,77 @@ struct Avx512Isa {
   static void Scatter(double* base, __m256i i, __m512d v) { _mm512_i32scatter_pd(base, i, v, 8); }
   static __m512i GatherWord(const uint64_t* base, __m256i i) {
     return _mm512_i32gather_epi64(i, base, 8);
+  }
+  static __m512i LoadWord(const uint64_t* p) { return _mm512_loadu_si512(p); }
+  // The lanes of walkers [k, k + 8) that took map m.
+  static __mmask8 OfMap(const Walkers& w, int k, uint32_t m) {
+    const __m512i maps = _mm512_castsi256_si512(
+        _mm256_load_si256(reinterpret_cast<const __m256i*>(w.map + k)));
+    return __mmask8(_mm512_mask_cmpeq_epi32_mask(0xff, maps, _mm512_set1_epi32(int(m))));
+  }
+  // Each map's walkers compressed, in walker order, into a run of the
+  // staging arrays (register compresses and whole-register stores: a
+  // compress straight to memory is slow on some CPUs), each run starting on
+  // a register boundary and padded with its last walker, as MapsByIndex
+  // pads.
+  static void Stage(const MapTables& t, Walkers& w, int n) {
+    uint32_t at = 0;
+    for (uint32_t m = 0; m < t.num_maps; ++m) {
+      w.stage_begin[m] = at;
+      const uint32_t words = t.words[m];
+      int tail = -1;  // the last register with walkers of map m
+      for (int k = 0; k < n; k += kWidth) {
+        const __mmask8 is = OfMap(w, k, m);
+        if (is == 0) continue;
+        _mm512_storeu_pd(w.sx + at, _mm512_maskz_compress_pd(is, _mm512_load_pd(w.x + k)));
+        _mm512_storeu_pd(w.sy + at, _mm512_maskz_compress_pd(is, _mm512_load_pd(w.y + k)));
+        _mm512_storeu_pd(w.sz + at, _mm512_maskz_compress_pd(is, _mm512_load_pd(w.z + k)));
+        for (uint32_t c = 0; c < words; ++c) {
+          const __m512i word = _mm512_loadu_si512(w.words + size_t(c + 1) * kMaxWalkers + k);
+          _mm512_storeu_si512(w.sw[c] + at, _mm512_maskz_compress_epi64(is, word));
+        }
+        at += uint32_t(__builtin_popcount(is));
+        tail = k;
+      }
+      w.stage_end[m] = at;
+      if (at % kWidth != 0) Pad(w, tail, m, words);
+      at = (at + kWidth - 1) / kWidth * kWidth;
+    }
+  }
+  // Fills the lanes of a run's last register past its end with its last
+  // walker, taken from walker register `k` (reading back the staging
+  // arrays just stored would wait for the stores).
+  static void Pad(Walkers& w, int k, uint32_t m, uint32_t words) {
+    const __mmask8 is = OfMap(w, k, m);
+    const uint32_t end = w.stage_end[m];
+    const __mmask8 pad = __mmask8(0xff << (end % kWidth));
+    const __m512i last = _mm512_set1_epi64(31 - __builtin_clz(is));
+    auto fill = [&](double* run, const double* from) {
+      _mm512_mask_storeu_pd(run + end / kWidth * kWidth, pad,
+                            _mm512_permutexvar_pd(last, _mm512_load_pd(from + k)));
+    };
+    fill(w.sx, w.x), fill(w.sy, w.y), fill(w.sz, w.z);
+    for (uint32_t c = 0; c < words; ++c) {
+      const __m512i word = _mm512_loadu_si512(w.words + size_t(c + 1) * kMaxWalkers + k);
+      _mm512_mask_storeu_epi64(w.sw[c] + end / kWidth * kWidth, pad,
+                               _mm512_permutexvar_epi64(last, word));
+    }
+  }
+  // Stage's inverse: each register of walkers expanded from the runs.
+  static void Unstage(uint32_t maps, Walkers& w, int n) {
+    uint32_t at[kStageMaps];
+    for (uint32_t m = 0; m < maps; ++m) at[m] = w.stage_begin[m];
+    for (int k = 0; k < n; k += kWidth) {
+      __m512d x = _mm512_setzero_pd(), y = x, z = x;
+      for (uint32_t m = 0; m < maps; ++m) {
+        const __mmask8 is = OfMap(w, k, m);
+        x = _mm512_mask_expand_pd(x, is, _mm512_loadu_pd(w.sx + at[m]));
+        y = _mm512_mask_expand_pd(y, is, _mm512_loadu_pd(w.sy + at[m]));
+        z = _mm512_mask_expand_pd(z, is, _mm512_loadu_pd(w.sz + at[m]));
+        at[m] += uint32_t(__builtin_popcount(is));
+      }
+      _mm512_store_pd(w.x + k, x), _mm512_store_pd(w.y + k, y), _mm512_store_pd(w.z + k, z);
+    }
   }
   // Exact: the 53 bits convert without rounding, as the scalar Rng's do.
   static __m512d Uniform(__m512i w) {

@@ -3,11 +3,13 @@
 // has declared its vector operations (see variation_formulas.h). Isa has:
 // T (doubles), kWidth (lanes per T); Load/Store; Index(const int32_t*)
 // (kWidth walker or map indices) and ToDouble(index), Gather(base, index)
-// and Scatter(base, index, T) of doubles, GatherWord(base, index) of random
-// words, Uniform(word) and Bit(word) as the scalar Rng reads a word; Zero();
-// DrawWords(walkers, n, words), which advances walkers [0, n) of their
-// streams by `words` words each; PickMaps and SortByMap, as
-// PickMapsScalar and SortByMapScalar below do them.
+// and Scatter(base, index, T) of doubles, LookupMaps(table, maps, index)
+// (Gather from a per-map table), GatherWord(base, index) and
+// LoadWord(p) of random words, Uniform(word) and Bit(word) as the scalar
+// Rng reads a word; Zero(); DrawWords(walkers, n, words), which advances
+// walkers [0, n) of their streams by `words` words each; PickMaps and
+// SortByMap, as PickMapsScalar and SortByMapScalar below do them; kStaged,
+// and where it is true Stage and Unstage (see MapsStaged).
 #pragma once
 
 #include <algorithm>
@@ -18,21 +20,48 @@
 namespace nimbus::flame {
 namespace {
 
-// The pre-drawn words of one term for the lanes of `index`, in order.
-template <class Isa, class I>
+// Where a map pass reads its lanes and writes them back. By walker index:
+// gathers, and scatters to (ox, oy, oz); every gather comes before any
+// scatter, so an index may repeat (padding).
+template <class Isa>
+struct ByIndex {
+  decltype(Isa::Index(nullptr)) index;
+  const double *x, *y, *z;
+  double *ox, *oy, *oz;
+  const uint64_t* words;  // the map's first word column, kMaxWalkers apart
+  formulas::P3<typename Isa::T> In() const {
+    return {Isa::Gather(x, index), Isa::Gather(y, index), Isa::Gather(z, index)};
+  }
+  void Out(const formulas::P3<typename Isa::T>& q) const {
+    Isa::Scatter(ox, index, q.x);
+    Isa::Scatter(oy, index, q.y);
+    Isa::Scatter(oz, index, q.z);
+  }
+  auto Word(uint32_t c) const { return Isa::GatherWord(words + size_t(c) * kMaxWalkers, index); }
+};
+
+// Whole registers: lanes read at x, y, z and written at ox, oy, oz; word
+// column c at words + c * stride.
+template <class Isa>
+struct Contiguous {
+  const double *x, *y, *z;
+  double *ox, *oy, *oz;
+  const uint64_t* words;
+  size_t stride;
+  formulas::P3<typename Isa::T> In() const { return {Isa::Load(x), Isa::Load(y), Isa::Load(z)}; }
+  void Out(const formulas::P3<typename Isa::T>& q) const {
+    Isa::Store(ox, q.x), Isa::Store(oy, q.y), Isa::Store(oz, q.z);
+  }
+  auto Word(uint32_t c) const { return Isa::LoadWord(words + c * stride); }
+};
+
+// The pre-drawn words of one term, in order.
+template <class Isa, class Access>
 struct WordDraws {
-  const uint64_t* next;
-  const I& index;
-  typename Isa::T Uniform() {
-    const auto w = Isa::GatherWord(next, index);
-    next += kMaxWalkers;
-    return Isa::Uniform(w);
-  }
-  auto Bit() {
-    const auto w = Isa::GatherWord(next, index);
-    next += kMaxWalkers;
-    return Isa::Bit(w);
-  }
+  const Access& at;
+  uint32_t next;
+  typename Isa::T Uniform() { return Isa::Uniform(at.Word(next++)); }
+  auto Bit() { return Isa::Bit(at.Word(next++)); }
 };
 
 // p -> A p + b with one map's coefficients, in Affine3::Apply's order.
@@ -44,33 +73,25 @@ inline formulas::P3<T> ApplyAffine(const double* a, const formulas::P3<T>& p) {
   return {row(0), row(1), row(2)};
 }
 
-// Map m of `t` on the walkers index[0, kWidth): reads (x, y, z), writes
-// (ox, oy, oz); `words` is the column of the map's first word. Every gather
-// comes before any scatter, so an index may repeat (padding).
-template <class Isa>
-inline void ApplyMap(const MapTables& t, uint32_t m, const int32_t* lanes, const uint64_t* words,
-                     const double* x, const double* y, const double* z, double* ox, double* oy,
-                     double* oz) {
+// Map m of `t` on one register of lanes, read and written through `at`.
+template <class Isa, class Access>
+inline void ApplyMap(const MapTables& t, uint32_t m, const Access& at) {
   using T = typename Isa::T;
   using formulas::P3;
-  const auto index = Isa::Index(lanes);
   const double* pre = t.pre + 12 * size_t(m);
-  P3<T> q = ApplyAffine<T>(pre, {Isa::Gather(x, index), Isa::Gather(y, index),
-                                  Isa::Gather(z, index)});
+  P3<T> q = ApplyAffine<T>(pre, at.In());
   if (t.has_terms[m]) {
     P3<T> sum{Isa::Zero(), Isa::Zero(), Isa::Zero()};
     for (uint32_t j = t.first_term[m]; j < t.first_term[m + 1]; ++j) {
       const Term& term = t.terms[j];
-      WordDraws<Isa, decltype(index)> draws{words + size_t(term.draw) * kMaxWalkers, index};
+      WordDraws<Isa, Access> draws{at, term.draw};
       const P3<T> v = formulas::Variation<T>(VariationKind(term.kind), q, pre, draws);
       sum = {sum.x + term.weight * v.x, sum.y + term.weight * v.y, sum.z + term.weight * v.z};
     }
     q = sum;
   }
   if (t.has_post[m]) q = ApplyAffine<T>(t.post + 12 * size_t(m), q);
-  Isa::Scatter(ox, index, q.x);
-  Isa::Scatter(oy, index, q.y);
-  Isa::Scatter(oz, index, q.z);
+  at.Out(q);
 }
 
 // AliasTable::Sample on word 0 of each walker, without a branch (a
@@ -93,7 +114,7 @@ inline void Recolor(const Program& p, Walkers& w, int n) {
     const auto m = Isa::Index(reinterpret_cast<const int32_t*>(w.map + k));
     const T addr = (Isa::ToDouble(m) + Isa::Load(w.addr + k)) * p.inv_maps;
     Isa::Store(w.addr + k, addr);
-    const T target = p.color_mode == 2 ? addr : Isa::Gather(p.maps.color, m);
+    const T target = p.color_mode == 2 ? addr : Isa::LookupMaps(p.maps.color, p.maps.num_maps, m);
     const T col = Isa::Load(w.col + k);
     Isa::Store(w.col + k, col + p.blend * (target - col));
   }
@@ -112,31 +133,74 @@ inline void SortByMapScalar(uint32_t num_maps, Walkers& w, int n) {
   start[num_maps] = uint32_t(n);
 }
 
+// The maps by walker index: walkers sorted by map, each map's walkers
+// gathered a register at a time.
+template <class Isa>
+void MapsByIndex(const Program& p, Walkers& w, int n) {
+  constexpr int kW = Isa::kWidth;
+  Isa::SortByMap(p.maps.num_maps, w, n);
+  const uint64_t* map_words = w.words + kMaxWalkers;  // word 1
+  auto apply = [&](uint32_t m, const int32_t* lanes) {
+    const ByIndex<Isa> at{Isa::Index(lanes), w.x, w.y, w.z, w.x, w.y, w.z, map_words};
+    ApplyMap<Isa>(p.maps, m, at);
+  };
+  for (uint32_t m = 0; m < p.maps.num_maps; ++m) {
+    const int begin = int(w.group[m]), end = int(w.group[m + 1]);
+    int k = begin;
+    for (; k + kW <= end; k += kW) apply(m, w.order + k);
+    if (k < end) {  // the last walker repeated to a whole register
+      int32_t lanes[kW];
+      for (int i = 0; i < kW; ++i) lanes[i] = w.order[std::min(k + i, end - 1)];
+      apply(m, lanes);
+    }
+  }
+}
+
+// The maps staged: Isa::Stage copies each map's walkers, in walker order,
+// into a run of Walkers::sx..., whose registers hold exactly the lanes
+// MapsByIndex's would (the last walker repeated), so every lane computes
+// the same bits; Isa::Unstage puts the results back.
+template <class Isa>
+void MapsStaged(const Program& p, Walkers& w, int n) {
+  constexpr int kW = Isa::kWidth;
+  Isa::Stage(p.maps, w, n);
+  for (uint32_t m = 0; m < p.maps.num_maps; ++m) {
+    for (uint32_t k = w.stage_begin[m]; k < w.stage_end[m]; k += kW) {
+      double *x = w.sx + k, *y = w.sy + k, *z = w.sz + k;
+      const Contiguous<Isa> at{x, y, z, x, y, z, &w.sw[0][k], kStage};
+      ApplyMap<Isa>(p.maps, m, at);
+    }
+  }
+  Isa::Unstage(p.maps.num_maps, w, n);
+}
+
+// Whether a program fits the staging room.
+inline bool Stageable(const Program& p) {
+  return p.maps.num_maps <= uint32_t(kStageMaps) && p.final_word - 1 <= uint32_t(kStageWords);
+}
+
 template <class Isa>
 void RoundWith(const Program& p, Walkers& w, int n) {
   constexpr int kW = Isa::kWidth;
   Isa::DrawWords(w, n, p.words);
   Isa::PickMaps(p, w, n);
   if (p.color_mode != 0) Recolor<Isa>(p, w, n);
-  Isa::SortByMap(p.maps.num_maps, w, n);
-  const uint64_t* map_words = w.words + kMaxWalkers;  // word 1
-  for (uint32_t m = 0; m < p.maps.num_maps; ++m) {
-    const int begin = int(w.group[m]), end = int(w.group[m + 1]);
-    int k = begin;
-    for (; k + kW <= end; k += kW)
-      ApplyMap<Isa>(p.maps, m, w.order + k, map_words, w.x, w.y, w.z, w.x, w.y, w.z);
-    if (k < end) {  // the last walker repeated to a whole register
-      int32_t lanes[kW];
-      for (int i = 0; i < kW; ++i) lanes[i] = w.order[std::min(k + i, end - 1)];
-      ApplyMap<Isa>(p.maps, m, lanes, map_words, w.x, w.y, w.z, w.x, w.y, w.z);
-    }
+  if constexpr (Isa::kStaged) {
+    if (Stageable(p))
+      MapsStaged<Isa>(p, w, n);
+    else
+      MapsByIndex<Isa>(p, w, n);
+  } else {
+    MapsByIndex<Isa>(p, w, n);
   }
   if (p.final_map.num_maps == 0) return;
   const uint64_t* final_words = w.words + size_t(p.final_word) * kMaxWalkers;
   for (int k = 0; k < n; k += kW) {
-    int32_t lanes[kW];
-    for (int i = 0; i < kW; ++i) lanes[i] = k + i;
-    ApplyMap<Isa>(p.final_map, 0, lanes, final_words, w.x, w.y, w.z, w.fx, w.fy, w.fz);
+    // Out of place: the plot reads the point after the final transform,
+    // the next step the one before.
+    const Contiguous<Isa> at{w.x + k,  w.y + k,  w.z + k,          w.fx + k,
+                             w.fy + k, w.fz + k, final_words + k, kMaxWalkers};
+    ApplyMap<Isa>(p.final_map, 0, at);
   }
 }
 

@@ -1,5 +1,7 @@
 #include "core/chaos/key_bins.h"
 
+#include <bit>
+
 namespace nimbus {
 
 namespace {
@@ -40,6 +42,13 @@ KeyBins::KeyBins(CountGrid& grid, size_t capacity, bool weighted)
   const uint64_t tiles = CountGrid::TileCountFor(grid.resolution());
   shift_ = 15 + Pool::TileShift(tiles);
   pool_ = Pool(size_t(Pool::BinCount(tiles)), capacity, /*huge_pages=*/false);
+}
+
+uint64_t KeyBins::AddLanes(const uint64_t* key, uint64_t lanes) {
+  uint64_t added = 0;
+  // Bits walked one by one: the x86-64 baseline has no popcnt.
+  for (; lanes; lanes &= lanes - 1, ++added) Add(key[std::countr_zero(lanes)]);
+  return added;
 }
 
 void KeyBins::Refill(uint32_t bin) { pool_.Refill(bin, ApplyFn()); }

@@ -33,6 +33,11 @@ class KeyBins {
       Refill(bin);
     *c.tail++ = key;
   }
+  /// Adds key[i] for every set bit i of `lanes` (a plot round's landed
+  /// lanes); returns how many. Out of line on purpose: in a small function
+  /// the loop's state stays in registers, where inlined into the caller's
+  /// round loop it went through the stack on every key.
+  uint64_t AddLanes(const uint64_t* key, uint64_t lanes);
   /// Applies every buffered key to the grid.
   void Flush();
 

@@ -37,11 +37,19 @@ inline bool IsNegative(double a) { return a < 0; }
 inline bool IsZero(double a) { return a == 0; }
 inline bool IsPositive(double a) { return 0 < a; }
 inline double Select(bool m, double a, double b) { return m ? a : b; }
+inline bool AllZero(double a) { return a == 0; }
 
 // flam3's guard against division by zero, added where flam3 adds it.
 constexpr double kEps = 1e-10;
 constexpr double kPi = std::numbers::pi;
 constexpr double kInvSqrt2 = 0.70710678118654752440;  // 1 / sqrt 2
+
+// sin a, without the call where every lane is +-0 (z of a 2D flame):
+// sin(+-0) = +-0 exactly in the C library and in SLEEF, so no bit changes.
+template <class T>
+inline T SinOrZero(T a) {
+  return AllZero(a) ? a : Sin(a);
+}
 
 template <class T>
 struct P3 {
@@ -93,7 +101,7 @@ template <class T, class R>
     case VariationKind::kLinear:
       return p;
     case VariationKind::kSinusoidal:
-      return {Sin(x), Sin(y), Sin(z)};
+      return {Sin(x), Sin(y), SinOrZero(z)};
     case VariationKind::kSpherical:
       return Scaled<T>(1.0 / ((x * x + y * y + z * z) + kEps), p);
     case VariationKind::kSwirl: {

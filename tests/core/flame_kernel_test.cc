@@ -209,6 +209,60 @@ TEST(FlameKernel, VectorKernelsPickTheSameMapsAndAgreeWithManyMaps) {
               0);
 }
 
+// The AVX-512 kernel stages each map's walkers into runs (up to
+// flame::kStageMaps maps and flame::kStageWords words per map) and goes by
+// walker index otherwise; AVX2 always goes by index. Lopsided weights give
+// empty runs, one-walker runs and runs of whole registers.
+TEST(FlameKernel, Avx512StagedRunsAgreeWithTheIndexedKernelBitForBit) {
+  if (DetectSimd() < SimdLevel::kAvx512) GTEST_SKIP() << "no AVX-512 on this CPU";
+  const std::vector<Vec3> pts = TestPoints(3000);
+  for (int count : {1, 2, 3, 5, 8, 9}) {
+    for (double heavy : {1.0, 40.0}) {
+      SCOPED_TRACE(absl::StrCat(count, " maps, heavy ", heavy));
+      std::vector<PointMap> maps;
+      std::vector<double> weights;
+      for (int i = 0; i < count; ++i) {
+        const VariationKind kind = AllVariations()[size_t(i * 5 + 3) % AllVariations().size()];
+        maps.push_back(OneTermMap(kind));
+        maps.back().variations.push_back({VariationKind::kJulia, 0.25, {}});
+        weights.push_back(i == 0 ? heavy : 1.0);
+      }
+      const KernelRun a = RunKernel(maps, pts, SimdLevel::kAvx2, weights);
+      const KernelRun b = RunKernel(maps, pts, SimdLevel::kAvx512, weights);
+      EXPECT_EQ(a.maps, b.maps);
+      EXPECT_EQ(std::memcmp(a.points.data(), b.points.data(), pts.size() * sizeof(Vec3)), 0);
+    }
+  }
+  // More random words than the staging holds: the indexed pass.
+  PointMap many = OneTermMap(VariationKind::kBlur);
+  many.variations.push_back({VariationKind::kNoise, 0.5, {}});
+  const std::vector<PointMap> maps = {many, OneTermMap(VariationKind::kSwirl)};
+  const KernelRun a = RunKernel(maps, pts, SimdLevel::kAvx2);
+  const KernelRun b = RunKernel(maps, pts, SimdLevel::kAvx512);
+  EXPECT_EQ(std::memcmp(a.points.data(), b.points.data(), pts.size() * sizeof(Vec3)), 0);
+}
+
+// A planar map (no z row) keeps z = +0, and sinusoidal then skips sin z:
+// sin(+-0) = +-0 in the C library and in SLEEF, so every kernel's z is
+// the scalar kernel's, bit for bit.
+TEST(FlameKernel, SinusoidalOfAFlatPointKeepsZBitForBit) {
+  PointMap flat;
+  flat.pre.m = {{{0.7, 0.2, 0, -0.4}, {-0.2, 0.7, 0, 0.5}, {0, 0, 0, 0}}};
+  flat.variations = {{VariationKind::kSinusoidal, 1.0, {}}};
+  std::vector<Vec3> pts = TestPoints(500);
+  for (Vec3& p : pts) p.z = 0;
+  const KernelRun scalar = RunKernel({flat}, pts, SimdLevel::kScalar);
+  for (SimdLevel level : VectorLevels()) {
+    SCOPED_TRACE(std::string(SimdName(level)));
+    const KernelRun got = RunKernel({flat}, pts, level);
+    for (size_t i = 0; i < pts.size(); ++i) {
+      EXPECT_EQ(std::memcmp(&got.points[i].z, &scalar.points[i].z, sizeof(double)), 0) << i;
+      EXPECT_FALSE(std::signbit(got.points[i].z)) << i;
+      EXPECT_EQ(got.points[i].z, 0.0) << i;
+    }
+  }
+}
+
 // A coloured flame with post and final transforms and random variations.
 ChaosGameParams SmallFlame() {
   using K = VariationKind;
