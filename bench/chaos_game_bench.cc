@@ -80,6 +80,29 @@ BENCHMARK(BM_FernVolume1024)
     ->UseRealTime()
     ->Iterations(1);
 
+// The binned fast path's two ways to use two threads on the 1024^3 fern:
+// one grid per thread, merged at the end (0), or one shared grid (1, the
+// default; core/chaos/shared_tiles.h). Same counts; compare CPU time and
+// peak RSS as well as the rate.
+void BM_FernSharedGrid(benchmark::State& state) {
+  ChaosGameParams p = FernVolumeParams(1024, uint64_t{1} << 28);
+  p.shared_grid = state.range(0) != 0;
+  for (auto _ : state) {
+    auto game = ChaosGame::Create(p, 2);
+    if (!game.ok()) return state.SkipWithError("create failed");
+    (void)(*game)->Run(nullptr);
+    state.counters["engine_bytes"] = double((*game)->MemoryBytes());
+    benchmark::DoNotOptimize((*game)->TakeCounts().AllocatedTiles());
+  }
+  state.SetItemsProcessed(int64_t(state.iterations() * p.iterations));
+}
+BENCHMARK(BM_FernSharedGrid)
+    ->Arg(0)
+    ->Arg(1)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->Iterations(1);
+
 // The fast path's two sinks, voxels incremented at once (1) or binned by
 // tile first (0), on attractors of growing extent, 2 threads, the best SIMD
 // level: where ChaosGame's kDirectTiles should sit. Arguments: attractor

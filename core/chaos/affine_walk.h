@@ -88,6 +88,19 @@ namespace {
 // Internal linkage: each SIMD file keeps its own copy (see above).
 inline void PushLanes(const AffineWalk& k, int g, int n, int plot, int finite, int inside,
                       const uint32_t* bin, const uint32_t* entry) {
+  const int all = (1 << n) - 1;
+  if ((plot & inside & all) == all) [[likely]] {
+    // Every lane pushes: no per-lane tests, and the cursor table in a
+    // local (a store through a cursor could otherwise alias k.bins).
+    BinCursor* bins = k.bins;
+    for (int l = 0; l < n; ++l) {
+      BinCursor& cur = bins[bin[l]];
+      if (cur.tail == cur.end) [[unlikely]]
+        k.refill(k.owner, bin[l]);
+      *cur.tail++ = entry[l];
+    }
+    return;
+  }
   for (int l = 0; l < n; ++l) {
     if (!((plot >> l) & 1)) {
       if (!((finite >> l) & 1)) [[unlikely]]

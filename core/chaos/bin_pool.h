@@ -86,7 +86,14 @@ class BinPool {
   /// in order within a bin, and empties the pool.
   template <typename Apply>
   void Drain(Apply&& apply) {
-    for (uint32_t bin = 0; bin < head_.size(); ++bin) {
+    DrainBins(0, bins(), apply);
+    Reset();
+  }
+  /// Drain's work for bins [first, last) only: their ranges are applied
+  /// and the bins left empty, but their blocks stay taken until Reset().
+  template <typename Apply>
+  void DrainBins(uint32_t first, uint32_t last, Apply&& apply) {
+    for (uint32_t bin = first; bin < last; ++bin) {
       for (int32_t b = head_[bin]; b >= 0; b = next_[b]) {
         const Entry* begin = pool_.get() + size_t(b) * block_;
         apply(bin, begin, b == last_[bin] ? cursors_[bin].tail : begin + block_);
@@ -94,8 +101,12 @@ class BinPool {
       head_[bin] = last_[bin] = -1;
       cursors_[bin] = {};
     }
-    used_ = 0;
   }
+  /// Makes every block free again; only after every bin was drained.
+  void Reset() { used_ = 0; }
+  /// True when the next Refill would have to drain first.
+  bool exhausted() const { return used_ == blocks_; }
+  uint32_t bins() const { return uint32_t(head_.size()); }
 
   /// Bytes held: the pool and the bookkeeping.
   uint64_t MemoryBytes() const {

@@ -11,6 +11,7 @@
 #include "absl/strings/str_cat.h"
 #include "core/chaos/affine_walk.h"
 #include "core/chaos/key_bins.h"
+#include "core/chaos/shared_tiles.h"
 #include "core/chaos/tile_bins.h"
 
 namespace nimbus {
@@ -46,6 +47,9 @@ struct ChaosGame::Worker {
     if (bins) bins->Flush();
     if (keys) keys->Flush();
   }
+  // Through the bins: a shared grid's own flag is written under its
+  // allocation lock, and the bins read SharedTiles' atomic copy instead.
+  bool overflowed() const { return bins ? bins->overflowed() : grid->overflowed(); }
 };
 
 ChaosGame::ChaosGame(ChaosGameParams params, int threads)
@@ -134,34 +138,54 @@ absl::StatusOr<std::unique_ptr<ChaosGame>> ChaosGame::Create(ChaosGameParams par
       }
     }
   }
-  const bool color = p.color.mode != ColorMode::kNone;
-  for (int t = 0; t < game->threads_; ++t) game->counts_.emplace_back(p.CountResolution(), color);
-  if (game->flame_round_ && !p.ifs.arcs && !p.splat) {
-    game->flame_plot_ = FlamePlotter(game->simd_);
-    game->plot_target_ = MakePlotTarget(p, game->counts_[0]);
-  }
   // Buffers sized once, never above what EstimateMemory counted.
   const uint64_t pool_tiles = PoolTiles(p, game->fast_);
   const size_t entries = BufferEntries(p, pool_tiles);
   const bool direct = game->fast_ && DirectIncrements(p, pool_tiles);
-  for (int t = 0; t < game->threads_; ++t) {
-    auto w = std::make_unique<Worker>();
-    w->grid = &game->counts_[t];
-    if (game->fast_)
-      w->bins = std::make_unique<TileBins>(game->counts_[t], entries, direct);
-    else
-      w->keys = std::make_unique<KeyBins>(game->counts_[t], entries, p.splat);
-    game->workers_.push_back(std::move(w));
+  const bool shared =
+      game->fast_ && !direct && game->threads_ > 1 && p.shared_grid.value_or(true);
+  game->AddWorkers(entries, direct, shared);
+  if (game->flame_round_ && !p.ifs.arcs && !p.splat) {
+    game->flame_plot_ = FlamePlotter(game->simd_);
+    game->plot_target_ = MakePlotTarget(p, game->counts_[0]);
   }
   if (p.memory_budget > 0) {
-    // Each thread's grid gets an equal share of what the budget leaves
-    // after the fixed parts (tile tables and buffers).
+    // Each grid gets an equal share of what the budget leaves after the
+    // fixed parts (tile tables and buffers).
     const uint64_t fixed = game->MemoryBytes();  // no tiles yet
     const uint64_t free_bytes = p.memory_budget > fixed ? p.memory_budget - fixed : 0;
-    const uint64_t tiles = free_bytes / uint64_t(game->threads_) / CountGrid::TileBytes(color);
+    const uint64_t tile_bytes = CountGrid::TileBytes(p.color.mode != ColorMode::kNone);
+    const uint64_t tiles = free_bytes / uint64_t(game->counts_.size()) / tile_bytes;
     for (CountGrid& g : game->counts_) g.SetTileLimit(size_t(std::max<uint64_t>(tiles, 1)));
   }
   return game;
+}
+
+void ChaosGame::AddWorkers(size_t entries, bool direct, bool shared) {
+  const ChaosGameParams& p = params_;
+  const bool color = p.color.mode != ColorMode::kNone;
+  const int grids = shared ? 1 : threads_;
+  // Reserved: workers keep pointers into counts_.
+  counts_.reserve(size_t(grids));
+  for (int t = 0; t < grids; ++t) counts_.emplace_back(p.CountResolution(), color);
+  if (shared) {
+    shared_tiles_ = std::make_unique<SharedTiles>(
+        counts_[0], uint32_t(TileBins::BinCount(p.CountResolution())));
+  }
+  for (int t = 0; t < threads_; ++t) {
+    auto w = std::make_unique<Worker>();
+    CountGrid& grid = counts_[size_t(shared ? 0 : t)];
+    w->grid = &grid;
+    // Threads start their flushes at ranges far apart.
+    const uint32_t first_range = uint32_t(t) * SharedTiles::kRanges / uint32_t(threads_);
+    if (shared)
+      w->bins = std::make_unique<TileBins>(*shared_tiles_, grid, entries, first_range);
+    else if (fast_)
+      w->bins = std::make_unique<TileBins>(grid, entries, direct);
+    else
+      w->keys = std::make_unique<KeyBins>(grid, entries, p.splat);
+    workers_.push_back(std::move(w));
+  }
 }
 
 namespace {
@@ -896,12 +920,12 @@ absl::Status ChaosGame::RunUntil(uint64_t iterations, Interrupter* interrupter) 
       const uint64_t c = next.fetch_add(1);
       if (c >= target) break;
       RunChunk(c, w);
-      if (w.grid->overflowed()) over_budget = stop = true;
+      if (w.overflowed()) over_budget = stop = true;
       if (intr.WasInterrupted((c - begin_chunk_) * kChunkIterations, range_iterations()))
         stop = true;
     }
     w.Flush();
-    if (w.grid->overflowed()) over_budget = stop = true;
+    if (w.overflowed()) over_budget = stop = true;
   };
   const int n = int(std::min<uint64_t>(threads_, target - next_chunk_));
   // One task per accumulator, run by the caller's task arena (a job's arena
@@ -970,6 +994,7 @@ uint64_t ChaosGame::range_iterations() const {
 
 CountGrid ChaosGame::TakeCounts() {
   workers_.clear();  // the key buffers first: lowers the merge's peak
+  shared_tiles_.reset();
   for (CountGrid& g : counts_) g.SetTileLimit(0);
   CountGrid out = std::move(counts_[0]);
   for (size_t t = 1; t < counts_.size(); ++t) {

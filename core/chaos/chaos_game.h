@@ -19,6 +19,8 @@
 
 namespace nimbus {
 
+class SharedTiles;
+
 /// One edge of a recurrent IFS seen as a Markov chain: apply `map` (an index
 /// into Ifs::maps) and move to `next_state`.
 struct ChainTransition {
@@ -106,6 +108,11 @@ struct ChaosGameParams {
   /// the attractor touches. Counts are the same either way: for tests and
   /// benchmarks.
   std::optional<bool> direct_increments;
+  /// Whether the binned fast path's threads fill one shared grid (true)
+  /// or one grid each, merged at the end (false); unset shares whenever
+  /// there is more than one thread (SharedTiles). Counts are the same
+  /// either way: for tests and benchmarks.
+  std::optional<bool> shared_grid;
   /// Bytes the accumulation may hold (0: no limit). A run whose counters
   /// outgrow it stops with ResourceExhausted instead of exhausting the
   /// machine: the safety net behind EstimateMemory.
@@ -249,6 +256,9 @@ class ChaosGame {
   // write into per-thread TileBins. Same random streams and arithmetic as
   // RunChunk, so the same counts.
   void RunChunkFast(uint64_t chunk, Worker& worker);
+  // Creates the grids and one worker per thread: `entries` per buffer,
+  // the fast path's sink (`direct`), one grid for all (`shared`).
+  void AddWorkers(size_t entries, bool direct, bool shared);
   // Inside a chunk the interrupter is polled every kPollSteps steps of
   // work, warm-up and re-seeds included, so a cancel lands within about a
   // millisecond whatever the warm-up. RunUntil sets the two pointers.
@@ -263,7 +273,8 @@ class ChaosGame {
   uint64_t num_chunks_ = 0;
   uint64_t begin_chunk_ = 0, end_chunk_ = 0;  // the range run (chunk_begin/end)
   uint64_t next_chunk_ = 0;
-  std::vector<CountGrid> counts_;
+  std::vector<CountGrid> counts_;  // one per thread, or one shared
+  std::unique_ptr<SharedTiles> shared_tiles_;  // when the threads share counts_[0]
   std::vector<std::unique_ptr<Worker>> workers_;
   // Precomputed sampling tables.
   AliasTable map_table_;

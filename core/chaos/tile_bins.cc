@@ -2,6 +2,18 @@
 
 namespace nimbus {
 
+uint32_t TileBins::BinShift(Int3 resolution) {
+  const uint64_t tiles = CountGrid::TileCountFor(resolution);
+  uint32_t shift = 0;
+  if (tiles > kSplitTiles)
+    while ((tiles >> shift) > kBuckets) ++shift;
+  return shift;
+}
+
+uint64_t TileBins::BinCount(Int3 resolution) {
+  return ((CountGrid::TileCountFor(resolution) - 1) >> BinShift(resolution)) + 1;
+}
+
 TileBins::TileBins(CountGrid& grid, size_t capacity, bool direct)
     : grid_(grid), direct_(direct) {
   const uint64_t tiles = CountGrid::TileCountFor(grid.resolution());
@@ -11,13 +23,44 @@ TileBins::TileBins(CountGrid& grid, size_t capacity, bool direct)
     tiles_.assign(tiles, nullptr);
     return;
   }
-  shift_ = Pool::TileShift(tiles);
-  pool_ = Pool(size_t(Pool::BinCount(tiles)), capacity, /*huge_pages=*/true);
+  shift_ = BinShift(grid.resolution());
+  pool_ = Pool(size_t(BinCount(grid.resolution())), capacity, /*huge_pages=*/true);
+  if (shift_ > 0) split_ = SplitPool(size_t{1} << shift_, kSplitEntries, /*huge_pages=*/true);
 }
 
-void TileBins::Refill(uint32_t bin) { pool_.Refill(bin, ApplyFn()); }
+TileBins::TileBins(SharedTiles& shared, CountGrid& grid, size_t capacity, uint32_t first_range)
+    : TileBins(grid, capacity) {
+  shared_ = &shared;
+  first_range_ = first_range;
+}
 
-void TileBins::Flush() { pool_.Drain(ApplyFn()); }
+void TileBins::Refill(uint32_t bin) {
+  // Drained here rather than by the pool's Refill: a shared grid takes its
+  // locks range by range.
+  if (pool_.exhausted()) Flush();
+  pool_.Refill(bin, [](uint32_t, const uint32_t*, const uint32_t*) {});
+}
+
+void TileBins::Flush() {
+  if (!shared_) {
+    DrainBins(0, pool_.bins());
+  } else {
+    shared_->ForEachRange(first_range_,
+                          [&](uint32_t first, uint32_t last) { DrainBins(first, last); });
+  }
+  pool_.Reset();
+}
+
+void TileBins::DrainBins(uint32_t first, uint32_t last) {
+  if (shift_ == 0) return pool_.DrainBins(first, last, [&](uint32_t bin, auto b, auto e) {
+    Apply(bin, b, e);
+  });
+  for (uint32_t bin = first; bin < last; ++bin) {
+    split_first_ = uint64_t(bin) << shift_;
+    pool_.DrainBins(bin, bin + 1, [&](uint32_t, auto b, auto e) { Split(b, e); });
+    ApplySplit(split_first_);
+  }
+}
 
 uint32_t* TileBins::Allocate(uint32_t tile) {
   // Past the grid's tile limit this is its scratch tile, as Apply would use.
@@ -25,31 +68,45 @@ uint32_t* TileBins::Allocate(uint32_t tile) {
 }
 
 void TileBins::Apply(uint32_t bin, const uint32_t* begin, const uint32_t* end) {
-  if (shift_ == 0) {
-    uint32_t* tile = grid_.MutableTile(bin);
-    for (const uint32_t* e = begin; e != end; ++e) tile[*e]++;
-    return;
-  }
-  const uint64_t first = uint64_t(bin) << shift_;
-  uint32_t current = ~0u;
-  uint32_t* tile = nullptr;
+  uint32_t* tile = TileOf(bin);
+  if (!tile) return;
+  for (const uint32_t* e = begin; e != end; ++e) tile[*e]++;
+}
+
+void TileBins::Split(const uint32_t* begin, const uint32_t* end) {
+  Cursor16* cursors = split_.cursors();
   for (const uint32_t* e = begin; e != end; ++e) {
     const uint32_t t = *e >> 15;
-    if (t != current) {
-      current = t;
-      tile = grid_.MutableTile(first + t);
+    Cursor16& c = cursors[t];
+    if (c.tail == c.end) [[unlikely]] {
+      // A bin with more entries than the split pool holds: apply what it
+      // has and go on.
+      if (split_.exhausted()) ApplySplit(split_first_);
+      split_.Refill(t, [](uint32_t, const uint16_t*, const uint16_t*) {});
     }
-    tile[*e & 0x7fff]++;
+    *c.tail++ = uint16_t(*e & 0x7fff);
   }
 }
 
+void TileBins::ApplySplit(uint64_t first_tile) {
+  split_.Drain([&](uint32_t t, const uint16_t* begin, const uint16_t* end) {
+    uint32_t* tile = TileOf(first_tile + t);
+    if (!tile) return;
+    for (const uint16_t* e = begin; e != end; ++e) tile[*e]++;
+  });
+}
+
 uint64_t TileBins::MemoryBytes() const {
-  return direct_ ? tiles_.capacity() * sizeof(uint32_t*) : pool_.MemoryBytes();
+  if (direct_) return tiles_.capacity() * sizeof(uint32_t*);
+  return pool_.MemoryBytes() + (shift_ > 0 ? split_.MemoryBytes() : 0);
 }
 
 uint64_t TileBins::Bytes(Int3 resolution, size_t capacity, bool direct) {
   const uint64_t tiles = CountGrid::TileCountFor(resolution);
-  return direct ? tiles * sizeof(uint32_t*) : Pool::Bytes(Pool::BinCount(tiles), capacity);
+  if (direct) return tiles * sizeof(uint32_t*);
+  const uint32_t shift = BinShift(resolution);
+  return Pool::Bytes(BinCount(resolution), capacity) +
+         (shift > 0 ? SplitPool::Bytes(uint64_t{1} << shift, kSplitEntries) : 0);
 }
 
 }  // namespace nimbus

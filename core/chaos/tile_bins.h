@@ -8,35 +8,54 @@
 
 #include "core/chaos/affine_walk.h"
 #include "core/chaos/bin_pool.h"
+#include "core/chaos/shared_tiles.h"
 #include "core/grid/count_grid.h"
 
 namespace nimbus {
 
-/// @brief Collects voxel increments in per-tile bins as they are produced
-/// and applies them bin by bin, so each 128 KiB tile is pulled into L2 once
+/// @brief Collects voxel increments in bins as they are produced and
+/// applies them tile by tile, so each 128 KiB tile is pulled into L2 once
 /// per flush and then takes thousands of increments, instead of one cache
 /// miss per increment. Entries are 32-bit (see walk::AffineWalk) and live in
 /// blocks from a fixed pool; when the pool runs out every bin is applied and
 /// the pool starts over. Memory is fixed at construction.
+///
+/// A grid of many tiles is partitioned in two passes (a radix partition):
+/// the walk writes to at most kBuckets bins of 2^bin_shift consecutive
+/// tiles each, whose cursors and open lines stay in L1, instead of to one
+/// bin per tile, where every push misses the cache twice (the cursor, then
+/// the stream's line) once a few thousand tiles are busy. A flush then
+/// splits each bin by tile into a small second pool of 16-bit offsets and
+/// applies that tile by tile.
 ///
 /// In direct mode there are no bins: the kernels increment each voxel as
 /// they go through a table of the grid's tile pointers. That wins when the
 /// cache lines the attractor touches fit in the caches (a few hundred tiles
 /// at most), where binning only adds a write and a read of every entry.
 ///
-/// Not thread-safe: one per thread, each over its thread's CountGrid.
+/// Not thread-safe: one per thread, each over its thread's CountGrid, or
+/// all over one grid through a SharedTiles (binned mode only).
 class TileBins {
  public:
-  /// At most this many bins; larger grids put 2^shift tiles in a bin.
-  static constexpr uint32_t kMaxBins = BinPool<uint32_t, walk::BinCursor>::kMaxBins;
+  /// At most this many bins for the walk on grids of over kSplitTiles
+  /// tiles; smaller grids bin by tile.
+  static constexpr uint32_t kBuckets = 256;
+  static constexpr uint64_t kSplitTiles = 4096;
 
   /// `capacity`: entries buffered before a flush (at least one block);
   /// unused in direct mode.
   TileBins(CountGrid& grid, size_t capacity, bool direct = false);
+  /// Binned, over the grid `shared` guards, which other TileBins fill at
+  /// the same time; flushes begin with range `first_range`
+  /// (SharedTiles::ForEachRange), best a different one per thread.
+  TileBins(SharedTiles& shared, CountGrid& grid, size_t capacity, uint32_t first_range);
 
   /// Cursors for walk::AffineWalk::bins and the shift that goes with them.
   walk::BinCursor* cursors() { return pool_.cursors(); }
   uint32_t bin_shift() const { return shift_; }
+  /// Bins of a grid of `resolution`, and the shift that goes with them.
+  static uint32_t BinShift(Int3 resolution);
+  static uint64_t BinCount(Int3 resolution);
 
   /// Direct mode's table for walk::AffineWalk::tiles (null otherwise):
   /// tile t's counters, or null until Allocate(t).
@@ -49,26 +68,44 @@ class TileBins {
   void Refill(uint32_t bin);
   /// Applies every buffered entry to the grid.
   void Flush();
+  /// The grid outgrew its tile limit (CountGrid::overflowed()).
+  bool overflowed() const { return shared_ ? shared_->overflowed() : grid_.overflowed(); }
 
-  /// Bytes held: the pool and the bookkeeping.
+  /// Bytes held: the pools and the bookkeeping.
   uint64_t MemoryBytes() const;
   /// What MemoryBytes() will be for a grid of `resolution` and `capacity`.
   static uint64_t Bytes(Int3 resolution, size_t capacity, bool direct = false);
 
  private:
   using Pool = BinPool<uint32_t, walk::BinCursor>;
+  // The second pass: tile offsets within a bin, 16-bit local offsets.
+  struct Cursor16 {
+    uint16_t* tail = nullptr;
+    uint16_t* end = nullptr;
+  };
+  using SplitPool = BinPool<uint16_t, Cursor16>;
+  static constexpr size_t kSplitEntries = size_t{1} << 21;  // 4 MiB
+
+  // Applies bins [first, last) and empties them (their blocks stay taken).
+  void DrainBins(uint32_t first, uint32_t last);
   void Apply(uint32_t bin, const uint32_t* begin, const uint32_t* end);
-  auto ApplyFn() {
-    return [this](uint32_t bin, const uint32_t* begin, const uint32_t* end) {
-      Apply(bin, begin, end);
-    };
-  }
+  // The second pass for one block of a bin of several tiles.
+  void Split(const uint32_t* begin, const uint32_t* end);
+  // Applies the split pool to the tiles from `first_tile` on.
+  void ApplySplit(uint64_t first_tile);
+  // Tile t's counters; null (drop the increments) past a shared grid's
+  // tile limit.
+  uint32_t* TileOf(uint64_t t) { return shared_ ? shared_->Tile(t) : grid_.MutableTile(t); }
 
   CountGrid& grid_;
   uint32_t shift_ = 0;  // tile-index bits below the bin index
   Pool pool_;           // none in direct mode
+  SplitPool split_;     // with shift_ > 0
+  uint64_t split_first_ = 0;  // the first tile of the bin being split
   bool direct_ = false;
   std::vector<uint32_t*> tiles_;  // direct mode: a copy of the grid's table
+  SharedTiles* shared_ = nullptr;
+  uint32_t first_range_ = 0;
 };
 
 }  // namespace nimbus

@@ -29,7 +29,8 @@ namespace nimbus {
 /// of the 16-bit fixed-point colour coordinates of its visits, so colour
 /// adds up order-independently (bitwise reproducible for any thread count).
 ///
-/// Not thread-safe: each thread owns one CountGrid and they are merged.
+/// Not thread-safe: each thread owns one CountGrid and they are merged, or
+/// the threads share one behind SharedTiles' locks (core/chaos).
 class CountGrid {
  public:
   static constexpr int kTileLog2 = 5;
@@ -121,6 +122,10 @@ class CountGrid {
   /// The counters of tile `tile` (allocated on first use), indexed by
   /// LocalOffset: for writers that bin their own increments.
   uint32_t* MutableTile(uint64_t tile) { return TileFor(tile); }
+  /// Same, but null where the tile is not allocated yet. It never
+  /// allocates, so a thread sharing the grid (SharedTiles) may call it
+  /// without the allocation lock for a tile no other thread writes.
+  uint32_t* MutableTileOrNull(uint64_t tile) { return table_[tile]; }
   /// The colour sums of tile `tile`, after MutableTile(tile) allocated it;
   /// nullptr without colour.
   uint64_t* MutableColorTile(uint64_t tile) { return with_color_ ? ColorTileFor(tile) : nullptr; }

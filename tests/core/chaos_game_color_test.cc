@@ -7,6 +7,7 @@
 
 #include "tests/support/attractors.h"
 #include "core/chaos/chaos_game.h"
+#include "core/chaos/tile_bins.h"
 #include "core/base/cpu_dispatch.h"
 #include "core/grid/palette.h"
 #include "core/base/sha256.h"
@@ -390,6 +391,55 @@ TEST(ChaosGameFastPath, SimdLevelsAgreeForEveryMapCount) {
         EXPECT_EQ(scalar_stats.outside, stats.outside);
       }
   }
+}
+
+// Same counters, tile by tile (faster than voxel by voxel on big grids).
+void ExpectSameTiles(const CountGrid& a, const CountGrid& b) {
+  ASSERT_EQ(a.AllocatedTiles(), b.AllocatedTiles());
+  ASSERT_EQ(a.TileCount(), b.TileCount());
+  for (size_t t = 0; t < a.TileCount(); ++t) {
+    const uint32_t *ta = a.TileOrNull(t), *tb = b.TileOrNull(t);
+    ASSERT_EQ(ta == nullptr, tb == nullptr) << t;
+    if (ta) {
+      ASSERT_EQ(std::memcmp(ta, tb, CountGrid::kTileVoxels * sizeof(uint32_t)), 0) << t;
+    }
+  }
+}
+
+// On a grid of more tiles than TileBins::kSplitTiles the binned sink
+// partitions in two passes; with two threads it fills one shared grid or
+// one grid per thread. Every sink and SIMD level counts what the scalar
+// kernel counts into one binned grid. A small budget makes pools flush
+// mid-run.
+TEST(ChaosGameFastPath, EverySinkAgreesOnAGridSplitInTwoPasses) {
+  ChaosGameParams params = OctantCloud(3'000'000, 544);
+  params.frame.bounds = {{-2, -2, -2}, {17, 17, 17}};  // about 4^3 of 17^3 tiles
+  params.memory_budget = uint64_t{32} << 20;
+  ASSERT_GT(TileBins::BinShift(params.frame.resolution), 0u);
+  params.simd = SimdLevel::kScalar;
+  params.direct_increments = false;
+  ChaosGameStats want;
+  const CountGrid reference = RunGame(params, 1, &want);
+  EXPECT_GT(reference.AllocatedTiles(), 8u);
+  for (const bool direct : {false, true})
+    for (const bool shared : {false, true})
+      for (SimdLevel level : SimdLevelsOfThisCpu()) {
+        if (direct && shared) continue;  // direct increments never share
+        std::string label(SimdName(level));
+        label += direct ? " direct" : shared ? " binned, shared" : " binned";
+        SCOPED_TRACE(label);
+        params.simd = level;
+        params.direct_increments = direct;
+        params.shared_grid = shared;
+        ChaosGameStats got;
+        auto game = ChaosGame::Create(params, 2);
+        ASSERT_TRUE(game.ok()) << game.status();
+        ASSERT_TRUE((*game)->Run(nullptr).ok());
+        EXPECT_EQ((*game)->partial_counts().size(), shared ? 1u : 2u);
+        got = (*game)->stats();
+        ExpectSameTiles(reference, (*game)->TakeCounts());
+        EXPECT_EQ(got.outside, want.outside);
+      }
 }
 
 // A Markov chain on the fast path: two states, one unplotted, over the

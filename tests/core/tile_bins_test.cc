@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <map>
+#include <thread>
 #include <tuple>
 #include <vector>
 
@@ -26,31 +27,41 @@ void Push(TileBins& bins, const CountGrid& grid, int x, int y, int z) {
   *c.tail++ = entry;
 }
 
-void RunAndCompare(Int3 resolution, size_t capacity, int points) {
-  CountGrid grid(resolution);
-  TileBins bins(grid, capacity);
-  std::map<std::tuple<int, int, int>, uint32_t> want;
-  Rng rng(7, 1);
+// Clustered points: a few hot tiles near the origin, the rest scattered over
+// the far corner's 256^3 (at most 512 tiles, so the test stays small).
+std::vector<Int3> ClusteredPoints(Int3 resolution, int points, uint64_t stream) {
+  std::vector<Int3> out;
+  Rng rng(7, stream);
   for (int i = 0; i < points; ++i) {
-    // Clustered: a few hot tiles near the origin, the rest scattered over
-    // the far corner's 256^3 (at most 512 tiles, so the test stays small).
     const bool hot = (rng.Next() & 3) != 0;
     auto coord = [&](int n) {
       const int span = std::min(n, 256);
       return hot ? int(rng.Next() % 40) : n - span + int(rng.Next() % uint64_t(span));
     };
     const int x = coord(resolution.x), y = coord(resolution.y), z = coord(resolution.z);
-    Push(bins, grid, x, y, z);
-    ++want[{x, y, z}];
+    out.push_back({x, y, z});
   }
-  bins.Flush();
-  uint64_t total = 0;
-  for (const auto& [v, n] : want) {
+  return out;
+}
+
+// Every point of `sets` counted once in `grid`, and nothing else.
+void ExpectCounts(const CountGrid& grid, const std::vector<std::vector<Int3>>& sets) {
+  std::map<std::tuple<int, int, int>, uint32_t> want;
+  uint64_t points = 0;
+  for (const auto& set : sets)
+    for (const Int3& v : set) ++want[{v.x, v.y, v.z}], ++points;
+  for (const auto& [v, n] : want)
     ASSERT_EQ(grid.Get(std::get<0>(v), std::get<1>(v), std::get<2>(v)), n);
-    total += n;
-  }
-  EXPECT_EQ(grid.Total(), total);
-  EXPECT_EQ(total, uint64_t(points));
+  EXPECT_EQ(grid.Total(), points);
+}
+
+void RunAndCompare(Int3 resolution, size_t capacity, int points) {
+  CountGrid grid(resolution);
+  TileBins bins(grid, capacity);
+  const std::vector<Int3> set = ClusteredPoints(resolution, points, 1);
+  for (const Int3& v : set) Push(bins, grid, v.x, v.y, v.z);
+  bins.Flush();
+  ExpectCounts(grid, {set});
 }
 
 TEST(TileBins, OneTilePerBin) {
@@ -60,11 +71,66 @@ TEST(TileBins, OneTilePerBin) {
   RunAndCompare({256, 256, 256}, 1 << 16, 500'000);
 }
 
-TEST(TileBins, SeveralTilesPerBinOnHugeGrids) {
-  // 2048^3 has 64^3 tiles, eight per bin.
+TEST(TileBins, ManyTilesPerBinOnLargeGrids) {
+  // Over kSplitTiles tiles the walk bins by kBuckets runs of tiles: 2048^3
+  // has 64^3 tiles, 1024 per bin, and 1024^3 128 per bin.
   CountGrid grid({2048, 2048, 2048});
-  EXPECT_EQ(TileBins(grid, 1 << 16).bin_shift(), 3u);
+  EXPECT_EQ(TileBins(grid, 1 << 16).bin_shift(), 10u);
+  EXPECT_EQ(TileBins::BinCount({2048, 2048, 2048}), TileBins::kBuckets);
+  EXPECT_EQ(TileBins::BinShift({1024, 1024, 1024}), 7u);
+  EXPECT_EQ(TileBins::BinShift({512, 512, 512}), 0u);  // 4096 tiles: one per bin
   RunAndCompare({2048, 2048, 2048}, 1 << 16, 200'000);
+}
+
+TEST(TileBins, ABinLargerThanTheSplitPoolIsAppliedInParts) {
+  // Two tiles of one bin take more entries than the second pass holds
+  // (2^21), all in one flush.
+  const Int3 res{1024, 1024, 1024};
+  CountGrid grid(res);
+  TileBins bins(grid, size_t{1} << 23);
+  std::vector<Int3> set;
+  for (int i = 0; i < 3'000'000; ++i) set.push_back({i % 7, (i / 7) % 5, 26 + i % 11});
+  for (const Int3& v : set) Push(bins, grid, v.x, v.y, v.z);
+  bins.Flush();
+  ExpectCounts(grid, {set});
+}
+
+// Two threads' bins over one grid through SharedTiles, pushing and
+// flushing at the same time (small pools: many flushes), count every point
+// once, on a grid binned by tile and on one split in two passes.
+TEST(TileBins, ThreadsSharingAGridCountEveryPoint) {
+  for (const Int3 res : {Int3{256, 256, 256}, Int3{2048, 2048, 2048}}) {
+    SCOPED_TRACE(res.x);
+    CountGrid grid(res);
+    SharedTiles shared(grid, uint32_t(TileBins::BinCount(res)));
+    std::vector<std::vector<Int3>> sets;
+    for (uint64_t t = 0; t < 2; ++t) sets.push_back(ClusteredPoints(res, 300'000, 10 + t));
+    std::vector<std::thread> threads;
+    for (uint32_t t = 0; t < 2; ++t)
+      threads.emplace_back([&, t] {
+        TileBins bins(shared, grid, 1 << 16, t * SharedTiles::kRanges / 2);
+        for (const Int3& v : sets[t]) Push(bins, grid, v.x, v.y, v.z);
+        bins.Flush();
+      });
+    for (std::thread& t : threads) t.join();
+    EXPECT_FALSE(shared.overflowed());
+    ExpectCounts(grid, sets);
+  }
+}
+
+// Past the shared grid's tile limit increments are dropped (two threads
+// must not share the grid's scratch tile) and the owner is told.
+TEST(TileBins, ASharedGridPastItsTileLimitOverflows) {
+  const Int3 res{256, 256, 256};
+  CountGrid grid(res);
+  grid.SetTileLimit(3);
+  SharedTiles shared(grid, uint32_t(TileBins::BinCount(res)));
+  TileBins bins(shared, grid, 1 << 16, 0);
+  for (const Int3& v : ClusteredPoints(res, 10'000, 3)) Push(bins, grid, v.x, v.y, v.z);
+  bins.Flush();
+  EXPECT_TRUE(shared.overflowed());
+  EXPECT_TRUE(bins.overflowed());
+  EXPECT_EQ(grid.AllocatedTiles(), 3u);
 }
 
 TEST(TileBins, DirectModeHandsOutTheGridsTiles) {
