@@ -275,6 +275,11 @@ absl::Status WriteGridsAtomically(const std::filesystem::path& path,
 
 absl::Status WriteStreamedAtomically(const std::filesystem::path& path,
                                      const std::vector<GridProducer>& grids) {
+  // Large grids' encoded leaves wait on the result's own disk, not in RAM
+  // (unless the caller named another place).
+  std::optional<SpillScope> spill;
+  if (SpillScope::Current() == nullptr)
+    spill.emplace(path.parent_path().empty() ? "." : path.parent_path(), kSpillKeepBytes);
   return WriteArchiveAtomically(path, [&](std::ostream& os) { WriteStreamedArchive(os, grids); });
 }
 

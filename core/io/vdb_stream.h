@@ -28,15 +28,62 @@ namespace nimbus::vdb_internal {
 inline constexpr uint32_t kArchiveCompression =
     openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK;
 
+/// @brief Every leaf's LeafNode::writeBuffers bytes of one grid, in tree
+/// order, appended run by run. The archive needs them all before it can
+/// write the grid's header (which records each leaf's encoded size), so a
+/// large grid would hold its whole compressed size in memory: past
+/// `keep_bytes`, runs go to an unnamed temporary file in the spill
+/// directory that a SpillScope names on this thread (none: all in memory).
+class LeafRuns {
+ public:
+  LeafRuns();
+  LeafRuns(LeafRuns&& other) noexcept;
+  LeafRuns& operator=(LeafRuns&&) = delete;
+  ~LeafRuns();
+  /// Appends a run. Throws openvdb::IoError when the spill file fails.
+  void Append(const std::string& run);
+  /// Writes every run to `os`, in order, through one bounded buffer.
+  void WriteTo(std::ostream& os) const;
+  uint64_t bytes() const { return bytes_; }
+  bool spilled() const { return fd_ >= 0; }
+
+ private:
+  std::vector<std::string> memory_;  // runs kept (a large grid never reallocates one string)
+  int fd_ = -1;                      // the spill file, once past keep_bytes
+  uint64_t bytes_ = 0, kept_ = 0;
+};
+
+/// Names, for this thread's EncodeLeaves calls while it lives, the
+/// directory where grids past `keep_bytes` of encoded leaves spill (the
+/// result's own directory: same disk, no RAM).
+class SpillScope {
+ public:
+  SpillScope(std::filesystem::path dir, uint64_t keep_bytes);
+  ~SpillScope();
+  SpillScope(const SpillScope&) = delete;
+  SpillScope& operator=(const SpillScope&) = delete;
+  /// The innermost scope alive on this thread, or null.
+  static const SpillScope* Current();
+  const std::filesystem::path& dir() const { return dir_; }
+  uint64_t keep_bytes() const { return keep_bytes_; }
+
+ private:
+  const SpillScope* outer_;
+  std::filesystem::path dir_;
+  uint64_t keep_bytes_;
+};
+
+/// Encoded bytes a grid keeps in memory before it spills (WriteStreamedAtomically).
+inline constexpr uint64_t kSpillKeepBytes = uint64_t{4} << 20;
+
 /// @brief One grid ready to be written. `grid` carries the metadata, the
 /// transform and the tree's topology: its leaves may be created without
 /// buffers (openvdb::PartialCreate), since only their masks are read.
-/// `buffers` holds every leaf's LeafNode::writeBuffers bytes in tree order
-/// (in runs, so that a large grid never reallocates one long string),
-/// `delayed` what OpenVDB's writer records per leaf for delayed loading.
+/// `buffers` holds the leaves' encodings, `delayed` what OpenVDB's writer
+/// records per leaf for delayed loading.
 struct EncodedGrid {
   openvdb::GridBase::Ptr grid;
-  std::vector<std::string> buffers;
+  LeafRuns buffers;
   openvdb::io::DelayedLoadMetadata::Ptr delayed;
 };
 
@@ -56,6 +103,8 @@ void WriteStreamedArchive(std::ostream& os, const std::vector<GridProducer>& gri
 
 /// WriteGridsAtomically (vdb_internal.h) for produced grids: the archive
 /// goes through a temporary file renamed into place, with the same errors.
+/// Grids past kSpillKeepBytes of encoded leaves spill beside `path`, unless
+/// an enclosing SpillScope names another directory.
 absl::Status WriteStreamedAtomically(const std::filesystem::path& path,
                                      const std::vector<GridProducer>& grids);
 
@@ -111,7 +160,7 @@ EncodedGrid EncodeLeaves(typename GridT::Ptr topology, const Fill& fill, const C
     });
     size_t run = 0;
     for (size_t j = 0; j < count; ++j) run += bytes[j].size();
-    std::string& blob = out.buffers.emplace_back();
+    std::string blob;
     blob.reserve(run);
     for (size_t j = 0; j < count; ++j) {
       const std::string& b = bytes[j];
@@ -119,6 +168,7 @@ EncodedGrid EncodeLeaves(typename GridT::Ptr topology, const Fill& fill, const C
       out.delayed->setCompressedSize(first + j, DelayedLoadSize(b, sizeof(ValueT)));
       blob += b;
     }
+    out.buffers.Append(blob);
     chunk(static_cast<const LeafT*>(scratch.get()), count);
   }
   return out;

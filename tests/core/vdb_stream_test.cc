@@ -84,6 +84,44 @@ TEST(VdbStream, MatchesOpenVdbForBuiltGrids) {
   EXPECT_EQ(Slurp(dir.path() / "s.vdb"), Slurp(dir.path() / "ref.vdb"));
 }
 
+// Grids whose encoded leaves spill to a file, wholly or past a few runs,
+// write the same bytes, leave nothing in the spill directory, and a spill
+// directory that cannot take the file is an error that names it.
+TEST(VdbStream, SpilledLeavesWriteTheSameBytes) {
+  vdb_internal::InitOpenVdb();
+  testing::TempDir dir;
+  auto g = openvdb::FloatGrid::create(0.f);
+  g->setName("density");
+  auto acc = g->getAccessor();
+  std::mt19937 rng(11);
+  std::uniform_int_distribution<int> pos(0, 200);
+  for (int n = 0; n < 40000; ++n) acc.setValueOn({pos(rng), pos(rng), pos(rng)}, float(n % 97));
+  ASSERT_GT(g->tree().leafCount(), 512u);  // several runs of 256 leaves
+  ASSERT_TRUE(vdb_internal::WriteGridsAtomically(dir.path() / "ref.vdb", {g}).ok());
+  const std::string ref = Slurp(dir.path() / "ref.vdb");
+  const std::filesystem::path spill_dir = dir.path() / "spill";
+  std::filesystem::create_directories(spill_dir);
+  for (uint64_t keep : {uint64_t{0}, uint64_t{100000}, uint64_t{1} << 30}) {
+    const vdb_internal::SpillScope spill(spill_dir, keep);
+    const std::filesystem::path out = dir.path() / ("s" + std::to_string(keep) + ".vdb");
+    ASSERT_TRUE(vdb_internal::WriteStreamedAtomically(out, {Copying<openvdb::FloatGrid>(g)}).ok());
+    EXPECT_EQ(Slurp(out), ref) << "keep " << keep;
+    EXPECT_TRUE(std::filesystem::is_empty(spill_dir)) << "keep " << keep;
+  }
+  vdb_internal::EncodedGrid spilled = [&] {
+    const vdb_internal::SpillScope spill(spill_dir, 0);
+    return Copying<openvdb::FloatGrid>(g).make();
+  }();
+  EXPECT_TRUE(spilled.buffers.spilled());
+  const vdb_internal::SpillScope missing(dir.path() / "no" / "such", 0);
+  const absl::Status st =
+      vdb_internal::WriteStreamedAtomically(dir.path() / "x.vdb", {Copying<openvdb::FloatGrid>(g)});
+  EXPECT_FALSE(st.ok());
+  EXPECT_NE(st.message().find("no/such"), std::string::npos) << st;
+  EXPECT_FALSE(std::filesystem::exists(dir.path() / "x.vdb"));
+  EXPECT_FALSE(std::filesystem::exists(dir.path() / "x.vdb.partial"));
+}
+
 // Counts with colour scattered over a grid of resolution `r`.
 CountGrid Scatter(Int3 r, int n) {
   CountGrid counts(r, /*with_color=*/true);
