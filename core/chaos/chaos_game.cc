@@ -264,6 +264,10 @@ uint64_t PoolTiles(const ChaosGameParams& p, bool fast) {
   return std::min(reachable, census->estimate);
 }
 
+// Most tiles a run incrementing at once may touch (32 MiB of counters): the
+// only fast-path runs on several threads that keep one grid per thread.
+constexpr uint64_t kDirectTiles = 256;
+
 // Whether the fast path increments voxels at once (TileBins' direct mode)
 // rather than binning them: when the attractor's hot counters fit in the
 // caches, binning only adds a write and a read of every point. Hot bytes
@@ -272,7 +276,6 @@ uint64_t PoolTiles(const ChaosGameParams& p, bool fast) {
 // jobs and pictures go by the tiles alone. Counts do not depend on the
 // choice, only speed does (bench/chaos_game_bench.cc, BM_FastPathSink).
 bool DirectIncrements(const ChaosGameParams& p, uint64_t pool_tiles) {
-  constexpr uint64_t kDirectTiles = 256;                // 32 MiB of tiles at most
   constexpr uint64_t kDirectBytes = uint64_t{4} << 20;  // hot counters
   constexpr uint64_t kPilotPoints = uint64_t{1} << 18;
   if (p.direct_increments) return *p.direct_increments;
@@ -327,7 +330,14 @@ ChaosGameMemory ChaosGame::EstimateMemory(const ChaosGameParams& p, int threads,
   // tiles of all threads together are bounded by the iterations as well as
   // by threads x the reachable tiles.
   const uint64_t touches = (p.iterations + uint64_t(threads) * kWalkers) * (p.splat ? 8 : 1);
-  const uint64_t all_tiles = std::min(tiles * uint64_t(threads), touches);
+  // Binned fast-path runs share one grid between their threads; the engine
+  // gives a grid per thread only to runs it finds on at most kDirectTiles
+  // tiles, so with sharing each further thread adds at most that many.
+  const bool shared = UsesFastPath(p) && threads > 1 && p.shared_grid.value_or(true) &&
+                      !p.direct_increments.value_or(false);
+  const uint64_t others = uint64_t(threads - 1) * std::min(tiles, kDirectTiles);
+  const uint64_t all_tiles =
+      std::min(shared ? tiles + others : tiles * uint64_t(threads), touches);
   ChaosGameMemory m;
   // The buffers are sized by the geometric bound, as Create sizes them.
   const size_t entries = BufferEntries(p, reachable);

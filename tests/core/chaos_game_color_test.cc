@@ -527,11 +527,18 @@ TEST(ChaosGameColor, MemoryEstimateIsBoundedByIterationsAndGrid) {
   EXPECT_LT(small.peak(), uint64_t{1} << 30);
   params.iterations = uint64_t{1} << 36;
   const ChaosGameMemory big = ChaosGame::EstimateMemory(params, 2, 4);
-  // Two full 32 GiB counter grids: the grid bound, not the iterations.
-  EXPECT_GE(big.accumulation, 2 * CountGrid::MaxMemoryBytes({2048, 2048, 2048}) - (1 << 24));
+  // One full 32 GiB counter grid, which the binned threads share: the grid
+  // bound, not the iterations; the other thread may add 256 tiles.
+  const uint64_t grid = CountGrid::MaxMemoryBytes({2048, 2048, 2048});
+  const uint64_t direct = 256 * CountGrid::TileBytes(false);
+  EXPECT_GE(big.accumulation, grid - (1 << 24));
   // ... plus two key buffers of at most 2^25 keys x 16 bytes.
-  EXPECT_LE(big.accumulation,
-            2 * CountGrid::MaxMemoryBytes({2048, 2048, 2048}) + 2 * (uint64_t{16} << 25));
+  EXPECT_LE(big.accumulation, grid + direct + (uint64_t{1} << 24) + 2 * (uint64_t{16} << 25));
+  // A grid per thread when they do not share.
+  params.shared_grid = false;
+  const ChaosGameMemory apart = ChaosGame::EstimateMemory(params, 2, 4);
+  EXPECT_GE(apart.accumulation, 2 * grid - (1 << 24));
+  EXPECT_LE(apart.accumulation, 2 * grid + 2 * (uint64_t{16} << 25));
   // And the real run stays within the estimate.
   params = OctantCloud(3'000'000, 128);
   params.color.mode = ColorMode::kAddress;

@@ -55,6 +55,27 @@ TEST(ChaosGamePilot, ThinAttractorAt2048IsSizedByWhatItTouches) {
   EXPECT_EQ(ChaosGame::EstimateMemory(params, 2, 4, all_tiles * 10).peak(), geometric.peak());
 }
 
+// Binned fast-path threads share one grid, so two threads are priced at
+// about one grid, not two, and still cover what a real run allocates.
+TEST(ChaosGamePilot, SharedGridIsPricedOnce) {
+  ChaosGameParams params = FernVolumeParams(1024, uint64_t{1} << 24);
+  auto census = ChaosGame::Pilot(params, uint64_t{1} << 21, nullptr);
+  ASSERT_TRUE(census.ok());
+  ASSERT_GT(census->estimate, 256u);  // binned, so shared
+  const uint64_t one = ChaosGame::EstimateMemory(params, 1, 4, census->estimate).accumulation;
+  const uint64_t two = ChaosGame::EstimateMemory(params, 2, 4, census->estimate).accumulation;
+  params.shared_grid = false;
+  const uint64_t apart = ChaosGame::EstimateMemory(params, 2, 4, census->estimate).accumulation;
+  EXPECT_LT(two, apart);
+  EXPECT_LT(two - one, (apart - one) / 2);
+  params.shared_grid.reset();
+  auto game = ChaosGame::Create(params, 2);
+  ASSERT_TRUE(game.ok()) << game.status();
+  ASSERT_TRUE((*game)->Run(nullptr).ok());
+  EXPECT_EQ((*game)->partial_counts().size(), 1u);
+  EXPECT_LE((*game)->MemoryBytes(), two);
+}
+
 TEST(ChaosGamePilot, SplattingGrowsTheEstimateByTheNeighbouringTiles) {
   ChaosGameParams params = SierpinskiTetrahedronParams(512, uint64_t{1} << 22);
   auto plain = ChaosGame::Pilot(params, uint64_t{1} << 20, nullptr);
