@@ -289,27 +289,42 @@ bool DirectIncrements(const ChaosGameParams& p, uint64_t pool_tiles) {
   return census->estimate * brick_bytes <= kDirectBytes;
 }
 
+// Where a plotted point lands, as both walk kernels take it: voxel
+// coordinates (q - min) * inv_voxel, inside `res`, stored in `grid`'s
+// layout. A picture's lattice is (width, height, 1), its rows folded as
+// ImagePlane::Voxel folds them into the depth of an unfolded grid.
+struct GridMapping {
+  double min[3], inv_voxel[3];
+  Int3 res;
+  uint32_t fold_shift, fold_mask, tiles_y, tiles_z;
+};
+
+GridMapping MappingFor(const ChaosGameParams& p, const CountGrid& grid) {
+  GridMapping m;
+  const Vec3 vs = p.frame.VoxelSize();
+  for (int a = 0; a < 3; ++a) m.min[a] = p.frame.bounds.min[a], m.inv_voxel[a] = 1.0 / vs[a];
+  m.res = p.image ? Int3{p.image->width, p.image->height, 1} : p.frame.resolution;
+  m.fold_shift = p.image ? ImagePlane::kFoldShift : grid.fold_shift();
+  m.fold_mask = p.image ? ImagePlane::kFoldMask : grid.fold_mask();
+  m.tiles_y = uint32_t(grid.tiles().y), m.tiles_z = uint32_t(grid.tiles().z);
+  return m;
+}
+
 }  // namespace
 
 flame::PlotTarget MakePlotTarget(const ChaosGameParams& p, const CountGrid& grid) {
   flame::PlotTarget t;
-  const Vec3 vs = p.frame.VoxelSize();
-  for (int a = 0; a < 3; ++a) {
-    t.min[a] = p.frame.bounds.min[a];
-    t.inv_voxel[a] = 1.0 / vs[a];
-    t.res[a] = p.frame.resolution[a];
-  }
-  t.fold_shift = grid.fold_shift(), t.fold_mask = grid.fold_mask();
+  const GridMapping m = MappingFor(p, grid);
+  for (int a = 0; a < 3; ++a) t.min[a] = m.min[a], t.inv_voxel[a] = m.inv_voxel[a];
+  t.res[0] = m.res.x, t.res[1] = m.res.y, t.res[2] = m.res.z;
+  t.fold_shift = m.fold_shift, t.fold_mask = m.fold_mask;
+  t.tiles_y = m.tiles_y, t.tiles_z = m.tiles_z;
   if (const ImagePlane* image = p.image ? &*p.image : nullptr) {
     t.kind = image->perspective ? flame::PlotTarget::kPerspective : flame::PlotTarget::kOrtho;
     for (int r = 0; r < 3; ++r)
       for (int c = 0; c < 4; ++c) t.view[4 * r + c] = image->view.m[r][c];
     t.focal = image->focal, t.cx = image->cx, t.cy = image->cy, t.near = image->near;
-    t.res[0] = image->width, t.res[1] = image->height, t.res[2] = 1;
-    // ImagePlane::Voxel folds rows into the depth of an unfolded grid.
-    t.fold_shift = ImagePlane::kFoldShift, t.fold_mask = ImagePlane::kFoldMask;
   }
-  t.tiles_y = uint32_t(grid.tiles().y), t.tiles_z = uint32_t(grid.tiles().z);
   t.color = p.color.mode != ColorMode::kNone;
   return t;
 }
@@ -565,18 +580,15 @@ void ChaosGame::RunChunkFast(uint64_t chunk, Worker& w) {
     chain = {f.state.data(), f.sample.data(), f.step.data()};
     k.chain = &chain;
   }
-  const Vec3 vs = p.frame.VoxelSize();
+  const GridMapping m = MappingFor(p, *w.grid);
+  // A picture's points are walked already projected to pixels.
   for (int a = 0; a < 3; ++a) {
-    k.min[a] = p.image ? 0.0 : p.frame.bounds.min[a];
-    k.inv_voxel[a] = p.image ? 1.0 : 1.0 / vs[a];
+    k.min[a] = p.image ? 0.0 : m.min[a];
+    k.inv_voxel[a] = p.image ? 1.0 : m.inv_voxel[a];
   }
-  const Int3 res = p.image ? Int3{p.image->width, p.image->height, 1} : p.frame.resolution;
-  k.res[0] = res.x, k.res[1] = res.y, k.res[2] = res.z;
-  // Image rows, or a thin grid's rows, fold into the tiles' depth alike.
-  k.fold_mask = p.image ? ImagePlane::kFoldMask : w.grid->fold_mask();
-  k.fold_shift = p.image ? ImagePlane::kFoldShift : w.grid->fold_shift();
-  k.tiles_y = uint32_t(w.grid->tiles().y);
-  k.tiles_z = uint32_t(w.grid->tiles().z);
+  k.res[0] = m.res.x, k.res[1] = m.res.y, k.res[2] = m.res.z;
+  k.fold_mask = m.fold_mask, k.fold_shift = m.fold_shift;
+  k.tiles_y = m.tiles_y, k.tiles_z = m.tiles_z;
   k.bin_shift = c.bins->bin_shift();
   k.bins = c.bins->cursors();
   k.owner = &c;
