@@ -97,9 +97,13 @@ bool BoxFilled(const VoxelSet& out, const VoxelBox& box) {
 // One pass over the box for all six tetrahedra (not one per tetrahedron
 // over its own box): each row word is read once and only its missing bits
 // are tested, since most are set already (the images of neighbouring cubes
-// overlap); the planes are prepared on the first missing bit, if any.
-void FillCubeImage(const Int3 (&img)[8], const VoxelBox& box, VoxelSet& out) {
+// overlap); the planes are prepared on the first missing bit, and `worth`
+// is asked on the first bit the fill would add (most boxes' missing bits
+// lie outside the tetrahedra, and then the check is never needed).
+void FillCubeImage(const Int3 (&img)[8], const VoxelBox& box, VoxelSet& out,
+                   absl::FunctionRef<bool()> worth) {
   std::optional<CubeTets> tets;
+  bool asked = false;
   for (int z = box.min.z; z <= box.max.z; ++z)
     for (int y = box.min.y; y <= box.max.y; ++y) {
       uint64_t* row = out.MutableRow(y, z);
@@ -111,7 +115,9 @@ void FillCubeImage(const Int3 (&img)[8], const VoxelBox& box, VoxelSet& out) {
         if (missing && !tets) tets.emplace(img);
         for (; missing; missing &= missing - 1) {
           const int b = std::countr_zero(missing), x = (w << 6) + b;
-          if (tets->Contains(x, y, z)) add |= uint64_t{1} << b;
+          if (!tets->Contains(x, y, z)) continue;
+          if (!asked && !(asked = true, worth())) return;
+          add |= uint64_t{1} << b;
         }
         if (add) word.fetch_or(add, std::memory_order_relaxed);
       }

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 
+#include "absl/functional/function_ref.h"
 #include "core/base/geometry.h"
 #include "core/grid/voxel_set.h"
 
@@ -35,7 +36,12 @@ bool BoxFilled(const VoxelSet& out, const VoxelBox& box);
 /// (c & 1, (c >> 1) & 1, c >> 2)), with exact integer orientation tests, so
 /// tetrahedra sharing a face leave no crack. Flat tetrahedra add nothing.
 /// Coordinates must be below 2^16. Bits are added with atomic ORs, so
-/// several threads may fill into one set.
-void FillCubeImage(const Int3 (&img)[8], const VoxelBox& box, VoxelSet& out);
+/// several threads may fill into one set. `worth` is asked once, at the
+/// first voxel the fill would add (never when it would add none): when it
+/// says no, nothing is added. It lets the caller defer a costly check (the
+/// gap filling's coherence tests) until it can matter, and makes the box
+/// scan serve as the BoxFilled test too instead of a second pass.
+void FillCubeImage(const Int3 (&img)[8], const VoxelBox& box, VoxelSet& out,
+                   absl::FunctionRef<bool()> worth = [] { return true; });
 
 }  // namespace nimbus

@@ -285,12 +285,15 @@ absl::Status AddMidpoints(const VoxelSet& moving, const VoxelSet& source, const 
     if (Chebyshev(flo, fhi) > jump) return;
     // The tetrahedra only add voxels inside the corners' images' box: when
     // the median has already set all of those (common: neighbouring cubes'
-    // images overlap), the fill and its 28 coherence tests can be skipped.
-    const VoxelBox box = CubeImageBox(img, res);
-    if (BoxFilled(out, box)) return;
-    for (const CornerPair& p : kCornerPairs)
-      if (!Coherent(motion[p.i], motion[p.j], p.d)) return;
-    FillCubeImage(img, box, out);
+    // images overlap), the fill skips its 28 coherence tests. They run at
+    // the first voxel the fill would add (most missing voxels of a box lie
+    // outside the cube's image), and the box is scanned once.
+    auto coherent = [&] {
+      for (const CornerPair& p : kCornerPairs)
+        if (!Coherent(motion[p.i], motion[p.j], p.d)) return false;
+      return true;
+    };
+    FillCubeImage(img, CubeImageBox(img, res), out, coherent);
   };
   tbb::parallel_for(slabs, [&](const tbb::blocked_range<int>& r) {
     if (cancelled) return;

@@ -518,6 +518,18 @@ TEST(Median, CubeImageFillMatchesPerTetrahedronTests) {
       for (int y = box.min.y; y <= box.max.y; ++y)
         for (int x = box.min.x; x <= box.max.x; ++x) full = full && want.Get(x, y, z);
     EXPECT_EQ(BoxFilled(got, box), full) << "trial " << trial;
+    // The deferred check: asked once when the fill would add a voxel,
+    // never otherwise; a "no" adds nothing.
+    int asked = 0;
+    VoxelSet refused = before;
+    FillCubeImage(img, box, refused, [&] { return ++asked, false; });
+    EXPECT_EQ(refused, before) << "trial " << trial;
+    EXPECT_EQ(asked, want == before ? 0 : 1) << "trial " << trial;
+    asked = 0;
+    VoxelSet again = got;
+    FillCubeImage(img, box, again, [&] { return ++asked, true; });
+    EXPECT_EQ(again, got) << "trial " << trial;
+    EXPECT_EQ(asked, 0) << "trial " << trial;
   }
 }
 
