@@ -157,12 +157,12 @@ LeafRuns::~LeafRuns() {
   if (fd_ >= 0) ::close(fd_);
 }
 
-void LeafRuns::Append(const std::string& run) {
+void LeafRuns::Append(std::string&& run) {
   bytes_ += run.size();
   const SpillScope* spill = SpillScope::Current();
   if (fd_ < 0 && (spill == nullptr || kept_ + run.size() <= spill->keep_bytes())) {
     kept_ += run.size();
-    memory_.push_back(run);
+    memory_.push_back(std::move(run));
     return;
   }
   if (fd_ < 0) fd_ = OpenSpill(spill->dir());

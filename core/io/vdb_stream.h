@@ -18,6 +18,7 @@
 #include <memory>
 #include <sstream>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -40,8 +41,9 @@ class LeafRuns {
   LeafRuns(LeafRuns&& other) noexcept;
   LeafRuns& operator=(LeafRuns&&) = delete;
   ~LeafRuns();
-  /// Appends a run. Throws openvdb::IoError when the spill file fails.
-  void Append(const std::string& run);
+  /// Appends a run (kept runs are moved in, not copied). Throws
+  /// openvdb::IoError when the spill file fails.
+  void Append(std::string&& run);
   /// Writes every run to `os`, in order, through one bounded buffer.
   void WriteTo(std::ostream& os) const;
   uint64_t bytes() const { return bytes_; }
@@ -168,7 +170,7 @@ EncodedGrid EncodeLeaves(typename GridT::Ptr topology, const Fill& fill, const C
       out.delayed->setCompressedSize(first + j, DelayedLoadSize(b, sizeof(ValueT)));
       blob += b;
     }
-    out.buffers.Append(blob);
+    out.buffers.Append(std::move(blob));
     chunk(static_cast<const LeafT*>(scratch.get()), count);
   }
   return out;
