@@ -1,7 +1,6 @@
 #include "server/untrusted_file.h"
 
 #include <fcntl.h>
-#include <openvdb/openvdb.h>
 #include <poll.h>
 #include <signal.h>
 #include <spawn.h>
@@ -22,6 +21,7 @@
 #include "absl/strings/string_view.h"
 #include "absl/strings/strip.h"
 #include "core/io/mesh_io.h"
+#include "core/io/vdb_io.h"
 #include "proto/asset_paths.h"
 #include "server/bounded_text.h"
 
@@ -80,45 +80,13 @@ void ApplyLimits() {
   ::setrlimit(RLIMIT_FSIZE, writes ? &as : &none);
 }
 
-// Re-writes the float grids with Nimbus's writer, through a temporary file
-// renamed into place: nimbusd then reads only bytes OpenVDB's writer made
-// from grids in memory, never the uploaded ones (undefined behaviour in the
-// reader need not show in this process as well as in nimbusd's).
-int WriteLaundered(const openvdb::GridPtrVec& grids, const char* out) {
-  openvdb::GridPtrVec floats;
-  for (const openvdb::GridBase::Ptr& g : grids)
-    if (g && g->isType<openvdb::FloatGrid>()) floats.push_back(g);
-  if (floats.empty()) {
-    Report("the file holds no float grid");
-    return kExitRejected;
-  }
-  const std::string tmp = absl::StrCat(out, ".tmp");
-  openvdb::io::File file(tmp);
-  file.write(floats);
-  file.close();
-  if (std::rename(tmp.c_str(), out) != 0) {
-    Report("cannot store the checked grids");
-    return kExitRejected;
-  }
-  return 0;
-}
-
+// The reading itself is OpenVDB's, in the module (CheckUntrustedVdb).
 int CheckVdbChild(const char* path) {
-  openvdb::initialize();
-  openvdb::io::File file(path);
-  // No delayed loading: every buffer is read here, not later by a job.
-  file.open(/*delayLoad=*/false);
-  openvdb::GridPtrVecPtr grids = file.getGrids();
-  file.close();
-  if (!grids || grids->empty()) {
-    Report("the file holds no grids");
-    return kExitRejected;
-  }
-  // Walk every tree once, so nothing of it stays unread.
-  for (const openvdb::GridBase::Ptr& g : *grids)
-    if (g) (void)g->activeVoxelCount();
   const char* laundered = std::getenv(kEnvLaundered);
-  return laundered != nullptr ? WriteLaundered(*grids, laundered) : 0;
+  const absl::Status checked = CheckUntrustedVdb(path, laundered != nullptr ? laundered : "");
+  if (checked.ok()) return 0;
+  Report(checked.message());
+  return kExitRejected;
 }
 
 int CheckMeshChild(const char* path) {

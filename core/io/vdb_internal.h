@@ -1,5 +1,6 @@
-// OpenVDB helpers shared by core's .cc files. This header includes OpenVDB,
-// so only .cc files may include it, never a public header.
+// OpenVDB helpers shared by the .cc files of the libnimbus_vdb.so module
+// (vdb_module.h), and by tests that link it. This header includes OpenVDB,
+// so only those .cc files may include it, never a public header.
 #pragma once
 
 #include <openvdb/openvdb.h>

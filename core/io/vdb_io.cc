@@ -1,3 +1,5 @@
+// The OpenVDB side of vdb_io.h: built into the libnimbus_vdb.so module only
+// (vdb_module.h), where vdb_module_entry.cc puts these functions in its table.
 #include "core/io/vdb_io.h"
 
 #include <openvdb/io/Stream.h>
@@ -22,6 +24,7 @@
 #include "absl/strings/str_cat.h"
 #include "core/base/sha256.h"
 #include "core/io/metadata_keys.h"
+#include "core/io/vdb_impl.h"
 #include "core/io/vdb_internal.h"
 #include "core/io/vdb_stream.h"
 
@@ -492,26 +495,6 @@ ResultGrids Coarsen(const ResultGrids& g, int f) {
   return out;
 }
 
-// Active voxels and leaves left by a box filter of factor f.
-GridSupport SupportAtFactor(const CountGrid& counts, int f) {
-  GridSupport s;
-  if (f == 1) {
-    counts.ForEachLeaf([&](Int3, const uint32_t* v, const uint64_t*) {
-      for (int i = 0; i < 512; ++i) s.voxels += v[i] != 0;
-      ++s.leaves;
-    });
-    return s;
-  }
-  openvdb::MaskGrid mask;
-  auto acc = mask.getAccessor();
-  counts.ForEachVoxel([&](Int3 v, uint32_t) {
-    acc.setValueOn(openvdb::Coord(v.x / f, v.y / f, v.z / f));
-  });
-  s.voxels = mask.activeVoxelCount();
-  s.leaves = mask.tree().leafCount();
-  return s;
-}
-
 // nimbus_suggested_density from the written density grid.
 double SuggestedDensityOf(const openvdb::FloatGrid& grid) {
   const uint64_t n = grid.activeVoxelCount();
@@ -867,17 +850,9 @@ absl::StatusOr<DenseVolume> ToDense(const openvdb::GridPtrVecPtr& grids, const s
 
 }  // namespace
 
-const MetaValue* DenseVolume::Find(const std::string& key) const {
-  for (const auto& [k, v] : metadata)
-    if (k == key) return &v;
-  return nullptr;
-}
-
-absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid& counts,
-                             const GridFrame& frame, const DensityOptions& options,
-                             const Metadata& metadata) {
-  return WriteDensityVdb(path, counts, frame, options, metadata, {});
-}
+// The OpenVDB side of vdb_io.h, reached through the module table
+// (vdb_module_entry.cc): the names in namespace nimbus are the forwarders.
+namespace vdb_impl {
 
 absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid& counts,
                              const GridFrame& frame, const DensityOptions& options,
@@ -902,6 +877,8 @@ absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid&
   return vdb_internal::WriteBuiltDensityVdb(path, counts, frame, options, metadata, fields);
 }
 
+}  // namespace vdb_impl
+
 namespace vdb_internal {
 
 absl::Status WriteBuiltDensityVdb(const std::filesystem::path& path, const CountGrid& counts,
@@ -922,6 +899,8 @@ absl::Status WriteBuiltDensityVdb(const std::filesystem::path& path, const Count
 }
 
 }  // namespace vdb_internal
+
+namespace vdb_impl {
 
 absl::Status WriteFloatVolumeVdb(const std::filesystem::path& path, const FloatVolume& volume,
                                  const Metadata& metadata, const OutputConventions& conventions) {
@@ -977,6 +956,8 @@ absl::Status WriteIntegerCountsVdb(const std::filesystem::path& path, const Coun
   return vdb_internal::WriteBuiltIntegerCountsVdb(path, counts, frame, options, metadata);
 }
 
+}  // namespace vdb_impl
+
 namespace vdb_internal {
 
 absl::Status WriteBuiltIntegerCountsVdb(const std::filesystem::path& path,
@@ -1001,6 +982,8 @@ absl::Status WriteBuiltIntegerCountsVdb(const std::filesystem::path& path,
 }
 
 }  // namespace vdb_internal
+
+namespace vdb_impl {
 
 absl::StatusOr<std::vector<int64_t>> ReadIntegerCountsVdb(const std::filesystem::path& path,
                                                           Int3 resolution) {
@@ -1066,15 +1049,6 @@ absl::StatusOr<DenseVolume> ReadVdbBytes(const std::string& bytes, const std::st
   }
 }
 
-uint64_t OutputBytesPerVoxel(const DensityOptions& o) {
-  uint64_t bytes = sizeof(float);
-  if (o.color) bytes += 3 * sizeof(float);
-  if (o.address_grid) bytes += sizeof(float);
-  if (o.raw_counts == RawCounts::kFloat) bytes += sizeof(float);
-  if (o.raw_counts == RawCounts::kInteger) bytes += sizeof(int64_t);
-  return bytes;
-}
-
 absl::StatusOr<DenseVec3Volume> ReadVec3VdbFile(const std::filesystem::path& path,
                                                 const std::string& name) {
   InitOpenVdb();
@@ -1108,78 +1082,6 @@ absl::StatusOr<DenseVec3Volume> ReadVec3VdbFile(const std::filesystem::path& pat
   }
 }
 
-uint64_t EstimatedFileBytes(GridSupport support, const DensityOptions& o) {
-  const uint64_t f = o.conventions.half_float ? 2 : 4;
-  uint64_t grids = 1, per_voxel = f;  // density
-  if (o.color) grids += 1, per_voxel += 3 * f;
-  if (o.address_grid) grids += 1, per_voxel += f;
-  if (o.raw_counts != RawCounts::kNone) grids += 1, per_voxel += f;  // float counts
-  return kFileOverheadBytes + support.voxels * per_voxel + support.leaves * grids * kLeafFileBytes;
-}
-
-int OutputDownsampleFactor(const CountGrid& counts, const DensityOptions& options) {
-  const OutputConventions& c = options.conventions;
-  if (!c.Downsamples()) return 1;
-  auto fits = [&](GridSupport s) {
-    return (c.max_voxels <= 0 || s.voxels <= uint64_t(c.max_voxels)) &&
-           (c.target_file_bytes <= 0 ||
-            EstimatedFileBytes(s, options) <= uint64_t(c.target_file_bytes));
-  };
-  const GridSupport fine = SupportAtFactor(counts, 1);
-  if (fits(fine)) return 1;
-  // A block holds at most f^3 voxels, so no factor below the cube root of
-  // the excess can fit: start there instead of counting every factor.
-  uint64_t limit = fine.voxels;
-  if (c.max_voxels > 0) limit = std::min<uint64_t>(limit, uint64_t(c.max_voxels));
-  if (c.target_file_bytes > 0) {
-    // Voxel bytes alone, without leaves or overhead: still a lower bound.
-    const uint64_t empty = EstimatedFileBytes({0, 0}, options);
-    const uint64_t per_voxel = EstimatedFileBytes({1, 0}, options) - empty;
-    const uint64_t room = uint64_t(c.target_file_bytes) > empty ? c.target_file_bytes - empty : 0;
-    limit = std::min<uint64_t>(limit, room / per_voxel);
-  }
-  const Int3 r = counts.resolution();
-  const int largest = std::max({r.x, r.y, r.z});
-  int f = std::max(2, int(std::cbrt(double(fine.voxels) / double(std::max<uint64_t>(1, limit)))));
-  for (; f < largest; ++f)
-    if (fits(SupportAtFactor(counts, f))) return f;
-  return std::max(1, largest);
-}
-
-double SuggestedDensity(uint64_t active_voxels, double mean_value, double voxel_size) {
-  if (active_voxels == 0 || !(mean_value > 0) || !(voxel_size > 0)) return 1.0;
-  const double crossed = std::cbrt(double(active_voxels));
-  return std::clamp(kSuggestedDepth / (mean_value * voxel_size * crossed), 1.0, 1000.0);
-}
-
-int DownsampleFactor(Int3 r, int max_resolution) {
-  const int largest = std::max({r.x, r.y, r.z});
-  if (max_resolution <= 0) return 1;
-  return std::max(1, (largest + max_resolution - 1) / max_resolution);
-}
-
-GridFrame DownsampleFrame(const GridFrame& frame, int factor) {
-  const Int3 r = frame.resolution;
-  GridFrame out;
-  out.resolution = {(r.x + factor - 1) / factor, (r.y + factor - 1) / factor,
-                    (r.z + factor - 1) / factor};
-  const Vec3 h = frame.VoxelSize();
-  out.bounds.min = frame.bounds.min;
-  out.bounds.max =
-      frame.bounds.min + Vec3{out.resolution.x * factor * h.x, out.resolution.y * factor * h.y,
-                              out.resolution.z * factor * h.z};
-  return out;
-}
-
-CountGrid DownsampleCounts(const std::vector<const CountGrid*>& parts, int factor) {
-  const Int3 r = parts.empty() ? Int3{1, 1, 1} : parts[0]->resolution();
-  CountGrid out(
-      Int3{(r.x + factor - 1) / factor, (r.y + factor - 1) / factor, (r.z + factor - 1) / factor});
-  for (const CountGrid* part : parts) {
-    part->ForEachVoxel(
-        [&](Int3 v, uint32_t n) { out.Add(v.x / factor, v.y / factor, v.z / factor, n); });
-  }
-  return out;
-}
+}  // namespace vdb_impl
 
 }  // namespace nimbus

@@ -1,5 +1,7 @@
 // Conversion of visit counts to OpenVDB fog volumes, and VDB file/byte I/O.
-// OpenVDB stays behind this header (pimpl-free: only core types cross it).
+// OpenVDB stays behind this header (pimpl-free: only core types cross it),
+// in the libnimbus_vdb.so module that these functions load on first use
+// (vdb_module.h): a missing module is a FAILED_PRECONDITION status.
 #pragma once
 
 #include <cstdint>
@@ -215,6 +217,15 @@ absl::StatusOr<DenseVolume> ReadVdbFile(const std::filesystem::path& path,
                                         const std::string& name = "density");
 absl::StatusOr<DenseVolume> ReadVdbBytes(const std::string& bytes,
                                          const std::string& name = "density");
+
+/// @brief Reads every grid of an untrusted file whole (no delayed loading)
+/// and walks every tree, so that a damaged file fails here; with
+/// `laundered` not empty, then writes its float grids there with OpenVDB's
+/// writer (through a temporary file renamed into place). Meant for a
+/// sandboxed child process (server/untrusted_file.h): INVALID_ARGUMENT
+/// whose message is the reason a file is refused.
+absl::Status CheckUntrustedVdb(const std::filesystem::path& path,
+                               const std::filesystem::path& laundered);
 
 /// Sums `parts` into a grid coarser by `factor` per axis, for previews.
 CountGrid DownsampleCounts(const std::vector<const CountGrid*>& parts, int factor);
