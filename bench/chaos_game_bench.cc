@@ -63,6 +63,43 @@ BENCHMARK(BM_SierpinskiTetrahedron256)
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
 
+// bench/compare_flam3.sh's 2D Sierpinski (bench/flam3/sierpinski_2d.json):
+// three maps on a 1024 x 1024 x 1 grid, 2.1 * 10^8 points, as a volume and
+// as a picture; the grid's 32 tiles take flat direct increments
+// (core/chaos/tile_bins.h). CPU is the whole process's.
+ChaosGameParams Sierpinski2DParams() {
+  ChaosGameParams p;
+  const double offsets[3][2] = {{0, 0}, {0.5, 0}, {0.25, 0.5}};
+  for (const auto& o : offsets) {
+    PointMap m;
+    m.pre.m = {{{0.5, 0, 0, o[0]}, {0, 0.5, 0, o[1]}, {0, 0, 0, 0}}};
+    p.ifs.maps.push_back(m);
+  }
+  p.ifs.probabilities = {1, 1, 1};
+  p.frame = {{1024, 1024, 1}, {{-0.1, -0.1, -0.5}, {1.1, 1.1, 0.5}}};
+  p.iterations = 209715200;
+  p.seed = 1;
+  return p;
+}
+void BM_Sierpinski2D(benchmark::State& state) { RunEngine(state, Sierpinski2DParams()); }
+BENCHMARK(BM_Sierpinski2D)
+    ->ArgsProduct({{1, 2}, {0, 1, 2}})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->MeasureProcessCPUTime()
+    ->Iterations(1);
+void BM_Sierpinski2DPicture(benchmark::State& state) {
+  ChaosGameParams p = Sierpinski2DParams();
+  p.image = MakeImagePlane({}, p.frame.bounds, 1024, 1024);
+  RunEngine(state, p);
+}
+BENCHMARK(BM_Sierpinski2DPicture)
+    ->ArgsProduct({{2}, {2}})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->MeasureProcessCPUTime()
+    ->Iterations(1);
+
 void BM_OctantCloud256(benchmark::State& state) {
   RunEngine(state, OctantCloudParams(256, uint64_t{1} << 28));
 }

@@ -60,8 +60,12 @@ inline void Step(const AffineWalk& k, Walkers& w, int l) {
     k.exit(k.owner, l);
     return;
   }
-  const uint32_t ix = uint32_t(int(fx)), iy0 = uint32_t(int(fy));
-  const uint32_t iy = iy0 >> k.fold_shift, iz = uint32_t(int(fz)) + (iy0 & k.fold_mask);
+  const uint32_t ix = uint32_t(int(fx)), iy0 = uint32_t(int(fy)), iz0 = uint32_t(int(fz));
+  if (k.flat) {
+    ++k.flat[(ix * k.flat_stride[0] + iy0) * k.flat_stride[1] + iz0];
+    return;
+  }
+  const uint32_t iy = iy0 >> k.fold_shift, iz = iz0 + (iy0 & k.fold_mask);
   const uint32_t tile = ((ix >> 5) * k.tiles_y + (iy >> 5)) * k.tiles_z + (iz >> 5);
   const uint32_t leaf = (((ix >> 3) & 3) << 4) | (((iy >> 3) & 3) << 2) | ((iz >> 3) & 3);
   const uint32_t local = (leaf << 9) | ((ix & 7) << 6) | ((iy & 7) << 3) | (iz & 7);

@@ -57,6 +57,12 @@ struct AffineWalk {
   uint32_t num_maps = 0;
   /// When set, maps are drawn by the chain instead of the alias table.
   const ChainTables* chain = nullptr;
+  /// Every map's z row is (0, 0, 0, c) with the same c, and z's column in
+  /// the x and y rows is 0: z is c after every step, whatever x and y
+  /// (a 2D IFS). Kernels may then skip z, which changes nothing but the
+  /// sign of a zero x or y (no voxel depends on it) and leaves Walkers::z
+  /// stale (finite: restarted walkers are warmed up by the owner).
+  bool planar = false;
   double min[3] = {0, 0, 0};        // grid bounds' minimum corner
   double inv_voxel[3] = {1, 1, 1};  // voxels per world unit
   double res[3] = {0, 0, 0};        // resolution, as doubles
@@ -69,6 +75,15 @@ struct AffineWalk {
   /// Direct mode: tiles[t] is tile t's counters, null until `allocate`
   /// returns them (and stores them in tiles[t]).
   uint32_t** tiles = nullptr;
+  /// Flat direct mode (instead of `tiles`, small lattices): one counter
+  /// per lattice voxel (ix, iy, iz) of `res`, before any fold, at
+  /// flat[(ix * res.y + iy) * res.z + iz] (flat_stride = {res.y, res.z}):
+  /// two multiply-adds instead of the tile and leaf arithmetic and a table
+  /// lookup (TileBins' flat mode). Lanes that add nothing may increment
+  /// flat[flat_discard] instead.
+  uint32_t* flat = nullptr;
+  uint32_t flat_stride[2] = {0, 0};
+  uint32_t flat_discard = 0;
   void* owner = nullptr;
   uint32_t* (*allocate)(void* owner, uint32_t tile) = nullptr;
   /// bins[bin] is full (or has no block yet): give it room for one entry.
@@ -148,6 +163,20 @@ inline void AddLanes(const AffineWalk& k, int g, int n, int plot, int finite, in
       t = k.allocate(k.owner, tile[l]);
     ++t[local[l]];
   }
+}
+
+// Flat direct mode's last stage: lanes plotted inside the grid increment
+// flat[index[l]] (their lattice index); the rest may exit.
+inline void AddFlatLanes(const AffineWalk& k, int g, int n, int plot, int finite, int inside,
+                         const uint32_t* index) {
+  const int all = (1 << n) - 1;
+  if ((plot & inside & all) != all) [[unlikely]] {
+    ExitLanes(k, g, n, plot, finite, inside);
+    for (int l = 0; l < n; ++l)
+      if ((plot & inside) >> l & 1) ++k.flat[index[l]];
+    return;
+  }
+  for (int l = 0; l < n; ++l) ++k.flat[index[l]];
 }
 
 }  // namespace

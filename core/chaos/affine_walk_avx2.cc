@@ -66,6 +66,8 @@ void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
   const __m128i bin_shift = _mm_cvtsi32_si128(int(k.bin_shift));
   const __m128i fold_mask = _mm_set1_epi32(int(k.fold_mask));
   const __m128i fold_shift = _mm_cvtsi32_si128(int(k.fold_shift));
+  const __m128i flat_y = _mm_set1_epi32(int(k.flat_stride[0])),
+                flat_z = _mm_set1_epi32(int(k.flat_stride[1]));
 
   for (uint64_t s = 0; s < steps; ++s) {
     for (int g = 0; g < kLanes; g += 4) {
@@ -177,9 +179,18 @@ void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
         finite = _mm256_movemask_pd(f);
       }
 
-      const __m128i ix = _mm256_cvttpd_epi32(fx), iy0 = _mm256_cvttpd_epi32(fy);
+      const __m128i ix = _mm256_cvttpd_epi32(fx), iy0 = _mm256_cvttpd_epi32(fy),
+                    iz0 = _mm256_cvttpd_epi32(fz);
+      if (k.flat) {
+        alignas(16) uint32_t index[4];
+        const __m128i xy = _mm_add_epi32(_mm_mullo_epi32(ix, flat_y), iy0);
+        _mm_store_si128(reinterpret_cast<__m128i*>(index),
+                        _mm_add_epi32(_mm_mullo_epi32(xy, flat_z), iz0));
+        AddFlatLanes(k, g, 4, plot, finite, inside, index);
+        continue;
+      }
       const __m128i iy = _mm_srl_epi32(iy0, fold_shift),
-                    iz = _mm_add_epi32(_mm256_cvttpd_epi32(fz), _mm_and_si128(iy0, fold_mask));
+                    iz = _mm_add_epi32(iz0, _mm_and_si128(iy0, fold_mask));
       const __m128i tile = _mm_add_epi32(
           _mm_mullo_epi32(
               _mm_add_epi32(_mm_mullo_epi32(_mm_srli_epi32(ix, 5), tiles_y), _mm_srli_epi32(iy, 5)),

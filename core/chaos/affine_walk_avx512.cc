@@ -67,7 +67,29 @@ inline void AddLanes8(const AffineWalk& k, int g, __mmask8 plot, __mmask8 finite
   _mm512_store_si512(pending + g, addr);
 }
 
-template <Lookup kLookup, bool kChain>
+// Flat direct mode's last stage for lanes [g, g + 8): `index` is each
+// lane's lattice index into k.flat. The increments are deferred by a round
+// (`pending`) as in AddLanes8, but not prefetched: a flat array small
+// enough for this mode stays in L2, and the eight address extractions and
+// prefetches cost more than they hide (bench/chaos_game_bench.cc,
+// BM_Sierpinski2D).
+inline void AddFlat8(const AffineWalk& k, uint32_t* flat, int g, __mmask8 plot,
+                     __mmask8 finite, __mmask8 inside, __m256i index, uint32_t* pending) {
+  const __mmask8 add = plot & inside;
+  if (const __mmask8 out = (plot & ~inside) | (~plot & ~finite)) [[unlikely]]
+    for (unsigned m = out; m; m &= m - 1) k.exit(k.owner, g + __builtin_ctz(m));
+  // A 512-bit blend: the 256-bit one needs AVX-512VL.
+  index = _mm512_castsi512_si256(_mm512_mask_blend_epi32(
+      add, _mm512_set1_epi32(int(k.flat_discard)), _mm512_castsi256_si512(index)));
+  for (int l = 0; l < 8; ++l) ++flat[pending[g + l]];
+  _mm256_store_si256(reinterpret_cast<__m256i*>(pending + g), index);
+}
+
+// kPlanar: the maps leave z out of x and y and set z to one constant
+// (AffineWalk::planar), so z is neither computed nor stored and its voxel
+// coordinate and inside test are the constant's. Up to the sign of a zero
+// in x or y, which no voxel depends on, the walk is the general one.
+template <Lookup kLookup, bool kChain, bool kPlanar = false>
 void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
   Tables tab;
   if constexpr (kLookup == kPermute) {
@@ -99,10 +121,21 @@ void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
   const __m128i bin_shift = _mm_cvtsi32_si128(int(k.bin_shift));
   const __m256i fold_mask = _mm256_set1_epi32(int(k.fold_mask));
   const __m128i fold_shift = _mm_cvtsi32_si128(int(k.fold_shift));
+  const __m256i flat_y = _mm256_set1_epi32(int(k.flat_stride[0])),
+                flat_z = _mm256_set1_epi32(int(k.flat_stride[1]));
+  // Planar: z's voxel coordinate, computed as for any lane, and whether
+  // it lies inside the grid (NaN fails).
+  const double plane_fz = (k.coef[11] - k.min[2]) * k.inv_voxel[2];
+  const __mmask8 plane_inside = plane_fz >= 0 && plane_fz < k.res[2] ? 0xFF : 0;
+  const __m256i plane_iz = _mm256_set1_epi32(plane_inside ? int(plane_fz) : 0);
 
   uint32_t discard = 0;
   alignas(64) uint32_t* pending[kLanes];
   for (uint32_t*& p : pending) p = &discard;
+  // In a local: a store through k.flat could otherwise alias k.
+  uint32_t* const flat = k.flat;
+  alignas(64) uint32_t pending_flat[kLanes];
+  for (uint32_t& p : pending_flat) p = k.flat_discard;
   for (uint64_t s = 0; s < steps; ++s) {
     for (int g = 0; g < kLanes; g += 8) {
       // xoshiro256++, eight streams.
@@ -152,17 +185,18 @@ void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
           return _mm512_permutexvar_pd(m, tab.coef[j]);
       };
       const __m512d x = _mm512_load_pd(w.x + g), y = _mm512_load_pd(w.y + g),
-                    z = _mm512_load_pd(w.z + g);
+                    z = kPlanar ? zero : _mm512_load_pd(w.z + g);
       auto row = [&](int j) {
         __m512d v = _mm512_mul_pd(coef(j), x);
         v = _mm512_add_pd(v, _mm512_mul_pd(coef(j + 1), y));
-        v = _mm512_add_pd(v, _mm512_mul_pd(coef(j + 2), z));
+        // Planar: z's term is a zero, which changes at most a zero's sign.
+        if constexpr (!kPlanar) v = _mm512_add_pd(v, _mm512_mul_pd(coef(j + 2), z));
         return _mm512_add_pd(v, coef(j + 3));
       };
-      const __m512d nx = row(0), ny = row(4), nz = row(8);
+      const __m512d nx = row(0), ny = row(4), nz = kPlanar ? zero : row(8);
       _mm512_store_pd(w.x + g, nx);
       _mm512_store_pd(w.y + g, ny);
-      _mm512_store_pd(w.z + g, nz);
+      if constexpr (!kPlanar) _mm512_store_pd(w.z + g, nz);
 
       // Voxel coordinates and the inside test (NaN compares false).
       const __m512d fx = _mm512_mul_pd(_mm512_sub_pd(nx, min_x), inv_x);
@@ -170,8 +204,12 @@ void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
       const __m512d fz = _mm512_mul_pd(_mm512_sub_pd(nz, min_z), inv_z);
       __mmask8 inside =
           _mm512_cmp_pd_mask(fx, zero, _CMP_GE_OQ) & _mm512_cmp_pd_mask(fx, res_x, _CMP_LT_OQ) &
-          _mm512_cmp_pd_mask(fy, zero, _CMP_GE_OQ) & _mm512_cmp_pd_mask(fy, res_y, _CMP_LT_OQ) &
-          _mm512_cmp_pd_mask(fz, zero, _CMP_GE_OQ) & _mm512_cmp_pd_mask(fz, res_z, _CMP_LT_OQ);
+          _mm512_cmp_pd_mask(fy, zero, _CMP_GE_OQ) & _mm512_cmp_pd_mask(fy, res_y, _CMP_LT_OQ);
+      if constexpr (kPlanar)
+        inside &= plane_inside;
+      else
+        inside &= _mm512_cmp_pd_mask(fz, zero, _CMP_GE_OQ) &
+                  _mm512_cmp_pd_mask(fz, res_z, _CMP_LT_OQ);
       // Lanes in an unplotted chain state only need to be finite.
       __mmask8 finite = 0xFF;
       if constexpr (kChain) {
@@ -180,10 +218,16 @@ void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
                  _mm512_cmp_pd_mask(_mm512_sub_pd(nz, nz), zero, _CMP_EQ_OQ);
       }
 
-      const __m256i ix = _mm512_cvttpd_epi32(fx), iy0 = _mm512_cvttpd_epi32(fy);
+      const __m256i ix = _mm512_cvttpd_epi32(fx), iy0 = _mm512_cvttpd_epi32(fy),
+                    iz0 = kPlanar ? plane_iz : _mm512_cvttpd_epi32(fz);
+      if (k.flat) {
+        const __m256i xy = _mm256_add_epi32(_mm256_mullo_epi32(ix, flat_y), iy0);
+        AddFlat8(k, flat, g, plot, finite, inside,
+                 _mm256_add_epi32(_mm256_mullo_epi32(xy, flat_z), iz0), pending_flat);
+        continue;
+      }
       const __m256i iy = _mm256_srl_epi32(iy0, fold_shift),
-                    iz = _mm256_add_epi32(_mm512_cvttpd_epi32(fz),
-                                          _mm256_and_si256(iy0, fold_mask));
+                    iz = _mm256_add_epi32(iz0, _mm256_and_si256(iy0, fold_mask));
       const __m256i tile = _mm256_add_epi32(
           _mm256_mullo_epi32(_mm256_add_epi32(_mm256_mullo_epi32(_mm256_srli_epi32(ix, 5), tiles_y),
                                               _mm256_srli_epi32(iy, 5)),
@@ -211,11 +255,15 @@ void Walk(const AffineWalk& k, Walkers& w, uint64_t steps) {
     }
   }
   for (uint32_t* p : pending) ++*p;  // the last round's increments
+  if (k.flat)
+    for (uint32_t p : pending_flat) ++k.flat[p];
 }
 
 template <bool kChain>
 void WalkWith(const AffineWalk& k, Walkers& w, uint64_t steps) {
-  if (k.num_maps <= 8)
+  if (!kChain && k.planar && k.num_maps <= 8)
+    Walk<kPermute, false, true>(k, w, steps);
+  else if (k.num_maps <= 8)
     Walk<kPermute, kChain>(k, w, steps);
   else
     Walk<kGather, kChain>(k, w, steps);

@@ -29,6 +29,7 @@ Vec3 RandomPoint(Rng& rng, const Bounds& b) {
               rng.Uniform(b.min.z, b.max.z)};
 }
 
+bool Planar(const std::vector<Affine3>& maps);
 uint64_t ReachableTiles(const ChaosGameParams& p);
 size_t BufferEntries(const ChaosGameParams& p, uint64_t reachable_tiles);
 uint64_t PoolTiles(const ChaosGameParams& p, bool fast);
@@ -124,6 +125,7 @@ absl::StatusOr<std::unique_ptr<ChaosGame>> ChaosGame::Create(ChaosGameParams par
     for (const auto& row : a.m)
       game->affine_coef_.insert(game->affine_coef_.end(), row.begin(), row.end());
   }
+  game->planar_ = Planar(game->fast_maps_);
   if (game->fast_ && p.chain) {
     FlatChain& f = game->flat_chain_.emplace();
     const std::vector<ChainState>& states = p.chain->states;
@@ -180,6 +182,10 @@ void ChaosGame::AddWorkers(size_t entries, bool direct, bool shared) {
     const uint32_t first_range = uint32_t(t) * SharedTiles::kRanges / uint32_t(threads_);
     if (shared)
       w->bins = std::make_unique<TileBins>(*shared_tiles_, grid, entries, first_range);
+    else if (fast_ && p.image)  // the kernel walks the picture's pixels
+      w->bins = std::make_unique<TileBins>(grid, entries, direct,
+                                           Int3{p.image->width, p.image->height, 1},
+                                           uint32_t(ImagePlane::kFoldShift));
     else if (fast_)
       w->bins = std::make_unique<TileBins>(grid, entries, direct);
     else
@@ -189,6 +195,18 @@ void ChaosGame::AddWorkers(size_t entries, bool direct, bool shared) {
 }
 
 namespace {
+
+// Whether the fast path's maps are a 2D IFS as walk::AffineWalk::planar
+// defines it: z's column out of the x and y rows, and z set to one
+// constant by every map.
+bool Planar(const std::vector<Affine3>& maps) {
+  for (const Affine3& a : maps) {
+    if (a.m[0][2] != 0 || a.m[1][2] != 0) return false;
+    if (a.m[2][0] != 0 || a.m[2][1] != 0 || a.m[2][2] != 0) return false;
+    if (a.m[2][3] != maps[0].m[2][3]) return false;  // also false for NaN
+  }
+  return true;
+}
 
 // Tiles of the grid that plotted points can reach. For contractive affine
 // maps plotted as they are, the attractor lies in a ball B(c, R) that every
@@ -574,6 +592,7 @@ void ChaosGame::RunChunkFast(uint64_t chunk, Worker& w) {
   k.threshold = map_table_.thresholds();
   k.alias = map_table_.aliases();
   k.num_maps = uint32_t(p.ifs.maps.size());
+  k.planar = planar_ && !flat_chain_;
   walk::ChainTables chain;
   if (flat_chain_) {
     const FlatChain& f = *flat_chain_;
@@ -594,6 +613,9 @@ void ChaosGame::RunChunkFast(uint64_t chunk, Worker& w) {
   k.owner = &c;
   k.refill = &FastChunk::Refill;
   k.tiles = c.bins->tiles();
+  k.flat = c.bins->flat();
+  k.flat_stride[0] = uint32_t(m.res.y), k.flat_stride[1] = uint32_t(m.res.z);
+  k.flat_discard = c.bins->flat_discard();
   k.allocate = &FastChunk::Allocate;
   k.exit = &FastChunk::Exit;
 

@@ -282,6 +282,7 @@ class ChaosGame {
   bool fast_ = false;
   SimdLevel simd_ = SimdLevel::kScalar;
   std::vector<double> affine_coef_;  // 12 per map, for the fast path
+  bool planar_ = false;              // walk::AffineWalk::planar for these maps
   // The fast path's maps: the IFS's own, or conjugated into pixel space
   // (view * map * view^-1) for an orthographic image.
   std::vector<Affine3> fast_maps_;

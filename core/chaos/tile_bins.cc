@@ -1,6 +1,13 @@
 #include "core/chaos/tile_bins.h"
 
+#include <sys/mman.h>
+
+#include <algorithm>
+#include <new>
+
 namespace nimbus {
+
+void TileBins::Unmap::operator()(uint32_t* p) const { munmap(p, bytes); }
 
 uint32_t TileBins::BinShift(Int3 resolution) {
   const uint64_t tiles = CountGrid::TileCountFor(resolution);
@@ -14,9 +21,20 @@ uint64_t TileBins::BinCount(Int3 resolution) {
   return ((CountGrid::TileCountFor(resolution) - 1) >> BinShift(resolution)) + 1;
 }
 
-TileBins::TileBins(CountGrid& grid, size_t capacity, bool direct)
-    : grid_(grid), direct_(direct) {
+TileBins::TileBins(CountGrid& grid, size_t capacity, bool direct, Int3 lattice,
+                   uint32_t lattice_fold)
+    : grid_(grid), direct_(direct), lattice_(lattice.x > 0 ? lattice : grid.resolution()),
+      lattice_fold_(lattice_fold) {
   const uint64_t tiles = CountGrid::TileCountFor(grid.resolution());
+  if (direct && Flat(lattice_)) {
+    // Fresh pages are zero and only the touched ones take memory.
+    flat_voxels_ = uint32_t(uint64_t(lattice_.x) * lattice_.y * lattice_.z);
+    const size_t bytes = (size_t(flat_voxels_) + 16) * sizeof(uint32_t);
+    void* p = mmap(nullptr, bytes, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+    if (p == MAP_FAILED) throw std::bad_alloc();
+    flat_ = std::unique_ptr<uint32_t, Unmap>(static_cast<uint32_t*>(p), Unmap{bytes});
+    return;
+  }
   if (direct) {
     // All null: the first visit of a tile asks the grid, which returns the
     // tile it may already hold.
@@ -42,6 +60,7 @@ void TileBins::Refill(uint32_t bin) {
 }
 
 void TileBins::Flush() {
+  if (flat_) return DrainFlat();
   if (!shared_) {
     DrainBins(0, pool_.bins());
   } else {
@@ -96,13 +115,45 @@ void TileBins::ApplySplit(uint64_t first_tile) {
   });
 }
 
+void TileBins::DrainFlat() {
+  // 16 counters (a cache line) at a time: most lines no point reached, and
+  // a line that one did is located by one division, then walked. A tile is
+  // allocated in the grid exactly when a counter in it is not zero, as a
+  // point landing there would have allocated it.
+  uint32_t* flat = flat_.get();
+  const uint32_t ny = uint32_t(lattice_.y), nz = uint32_t(lattice_.z);
+  const uint32_t mask = (1u << lattice_fold_) - 1;
+  for (uint32_t i = 0; i < flat_voxels_; i += 16) {
+    const uint32_t end = std::min<uint32_t>(i + 16, flat_voxels_);
+    uint32_t any = 0;
+    for (uint32_t j = i; j < end; ++j) any |= flat[j];
+    if (!any) continue;
+    uint32_t z = i % nz, y = i / nz % ny, x = i / nz / ny;
+    for (uint32_t j = i; j < end; ++j) {
+      if (const uint32_t n = flat[j]) {
+        // Wraps modulo 2^32 as the increments themselves would.
+        grid_.AddKey(grid_.Key(int(x), int(y >> lattice_fold_), int(z + (y & mask))), n);
+        flat[j] = 0;
+      }
+      if (++z == nz) {
+        z = 0;
+        if (++y == ny) y = 0, ++x;
+      }
+    }
+  }
+}
+
 uint64_t TileBins::MemoryBytes() const {
+  if (flat_) return (uint64_t(flat_voxels_) + 16) * sizeof(uint32_t);
   if (direct_) return tiles_.capacity() * sizeof(uint32_t*);
   return pool_.MemoryBytes() + (shift_ > 0 ? split_.MemoryBytes() : 0);
 }
 
 uint64_t TileBins::Bytes(Int3 resolution, size_t capacity, bool direct) {
   const uint64_t tiles = CountGrid::TileCountFor(resolution);
+  // A picture's lattice has no more voxels than its folded grid.
+  const uint64_t voxels = uint64_t(resolution.x) * resolution.y * resolution.z;
+  if (direct && Flat(resolution)) return (voxels + 16) * sizeof(uint32_t);
   if (direct) return tiles * sizeof(uint32_t*);
   const uint32_t shift = BinShift(resolution);
   return Pool::Bytes(BinCount(resolution), capacity) +

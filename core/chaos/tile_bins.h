@@ -4,6 +4,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "core/chaos/affine_walk.h"
@@ -33,6 +34,13 @@ namespace nimbus {
 /// cache lines the attractor touches fit in the caches (a few hundred tiles
 /// at most), where binning only adds a write and a read of every entry.
 ///
+/// Direct mode on a lattice of at most kFlatVoxels voxels (a 1024^2
+/// picture or 2D volume, a 128^3 volume) is flat: the kernels increment
+/// one plain array over the walk's lattice, indexed (x * ny + y) * nz + z,
+/// with neither tile arithmetic nor a table of tile pointers per point,
+/// and Flush adds its non-zero counters into the grid (allocating the
+/// tiles they lie in, as the increments would have) and zeroes them.
+///
 /// Not thread-safe: one per thread, each over its thread's CountGrid, or
 /// all over one grid through a SharedTiles (binned mode only).
 class TileBins {
@@ -41,10 +49,16 @@ class TileBins {
   /// tiles; smaller grids bin by tile.
   static constexpr uint32_t kBuckets = 256;
   static constexpr uint64_t kSplitTiles = 4096;
+  /// Direct mode is flat on lattices of at most this many voxels (8 MiB).
+  static constexpr uint64_t kFlatVoxels = uint64_t{1} << 21;
 
   /// `capacity`: entries buffered before a flush (at least one block);
-  /// unused in direct mode.
-  TileBins(CountGrid& grid, size_t capacity, bool direct = false);
+  /// unused in direct mode. `lattice`: the voxels the walk indexes (for
+  /// flat mode), the grid's resolution by default; a picture's pixels
+  /// (column, row) are stored at the grid's voxel (column, row >>
+  /// `lattice_fold`, row & (2^lattice_fold - 1)) (ImagePlane).
+  TileBins(CountGrid& grid, size_t capacity, bool direct = false, Int3 lattice = {},
+           uint32_t lattice_fold = 0);
   /// Binned, over the grid `shared` guards, which other TileBins fill at
   /// the same time; flushes begin with range `first_range`
   /// (SharedTiles::ForEachRange), best a different one per thread.
@@ -59,7 +73,15 @@ class TileBins {
 
   /// Direct mode's table for walk::AffineWalk::tiles (null otherwise):
   /// tile t's counters, or null until Allocate(t).
-  uint32_t** tiles() { return direct_ ? tiles_.data() : nullptr; }
+  uint32_t** tiles() { return direct_ && !flat_ ? tiles_.data() : nullptr; }
+  /// Flat direct mode's array for walk::AffineWalk::flat (null otherwise),
+  /// and the index of its scratch counter (walk::AffineWalk::flat_discard).
+  uint32_t* flat() { return flat_.get(); }
+  uint32_t flat_discard() const { return flat_voxels_; }
+  /// Whether direct mode on this lattice is flat.
+  static bool Flat(Int3 lattice) {
+    return uint64_t(lattice.x) * uint64_t(lattice.y) * uint64_t(lattice.z) <= kFlatVoxels;
+  }
   /// Tile t's counters, allocated if need be (walk::AffineWalk::allocate).
   uint32_t* Allocate(uint32_t tile);
 
@@ -73,7 +95,8 @@ class TileBins {
 
   /// Bytes held: the pools and the bookkeeping.
   uint64_t MemoryBytes() const;
-  /// What MemoryBytes() will be for a grid of `resolution` and `capacity`.
+  /// What MemoryBytes() will be (at most) for a grid of `resolution` and
+  /// `capacity`.
   static uint64_t Bytes(Int3 resolution, size_t capacity, bool direct = false);
 
  private:
@@ -93,6 +116,9 @@ class TileBins {
   void Split(const uint32_t* begin, const uint32_t* end);
   // Applies the split pool to the tiles from `first_tile` on.
   void ApplySplit(uint64_t first_tile);
+  // Flat mode's flush: adds the array's non-zero counters to the grid and
+  // zeroes them.
+  void DrainFlat();
   // Tile t's counters; null (drop the increments) past a shared grid's
   // tile limit.
   uint32_t* TileOf(uint64_t t) { return shared_ ? shared_->Tile(t) : grid_.MutableTile(t); }
@@ -104,6 +130,15 @@ class TileBins {
   uint64_t split_first_ = 0;  // the first tile of the bin being split
   bool direct_ = false;
   std::vector<uint32_t*> tiles_;  // direct mode: a copy of the grid's table
+  // Flat mode: fresh zero pages from mmap, unmapped on destruction.
+  struct Unmap {
+    size_t bytes;  // no initializer: default-constructible inside the class
+    void operator()(uint32_t* p) const;
+  };
+  std::unique_ptr<uint32_t, Unmap> flat_;
+  uint32_t flat_voxels_ = 0;  // lattice voxels; the scratch counter follows
+  Int3 lattice_;
+  uint32_t lattice_fold_ = 0;
   SharedTiles* shared_ = nullptr;
   uint32_t first_range_ = 0;
 };

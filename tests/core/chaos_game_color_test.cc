@@ -7,8 +7,10 @@
 
 #include "tests/support/attractors.h"
 #include "core/chaos/chaos_game.h"
+#include "core/chaos/image_plane.h"
 #include "core/chaos/tile_bins.h"
 #include "core/base/cpu_dispatch.h"
+#include "core/base/random.h"
 #include "core/grid/palette.h"
 #include "core/base/sha256.h"
 #include "core/io/vdb_io.h"
@@ -620,6 +622,86 @@ TEST(ChaosGameColor, DensityChangeMeasuresConvergence) {
   EXPECT_GT(DensityChange(a, b), 0.0);
   EXPECT_LT(DensityChange(b, c), 0.05);  // a uniform cloud converges fast
   EXPECT_EQ(DensityChange({1, 0}, {0, 1}), 2.0);
+}
+
+// A random contractive IFS of 3 to 6 maps, planar (z's row (0, 0, 0, c)
+// with one c for every map, no z column in x and y: walk::AffineWalk's
+// planar case) or not, plus a rare map to infinity. Some zero coefficients
+// are -0.0, and a planar IFS's bounds may start at 0 on x, where the
+// points of a map to x = 0 land with either sign of zero.
+ChaosGameParams RandomIfs(uint64_t seed, bool planar, uint64_t iterations) {
+  Rng rng(seed, 99);
+  ChaosGameParams p;
+  const int maps = 3 + int(rng.Next() % 4);
+  const double c = planar && rng.Next() % 2 ? 0.0 : 0.3;
+  for (int i = 0; i < maps; ++i) {
+    PointMap m;
+    for (int r = 0; r < 3; ++r)
+      for (int col = 0; col < 4; ++col) m.pre.m[r][col] = rng.Uniform(-0.45, 0.45);
+    if (planar) {
+      m.pre.m[0][2] = m.pre.m[1][2] = i % 2 ? -0.0 : 0.0;
+      m.pre.m[2] = {0.0, -0.0, 0.0, c};
+      // Odd seeds: map 0 sends x to a zero (-0 when x and y are negative,
+      // whose skipped z term would have made it +0), on the grid's edge.
+      if (i == 0 && seed % 2) m.pre.m[0] = {0.0, 0.0, -0.0, -0.0};
+    }
+    p.ifs.maps.push_back(m);
+    p.ifs.probabilities.push_back(rng.Uniform(0.5, 2));
+  }
+  PointMap blow_up;
+  blow_up.pre = Affine3::Scale({1e300, 1e300, 1e300});
+  p.ifs.maps.push_back(blow_up);
+  p.ifs.probabilities.push_back(0.01);
+  const double lo = planar && seed % 2 ? 0.0 : -0.6;
+  p.frame.bounds = {{lo, -0.6, -0.6}, {0.6, 0.6, 0.6}};
+  p.frame.resolution = planar ? Int3{96, 80, 1} : Int3{40, 36, 44};
+  p.iterations = iterations;
+  p.seed = seed;
+  return p;
+}
+
+// The flat direct mode (small lattices) and the planar AVX-512 walk count
+// exactly what the scalar kernel counts into a binned grid, on random 2D
+// and 3D IFS, volumes and pictures, one and two threads; a lattice over
+// TileBins::kFlatVoxels takes the table of tiles instead, and agrees too.
+TEST(ChaosGameFastPath, FlatAndPlanarWalksCountAsTheScalarBinnedOne) {
+  const uint64_t n = ChaosGame::kChunkIterations * 2 + 333;  // a partial round too
+  struct Case {
+    uint64_t seed;
+    bool planar, picture, big;
+  };
+  const Case cases[] = {{1, true, false, false}, {2, true, false, false},
+                        {3, true, true, false},  {4, false, false, false},
+                        {5, false, false, true}, {6, true, false, true}};
+  for (const Case& c : cases) {
+    ChaosGameParams params = RandomIfs(c.seed, c.planar, n);
+    if (c.picture) params.image = MakeImagePlane({}, params.frame.bounds, 120, 90);
+    if (c.big) params.frame.resolution = c.planar ? Int3{2048, 1100, 1} : Int3{140, 128, 128};
+    const Int3 lattice = c.picture ? Int3{120, 90, 1} : params.frame.resolution;
+    ASSERT_EQ(TileBins::Flat(lattice), !c.big);
+    ASSERT_TRUE(ChaosGame::UsesFastPath(params));
+    SCOPED_TRACE(::testing::Message() << "seed " << c.seed << (c.planar ? " planar" : " 3D")
+                                    << (c.picture ? " picture" : "") << (c.big ? " big" : ""));
+    params.simd = SimdLevel::kScalar;
+    params.direct_increments = false;
+    ChaosGameStats want_stats;
+    const CountGrid want = RunGame(params, 1, &want_stats);
+    EXPECT_GT(want.Total(), n / 4);
+    EXPECT_GT(want_stats.reseeded, 0u);
+    for (const bool direct : {false, true})
+      for (SimdLevel level : SimdLevelsOfThisCpu())
+        for (const int threads : {1, 2}) {
+          SCOPED_TRACE(::testing::Message() << SimdName(level) << (direct ? " direct " : " binned ")
+                                          << threads << " threads");
+          params.simd = level;
+          params.direct_increments = direct;
+          ChaosGameStats stats;
+          const CountGrid got = RunGame(params, threads, &stats);
+          ExpectSameTiles(want, got);
+          EXPECT_EQ(stats.outside, want_stats.outside);
+          EXPECT_EQ(stats.reseeded, want_stats.reseeded);
+        }
+  }
 }
 
 }  // namespace

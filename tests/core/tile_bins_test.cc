@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "core/base/random.h"
+#include "core/chaos/image_plane.h"
 #include "core/grid/tile_arena.h"
 
 namespace nimbus {
@@ -134,8 +135,12 @@ TEST(TileBins, ASharedGridPastItsTileLimitOverflows) {
 }
 
 TEST(TileBins, DirectModeHandsOutTheGridsTiles) {
-  CountGrid grid({100, 64, 64});
+  // Over kFlatVoxels, so direct mode goes through the table of tiles.
+  const Int3 res{140, 128, 128};
+  ASSERT_FALSE(TileBins::Flat(res));
+  CountGrid grid(res);
   TileBins bins(grid, 1 << 16, /*direct=*/true);
+  EXPECT_EQ(bins.flat(), nullptr);
   ASSERT_NE(bins.tiles(), nullptr);
   EXPECT_EQ(TileBins(grid, 1 << 16).tiles(), nullptr);  // binned: no table
   const uint32_t t = uint32_t(grid.TileCount() - 1);
@@ -148,8 +153,49 @@ TEST(TileBins, DirectModeHandsOutTheGridsTiles) {
   EXPECT_EQ(grid.Get(o.x + 1, o.y + 2, o.z + 3), 1u);
   bins.Flush();  // nothing buffered
   EXPECT_EQ(grid.Total(), 1u);
-  EXPECT_EQ(bins.MemoryBytes(), TileBins::Bytes({100, 64, 64}, 1 << 16, true));
-  EXPECT_LT(bins.MemoryBytes(), TileBins::Bytes({100, 64, 64}, 1 << 16));
+  EXPECT_EQ(bins.MemoryBytes(), TileBins::Bytes(res, 1 << 16, true));
+  EXPECT_LT(bins.MemoryBytes(), TileBins::Bytes(res, 1 << 16));
+}
+
+// Flat direct mode: counters indexed over the walk's lattice, added into
+// the grid by Flush (a tile allocated only where a counter is not zero)
+// and zeroed; a picture's rows fold as ImagePlane folds them.
+TEST(TileBins, FlatModeAddsItsCountersIntoTheGrid) {
+  for (const bool picture : {false, true}) {
+    SCOPED_TRACE(picture ? "picture" : "volume");
+    const Int3 lattice = picture ? Int3{300, 200, 1} : Int3{70, 40, 90};
+    const Int3 res = picture ? FoldedImageResolution(300, 200) : lattice;
+    const uint32_t fold = picture ? uint32_t(ImagePlane::kFoldShift) : 0;
+    CountGrid grid(res), want(res);
+    TileBins bins(grid, 1 << 16, /*direct=*/true, lattice, fold);
+    ASSERT_NE(bins.flat(), nullptr);
+    EXPECT_EQ(bins.tiles(), nullptr);
+    EXPECT_EQ(bins.flat_discard(), uint32_t(lattice.x * lattice.y * lattice.z));
+    Rng rng(5, 0);
+    for (int round = 0; round < 2; ++round) {
+      for (int i = 0; i < 20000; ++i) {
+        // Clustered in a corner, so some tiles stay empty.
+        const int x = int(rng.Next() % uint64_t(lattice.x / 2 + 1));
+        const int y = int(rng.Next() % uint64_t(lattice.y));
+        const int z = int(rng.Next() % uint64_t(lattice.z));
+        ++bins.flat()[(x * lattice.y + y) * lattice.z + z];
+        const Int3 v = picture ? ImagePlane::Voxel(x, y) : Int3{x, y, z};
+        want.Add(v.x, v.y, v.z);
+      }
+      ++bins.flat()[bins.flat_discard()];  // the scratch counter is never added
+      bins.Flush();
+      EXPECT_EQ(grid.Total(), want.Total());
+      EXPECT_EQ(grid.AllocatedTiles(), want.AllocatedTiles());
+      EXPECT_LT(grid.AllocatedTiles(), grid.TileCount());
+      for (uint64_t t = 0; t < grid.TileCount(); ++t) {
+        const uint32_t *a = grid.TileOrNull(t), *b = want.TileOrNull(t);
+        ASSERT_EQ(a == nullptr, b == nullptr) << t;
+        if (a) ASSERT_TRUE(std::equal(a, a + CountGrid::kTileVoxels, b)) << t;
+      }
+      for (uint32_t i = 0; i < bins.flat_discard(); ++i) ASSERT_EQ(bins.flat()[i], 0u) << i;
+    }
+    EXPECT_EQ(bins.MemoryBytes(), TileBins::Bytes(lattice, 1 << 16, true));
+  }
 }
 
 // CountGrid's tiles come from a TileArena: zeroed, distinct, and spread over
