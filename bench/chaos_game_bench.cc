@@ -14,7 +14,9 @@
 #include "core/chaos/chaos_game.h"
 #include "core/chaos/flame_program.h"
 #include "core/chaos/image_plane.h"
+#include "core/chaos/key_bins.h"
 #include "core/base/cpu_dispatch.h"
+#include "core/base/random.h"
 
 namespace nimbus {
 namespace {
@@ -278,6 +280,33 @@ void BM_Flame6PlotRound(benchmark::State& state) {
   state.SetItemsProcessed(int64_t(state.iterations()) * flame::kMaxWalkers);
 }
 BENCHMARK(BM_Flame6PlotRound)->Arg(0)->Arg(1)->Arg(2);
+
+// The general path's write side alone (core/chaos/key_bins.h): 2^24 keys
+// with colour, uniform over a 1024 x 1024 picture's folded counters, added
+// 64 lanes at a time as PlotRound adds them, then flushed; a fresh grid per
+// iteration (its page faults count, as in a job). Items are keys.
+void BM_KeyBinsPicture1024(benchmark::State& state) {
+  const Int3 res = FoldedImageResolution(1024, 1024);
+  const size_t capacity = size_t{1} << 18;  // what a picture job's workers get
+  std::vector<uint64_t> keys(size_t{1} << 24);
+  {
+    const CountGrid grid(res, true);
+    Rng rng(3, 0);
+    for (uint64_t& k : keys) {
+      const Int3 v = FoldedImageVoxel(int(rng.Next() % 1024), int(rng.Next() % 1024));
+      k = CountGrid::WithColor(grid.Key(v.x, v.y, v.z), uint32_t(rng.Next() % 65536));
+    }
+  }
+  for (auto _ : state) {
+    CountGrid grid(res, true);
+    KeyBins bins(grid, capacity, false);
+    for (size_t i = 0; i < keys.size(); i += 64) bins.AddLanes(keys.data() + i, ~uint64_t{0});
+    bins.Flush();
+    benchmark::DoNotOptimize(grid.AllocatedTiles());
+  }
+  state.SetItemsProcessed(int64_t(state.iterations() * keys.size()));
+}
+BENCHMARK(BM_KeyBinsPicture1024)->Unit(benchmark::kMillisecond);
 
 // A thin attractor on a huge grid: the pilot census and the memory it
 // predicts against what the run really holds.

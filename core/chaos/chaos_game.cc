@@ -34,6 +34,11 @@ uint64_t ReachableTiles(const ChaosGameParams& p);
 size_t BufferEntries(const ChaosGameParams& p, uint64_t reachable_tiles);
 uint64_t PoolTiles(const ChaosGameParams& p, bool fast);
 bool DirectIncrements(const ChaosGameParams& p, uint64_t pool_tiles);
+// The general path's threads share one grid when their keys are packed.
+bool SharesPackedGrid(const ChaosGameParams& p, int threads) {
+  return !ChaosGame::UsesFastPath(p) && threads > 1 && p.shared_grid.value_or(true) &&
+         KeyBins::Packs(p.CountResolution(), p.color.mode != ColorMode::kNone);
+}
 }  // namespace
 
 struct ChaosGame::Worker {
@@ -50,7 +55,9 @@ struct ChaosGame::Worker {
   }
   // Through the bins: a shared grid's own flag is written under its
   // allocation lock, and the bins read SharedTiles' atomic copy instead.
-  bool overflowed() const { return bins ? bins->overflowed() : grid->overflowed(); }
+  bool overflowed() const {
+    return bins ? bins->overflowed() : keys ? keys->overflowed() : grid->overflowed();
+  }
 };
 
 ChaosGame::ChaosGame(ChaosGameParams params, int threads)
@@ -166,7 +173,9 @@ absl::StatusOr<std::unique_ptr<ChaosGame>> ChaosGame::Create(ChaosGameParams par
 void ChaosGame::AddWorkers(size_t entries, bool direct, bool shared) {
   const ChaosGameParams& p = params_;
   const bool color = p.color.mode != ColorMode::kNone;
-  const int grids = shared ? 1 : threads_;
+  // Packed keys fold into one grid shared by the threads (KeyBins).
+  const bool shared_keys = SharesPackedGrid(p, threads_);
+  const int grids = shared || shared_keys ? 1 : threads_;
   // Reserved: workers keep pointers into counts_.
   counts_.reserve(size_t(grids));
   for (int t = 0; t < grids; ++t) counts_.emplace_back(p.CountResolution(), color);
@@ -176,7 +185,7 @@ void ChaosGame::AddWorkers(size_t entries, bool direct, bool shared) {
   }
   for (int t = 0; t < threads_; ++t) {
     auto w = std::make_unique<Worker>();
-    CountGrid& grid = counts_[size_t(shared ? 0 : t)];
+    CountGrid& grid = counts_[size_t(grids == 1 ? 0 : t)];
     w->grid = &grid;
     // Threads start their flushes at ranges far apart.
     const uint32_t first_range = uint32_t(t) * SharedTiles::kRanges / uint32_t(threads_);
@@ -189,7 +198,8 @@ void ChaosGame::AddWorkers(size_t entries, bool direct, bool shared) {
     else if (fast_)
       w->bins = std::make_unique<TileBins>(grid, entries, direct);
     else
-      w->keys = std::make_unique<KeyBins>(grid, entries, p.splat);
+      w->keys = std::make_unique<KeyBins>(grid, entries, p.splat,
+                                          shared_keys ? &fold_lock_ : nullptr);
     workers_.push_back(std::move(w));
   }
 }
@@ -369,13 +379,14 @@ ChaosGameMemory ChaosGame::EstimateMemory(const ChaosGameParams& p, int threads,
   const bool shared = UsesFastPath(p) && threads > 1 && p.shared_grid.value_or(true) &&
                       !p.direct_increments.value_or(false);
   const uint64_t others = uint64_t(threads - 1) * std::min(tiles, kDirectTiles);
-  const uint64_t all_tiles =
-      std::min(shared ? tiles + others : tiles * uint64_t(threads), touches);
+  const uint64_t all_tiles = std::min(
+      shared ? tiles + others : SharesPackedGrid(p, threads) ? tiles : tiles * uint64_t(threads),
+      touches);
   ChaosGameMemory m;
   // The buffers are sized by the geometric bound, as Create sizes them.
   const size_t entries = BufferEntries(p, reachable);
   const uint64_t buffers =
-      UsesFastPath(p) ? TileBins::Bytes(r, entries) : KeyBins::Bytes(r, entries);
+      UsesFastPath(p) ? TileBins::Bytes(r, entries) : KeyBins::Bytes(r, entries, color);
   m.accumulation = uint64_t(threads) * CountGrid::BoundedMemoryBytes(r, 0, color) +
                    all_tiles * CountGrid::TileBytes(color) + uint64_t(threads) * buffers;
   // Output: the merged grid, plus one VDB leaf (8^3 voxels, with ~15 %

@@ -4,6 +4,7 @@
 
 #include <atomic>
 #include <cstdint>
+#include <mutex>
 #include <optional>
 #include <utility>
 #include <vector>
@@ -108,9 +109,10 @@ struct ChaosGameParams {
   /// the attractor touches. Counts are the same either way: for tests and
   /// benchmarks.
   std::optional<bool> direct_increments;
-  /// Whether the binned fast path's threads fill one shared grid (true)
-  /// or one grid each, merged at the end (false); unset shares whenever
-  /// there is more than one thread (SharedTiles). Counts are the same
+  /// Whether the binned fast path's threads (SharedTiles), and the general
+  /// path's threads when their keys are packed (KeyBins::Packs), fill one
+  /// shared grid (true) or one grid each, merged at the end (false); unset
+  /// shares whenever there is more than one thread. Counts are the same
   /// either way: for tests and benchmarks.
   std::optional<bool> shared_grid;
   /// Bytes the accumulation may hold (0: no limit). A run whose counters
@@ -275,6 +277,7 @@ class ChaosGame {
   uint64_t next_chunk_ = 0;
   std::vector<CountGrid> counts_;  // one per thread, or one shared
   std::unique_ptr<SharedTiles> shared_tiles_;  // when the threads share counts_[0]
+  std::mutex fold_lock_;  // packed keys folding into a shared counts_[0] (KeyBins)
   std::vector<std::unique_ptr<Worker>> workers_;
   // Precomputed sampling tables.
   AliasTable map_table_;

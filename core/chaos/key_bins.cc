@@ -1,6 +1,9 @@
 #include "core/chaos/key_bins.h"
 
+#include <sys/mman.h>
+
 #include <bit>
+#include <new>
 
 namespace nimbus {
 
@@ -30,6 +33,27 @@ const uint64_t* ApplyTile(CountGrid& grid, const uint64_t* e, const uint64_t* en
   return e;
 }
 
+// At most this many tiles (8 MiB of words: a 1024 x 1024 picture) are
+// packed; larger grids keep the bins, whose tile-at-a-time flushes then
+// pay for themselves.
+constexpr uint64_t kPackedTiles = 32;
+constexpr size_t kHugePage = size_t{2} << 20;
+
+// Zeroed pages straight from the kernel, 2 MiB-aligned so that transparent
+// huge pages can back them (a few faults instead of one per 4 KiB).
+uint64_t* MapZeroed(size_t bytes) {
+  void* p = mmap(nullptr, bytes + kHugePage, PROT_READ | PROT_WRITE,
+                 MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+  if (p == MAP_FAILED) throw std::bad_alloc();
+  const uintptr_t start = uintptr_t(p), end = start + bytes + kHugePage;
+  const uintptr_t aligned = (start + kHugePage - 1) & ~uintptr_t(kHugePage - 1);
+  if (aligned > start) munmap(p, aligned - start);
+  if (end > aligned + bytes)
+    munmap(reinterpret_cast<void*>(aligned + bytes), end - (aligned + bytes));
+  madvise(reinterpret_cast<void*>(aligned), bytes, MADV_HUGEPAGE);  // a hint
+  return reinterpret_cast<uint64_t*>(aligned);
+}
+
 template <bool kColor, bool kWeighted>
 void ApplyAll(CountGrid& grid, const uint64_t* e, const uint64_t* end) {
   while (e != end) e = ApplyTile<kColor, kWeighted>(grid, e, end);
@@ -37,18 +61,101 @@ void ApplyAll(CountGrid& grid, const uint64_t* e, const uint64_t* end) {
 
 }  // namespace
 
-KeyBins::KeyBins(CountGrid& grid, size_t capacity, bool weighted)
-    : grid_(grid), weighted_(weighted) {
+void KeyBins::Unmap::operator()(uint64_t* p) const { munmap(p, bytes); }
+
+bool KeyBins::Packs(Int3 resolution, bool color) {
+  return color && CountGrid::TileCountFor(resolution) <= kPackedTiles;
+}
+
+KeyBins::KeyBins(CountGrid& grid, size_t capacity, bool weighted, std::mutex* fold_lock)
+    : grid_(grid), weighted_(weighted), fold_lock_(fold_lock) {
   const uint64_t tiles = CountGrid::TileCountFor(grid.resolution());
+  if (Packs(grid.resolution(), grid.has_color())) {
+    const size_t bytes = size_t(tiles) * CountGrid::kTileVoxels * sizeof(uint64_t);
+    packed_ = {MapZeroed(bytes), Unmap{bytes}};
+    return;
+  }
   shift_ = 15 + Pool::TileShift(tiles);
   pool_ = Pool(size_t(Pool::BinCount(tiles)), capacity, /*huge_pages=*/false);
 }
 
 uint64_t KeyBins::AddLanes(const uint64_t* key, uint64_t lanes) {
+  if (packed_) return AddLanesPacked(key, lanes);
   uint64_t added = 0;
   // Bits walked one by one: the x86-64 baseline has no popcnt.
   for (; lanes; lanes &= lanes - 1, ++added) Add(key[std::countr_zero(lanes)]);
   return added;
+}
+
+uint64_t KeyBins::AddLanesPacked(const uint64_t* key, uint64_t lanes) {
+  if (pending_ > kFoldAfter - kMaxCallAdds) Fold();
+  const uint64_t* words = packed_.get();
+  // This round's keys are only requested now and held; the previous
+  // round's, requested a whole kernel round ago, are added: their words
+  // are in L1 by then, where adding right after the request waited on
+  // every miss.
+  uint64_t* hold = held_[flip_ ^ 1];
+  uint64_t added = 0, adds = 0;
+  for (; lanes; lanes &= lanes - 1, ++added) {
+    const uint64_t k = key[std::countr_zero(lanes)];
+    __builtin_prefetch(words + (k & CountGrid::kVoxelMask), 1);
+    hold[added] = k;
+    adds += weighted_ ? CountGrid::WeightOf(k) : 1;
+  }
+  ApplyHeld();
+  flip_ ^= 1;
+  held_count_ = uint32_t(added);
+  pending_ += adds;  // counted when held: Fold applies the held keys first
+  return added;
+}
+
+void KeyBins::ApplyHeld() {
+  uint64_t* words = packed_.get();
+  const uint64_t* held = held_[flip_];
+  uint64_t touched = 0;
+  for (uint32_t i = 0; i < held_count_; ++i) {
+    const uint64_t k = held[i];
+    const uint64_t add = weighted_ ? CountGrid::WeightOf(k) : 1;
+    words[k & CountGrid::kVoxelMask] += (add << kCountShift) + add * (k >> CountGrid::kColorShift);
+    touched |= uint64_t{1} << ((k & CountGrid::kVoxelMask) >> 15);
+  }
+  touched_ |= touched;
+  held_count_ = 0;
+}
+
+void KeyBins::AddPacked(uint64_t key) {
+  if (pending_ > kFoldAfter - kMaxCallAdds) Fold();
+  const uint64_t add = weighted_ ? CountGrid::WeightOf(key) : 1;
+  const uint64_t voxel = key & CountGrid::kVoxelMask;
+  packed_.get()[voxel] += (add << kCountShift) + add * (key >> CountGrid::kColorShift);
+  touched_ |= uint64_t{1} << (voxel >> 15);
+  pending_ += add;
+}
+
+void KeyBins::Fold() {
+  ApplyHeld();
+  if (touched_) {
+    std::unique_lock<std::mutex> lock;
+    if (fold_lock_) lock = std::unique_lock<std::mutex>(*fold_lock_);
+    for (uint64_t m = touched_; m; m &= m - 1) FoldTile(uint64_t(std::countr_zero(m)));
+    overflowed_ = grid_.overflowed();
+  }
+  touched_ = pending_ = 0;
+}
+
+void KeyBins::FoldTile(uint64_t tile) {
+  constexpr uint64_t kColorMask = (uint64_t{1} << kCountShift) - 1;
+  uint32_t* counts = grid_.MutableTile(tile);
+  uint64_t* colors = grid_.MutableColorTile(tile);
+  uint64_t* words = packed_.get() + (tile << 15);
+  // Counts saturate at 2^32 - 1, as CountGrid::Merge does, so a grid that
+  // threads share holds min(visits, 2^32 - 1) whatever their number.
+  for (int i = 0; i < CountGrid::kTileVoxels; ++i) {
+    const uint64_t sum = counts[i] + (words[i] >> kCountShift);
+    counts[i] = sum > UINT32_MAX ? UINT32_MAX : uint32_t(sum);
+    colors[i] += words[i] & kColorMask;
+    words[i] = 0;
+  }
 }
 
 void KeyBins::Refill(uint32_t bin) { pool_.Refill(bin, ApplyFn()); }
@@ -61,12 +168,19 @@ void KeyBins::Apply(const uint64_t* begin, const uint64_t* end) {
               : ApplyAll<false, false>(grid_, begin, end);
 }
 
-void KeyBins::Flush() { pool_.Drain(ApplyFn()); }
+void KeyBins::Flush() {
+  if (packed_) return Fold();
+  pool_.Drain(ApplyFn());
+}
 
-uint64_t KeyBins::MemoryBytes() const { return pool_.MemoryBytes(); }
+uint64_t KeyBins::MemoryBytes() const {
+  return packed_ ? packed_.get_deleter().bytes : pool_.MemoryBytes();
+}
 
-uint64_t KeyBins::Bytes(Int3 resolution, size_t capacity) {
-  return Pool::Bytes(Pool::BinCount(CountGrid::TileCountFor(resolution)), capacity);
+uint64_t KeyBins::Bytes(Int3 resolution, size_t capacity, bool color) {
+  const uint64_t tiles = CountGrid::TileCountFor(resolution);
+  if (Packs(resolution, color)) return tiles * CountGrid::kTileVoxels * sizeof(uint64_t);
+  return Pool::Bytes(Pool::BinCount(tiles), capacity);
 }
 
 }  // namespace nimbus

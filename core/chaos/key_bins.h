@@ -4,6 +4,8 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <memory>
+#include <mutex>
 
 #include "core/chaos/bin_pool.h"
 #include "core/grid/count_grid.h"
@@ -19,14 +21,31 @@ namespace nimbus {
 /// is applied and the pool starts over. Counts and colour sums are integer
 /// sums, so the order of application changes nothing.
 ///
-/// Not thread-safe: one per thread, each over its thread's CountGrid.
+/// A small grid with colour (Packs(): a picture of up to a megapixel) is
+/// not binned: its keys go into a dense per-thread array of one 64-bit
+/// word per voxel that holds the visit count (top 24 bits) and the colour
+/// sum (low 40 bits) together, a round after they were prefetched
+/// (AddLanes holds one call's keys until the next). Binning buys
+/// nothing there, since the whole grid is touched between flushes anyway,
+/// and one word is one cache line per key where a counter and a separate
+/// colour sum are two. The words are folded into the grid (and zeroed) on
+/// Flush() and before any count could pass 24 bits; the sums are the same
+/// integers, so the grid ends up bit for bit as the binned path leaves it.
+/// Folds are rare (a few per run), so the threads of a run may share one
+/// grid, each folding its words under a lock they share.
+///
+/// Not thread-safe: one per thread, each over its thread's CountGrid (or,
+/// packed, over one grid with `fold_lock`).
 class KeyBins {
  public:
   /// `capacity`: keys buffered before a flush (at least one block).
   /// `weighted`: keys may carry a weight (CountGrid::WithWeight).
-  KeyBins(CountGrid& grid, size_t capacity, bool weighted);
+  /// `fold_lock`: packed folds take it, for a grid shared between threads.
+  KeyBins(CountGrid& grid, size_t capacity, bool weighted, std::mutex* fold_lock = nullptr);
 
   void Add(uint64_t key) {
+    if (packed_) [[unlikely]]
+      return AddPacked(key);
     const uint32_t bin = uint32_t((key & CountGrid::kVoxelMask) >> shift_);
     Cursor& c = pool_.cursors()[bin];
     if (c.tail == c.end) [[unlikely]]
@@ -41,10 +60,18 @@ class KeyBins {
   /// Applies every buffered key to the grid.
   void Flush();
 
-  /// Bytes held: the pool and the bookkeeping.
+  /// Bytes held: the pool and the bookkeeping, or the packed words.
   uint64_t MemoryBytes() const;
   /// What MemoryBytes() will be for a grid of `resolution` and `capacity`.
-  static uint64_t Bytes(Int3 resolution, size_t capacity);
+  static uint64_t Bytes(Int3 resolution, size_t capacity, bool color);
+  /// True when a grid of `resolution` (with colour or not) takes the
+  /// packed words rather than bins.
+  static bool Packs(Int3 resolution, bool color);
+  bool packed() const { return packed_ != nullptr; }
+  /// The grid outgrew its tile limit (CountGrid::overflowed); packed, as
+  /// seen at this thread's last fold, so a shared grid is read under its
+  /// lock only.
+  bool overflowed() const { return packed_ ? overflowed_ : grid_.overflowed(); }
 
  private:
   struct Cursor {
@@ -59,10 +86,38 @@ class KeyBins {
     return [this](uint32_t, const uint64_t* begin, const uint64_t* end) { Apply(begin, end); };
   }
 
+  // The packed words' fields: count above kCountShift, colour sum below.
+  static constexpr int kCountShift = 40;
+  // Adds allowed between folds: no count reaches 2^24, so no colour sum
+  // (at most 65535 per add) reaches 2^40 and carries into the count.
+  static constexpr uint64_t kFoldAfter = (uint64_t{1} << 24) - 1;
+  // The largest add of one AddLanes call (64 keys of weight 64).
+  static constexpr uint64_t kMaxCallAdds = 64 * CountGrid::kMaxWeight;
+  void AddPacked(uint64_t key);
+  uint64_t AddLanesPacked(const uint64_t* key, uint64_t lanes);
+  // Adds the keys held by the last AddLanesPacked.
+  void ApplyHeld();
+  // Adds every packed word to the grid's tiles and zeroes it.
+  void Fold();
+  void FoldTile(uint64_t tile);
+
   CountGrid& grid_;
   bool weighted_ = false;
   uint32_t shift_ = 15;  // key bits below the bin index
   Pool pool_;
+  struct Unmap {
+    size_t bytes;
+    void operator()(uint64_t* p) const;
+  };
+  // Packed mode: a word per stored voxel, indexed by the key's voxel bits.
+  std::unique_ptr<uint64_t, Unmap> packed_{nullptr, Unmap{0}};
+  std::mutex* fold_lock_ = nullptr;
+  bool overflowed_ = false;
+  uint64_t pending_ = 0;  // adds since the last fold
+  uint64_t touched_ = 0;  // bit t: tile t has words to fold (Packs: <= 64 tiles)
+  // The last AddLanes call's keys, prefetched but not yet added (held_[flip_]).
+  alignas(64) uint64_t held_[2][64];
+  uint32_t flip_ = 0, held_count_ = 0;
 };
 
 }  // namespace nimbus

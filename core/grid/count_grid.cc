@@ -43,13 +43,12 @@ uint32_t* CountGrid::Allocate(uint64_t tile) {
     overflowed_ = true;
     if (!spill_) {
       spill_ = static_cast<uint32_t*>(arena_.Allocate());
-      if (with_color_) spill_color_ = ZeroTile<uint64_t>();
+      if (with_color_) spill_color_ = static_cast<uint64_t*>(color_arena_.Allocate());
     }
     return spill_;
   }
   table_[tile] = static_cast<uint32_t*>(arena_.Allocate());
-  if (with_color_) color_[tile] = ZeroTile<uint64_t>();
-  if (with_color_ && !color_[tile]) throw std::bad_alloc();
+  if (with_color_) color_[tile] = static_cast<uint64_t*>(color_arena_.Allocate());
   ++allocated_;
   return table_[tile];
 }
@@ -70,14 +69,14 @@ uint64_t CountGrid::GetColorSum(int x, int y, int z) const {
 void CountGrid::Merge(const CountGrid& other) {
   for (size_t t = 0; t < other.table_.size(); ++t) {
     if (!other.table_[t]) continue;
-    AddTile(t, other.table_[t], other.with_color_ ? other.color_[t].get() : nullptr);
+    AddTile(t, other.table_[t], other.with_color_ ? other.color_[t] : nullptr);
   }
 }
 
 void CountGrid::AddTile(uint64_t t, const uint32_t* src, const uint64_t* colors) {
   if (!table_[t]) Allocate(t);
   if (with_color_ && colors) {
-    uint64_t* dst = color_[t].get();
+    uint64_t* dst = color_[t];
     for (int i = 0; i < kTileVoxels; ++i) dst[i] += colors[i];
   }
   uint32_t* dst = table_[t];

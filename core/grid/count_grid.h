@@ -135,7 +135,7 @@ class CountGrid {
   /// order of their own, e.g. a VDB tree's.
   const uint32_t* TileOrNull(uint64_t tile) const { return table_[tile]; }
   const uint64_t* ColorTileOrNull(uint64_t tile) const {
-    return with_color_ ? color_[tile].get() : nullptr;
+    return with_color_ ? color_[tile] : nullptr;
   }
 
   uint32_t Get(int x, int y, int z) const;
@@ -179,7 +179,7 @@ class CountGrid {
   template <typename F>
   void ForEachTileWithColor(F&& f) const {
     for (size_t t = 0; t < table_.size(); ++t)
-      if (table_[t]) f(TileOrigin(t), table_[t], with_color_ ? color_[t].get() : nullptr);
+      if (table_[t]) f(TileOrigin(t), table_[t], with_color_ ? color_[t] : nullptr);
   }
   Int3 TileOrigin(size_t t) const {
     const int z = int(t % tiles_.z), y = int((t / tiles_.z) % tiles_.y),
@@ -264,8 +264,8 @@ class CountGrid {
     return p;
   }
   uint64_t* ColorTileFor(uint64_t tile) {
-    auto& p = color_[tile];
-    return p ? p.get() : spill_color_.get();  // null only past the tile limit
+    uint64_t* p = color_[tile];
+    return p ? p : spill_color_;  // null only past the tile limit
   }
   // Allocates the tile, or returns the scratch tile past the limit.
   uint32_t* Allocate(uint64_t tile);
@@ -279,29 +279,19 @@ class CountGrid {
   Int3 tiles_;  // of the stored layout
   uint32_t fold_shift_ = 0, fold_mask_ = 0;
   bool with_color_ = false;
-  // Colour tiles (and counters, in the arena) come from fresh pages, which
-  // are already zero: a new tile costs no memset on top of the kernel's
-  // page clearing.
-  struct Free {
-    void operator()(void* p) const { std::free(p); }
-  };
-  template <typename T>
-  using TilePtr = std::unique_ptr<T[], Free>;
-  template <typename T>
-  static TilePtr<T> ZeroTile() {
-    return TilePtr<T>(static_cast<T*>(std::calloc(kTileVoxels, sizeof(T))));
-  }
-
-  // Counters live in the arena (huge pages for large grids); colour sums,
-  // rare and twice the size, come from calloc.
+  // Counters and colour sums come from fresh pages (huge ones for large
+  // grids), which are already zero: a new tile costs no memset, and a big
+  // grid few page faults. Colour tiles used to come from calloc, whose
+  // 256 KiB blocks are mapped one at a time and fault in 64 times each.
   TileArena arena_{kTileVoxels * sizeof(uint32_t)};
+  TileArena color_arena_{kTileVoxels * sizeof(uint64_t)};
   std::vector<uint32_t*> table_;
-  std::vector<TilePtr<uint64_t>> color_;    // parallel to table_ when with_color_
+  std::vector<uint64_t*> color_;  // parallel to table_ when with_color_
   size_t allocated_ = 0;
   size_t tile_limit_ = 0;
   bool overflowed_ = false;
   uint32_t* spill_ = nullptr;  // the scratch tile, once needed
-  TilePtr<uint64_t> spill_color_;
+  uint64_t* spill_color_ = nullptr;
 };
 
 }  // namespace nimbus

@@ -3,6 +3,9 @@
 // through pool flushes and on grids whose bins hold several tiles.
 #include <gtest/gtest.h>
 
+#include <bit>
+#include <mutex>
+#include <thread>
 #include <vector>
 
 #include "core/base/random.h"
@@ -71,8 +74,130 @@ TEST(KeyBins, AddsUpToDirectAdds) {
     }
     bins.Flush();
     ExpectSameGrids(direct, binned);
-    EXPECT_LE(bins.MemoryBytes(), KeyBins::Bytes(s.resolution, 1 << 12));
+    EXPECT_LE(bins.MemoryBytes(), KeyBins::Bytes(s.resolution, 1 << 12, s.color));
   }
+}
+
+// Packed grids (KeyBins::Packs: small, with colour) take every key through
+// the packed words: keys added a round at a time with AddLanes (random
+// lane masks, empty ones included) and one at a time with Add, flushed in
+// the middle and at the end, must leave the grid as adding each key
+// directly does.
+TEST(KeyBins, PackedWordsAddUpToDirectAdds) {
+  const Shape shapes[] = {{{1024, 1024, 1}, true, false},
+                          {{1024, 1024, 1}, true, true},
+                          {{64, 64, 64}, true, false},
+                          {{20, 30, 40}, true, true}};
+  Rng rng(12, 0);
+  for (const Shape& s : shapes) {
+    SCOPED_TRACE(testing::Message() << s.resolution.x << "x" << s.resolution.y << "x"
+                                    << s.resolution.z << " weighted " << s.weighted);
+    CountGrid direct(s.resolution, true), packed(s.resolution, true);
+    KeyBins bins(packed, 1 << 16, s.weighted);
+    ASSERT_TRUE(bins.packed());
+    const std::vector<uint64_t> keys = RandomKeys(direct, 64 * 3000, s.weighted, rng);
+    for (uint64_t key : keys) direct.AddKey(key);
+    for (size_t i = 0; i < keys.size(); i += 64) {
+      // Round 1000 adds its keys one by one; the others a random subset
+      // now and the rest as a second call (some rounds add nothing).
+      if (i / 64 == 1000) {
+        for (size_t k = i; k < i + 64; ++k) bins.Add(keys[k]);
+        continue;
+      }
+      const uint64_t lanes = i / 64 % 7 == 0 ? 0 : rng.Next();
+      EXPECT_EQ(bins.AddLanes(keys.data() + i, lanes), uint64_t(std::popcount(lanes)));
+      bins.AddLanes(keys.data() + i, ~lanes);
+      if (i / 64 == 1500) bins.Flush();  // a preview's flush mid-run
+    }
+    bins.Flush();
+    ExpectSameGrids(direct, packed);
+    EXPECT_EQ(bins.MemoryBytes(), KeyBins::Bytes(s.resolution, 1 << 16, true));
+  }
+}
+
+// Two threads' packed words folding into one grid under a shared lock
+// (a picture job's workers) add up to the direct adds of all their keys,
+// with flushes in the middle on both.
+TEST(KeyBins, PackedThreadsShareOneGrid) {
+  const Int3 res{1024, 1024, 1};
+  CountGrid direct(res, true), shared(res, true);
+  Rng rng(13, 0);
+  const std::vector<uint64_t> keys = RandomKeys(direct, 64 * 4000, false, rng);
+  for (uint64_t key : keys) direct.AddKey(key);
+  std::mutex lock;
+  auto run = [&](size_t first) {
+    KeyBins bins(shared, 1 << 16, false, &lock);
+    for (size_t i = first; i < keys.size(); i += 128) {
+      bins.AddLanes(keys.data() + i, ~uint64_t{0});
+      if (i % (128 * 500) == first) bins.Flush();
+    }
+    bins.Flush();
+  };
+  std::thread a(run, 0), b(run, 64);
+  a.join();
+  b.join();
+  ExpectSameGrids(direct, shared);
+}
+
+// Without colour, or on grids larger than a megapixel picture, keys stay
+// binned.
+TEST(KeyBins, OnlySmallColourGridsPack) {
+  EXPECT_TRUE(KeyBins::Packs({1024, 1024, 1}, true));
+  EXPECT_FALSE(KeyBins::Packs({1024, 1024, 1}, false));
+  EXPECT_FALSE(KeyBins::Packs({2048, 1024, 1}, true));
+  EXPECT_FALSE(KeyBins::Packs({256, 256, 256}, true));
+  CountGrid grid({1024, 1024, 1}, false);
+  EXPECT_FALSE(KeyBins(grid, 1 << 16, false).packed());
+}
+
+// A packed word holds at most 2^24 - 1 visits: a voxel hit 2^24 times and
+// more (weight 64 keys, 19.7 million visits) must be folded into the grid
+// on the way and end with the exact count and colour sum, as must a voxel
+// hit once beside it.
+TEST(KeyBins, PackedWordsFoldBeforeTheyOverflow) {
+  const Int3 res{1024, 1024, 1};
+  CountGrid direct(res, true), packed(res, true);
+  KeyBins bins(packed, 1 << 16, /*weighted=*/true);
+  const uint64_t hot = CountGrid::WithWeight(CountGrid::WithColor(packed.Key(5, 6, 0), 65535), 64);
+  const uint64_t cold = CountGrid::WithColor(packed.Key(900, 1000, 0), 77);
+  std::vector<uint64_t> round(64, hot);
+  round[63] = cold;
+  for (int r = 0; r < 5000; ++r) {
+    bins.AddLanes(round.data(), ~uint64_t{0});
+    for (uint64_t key : round) direct.AddKey(key);
+  }
+  bins.Flush();
+  EXPECT_EQ(packed.Get(5, 6, 0), 5000u * 63 * 64);
+  EXPECT_EQ(packed.GetColorSum(5, 6, 0), uint64_t{5000} * 63 * 64 * 65535);
+  EXPECT_EQ(packed.GetColorSum(900, 1000, 0), uint64_t{5000} * 77);
+  ExpectSameGrids(direct, packed);
+}
+
+// No keys, or only empty lane masks: a flush allocates no tile.
+TEST(KeyBins, PackedEmptyFlushAllocatesNothing) {
+  CountGrid grid({1024, 1024, 1}, true);
+  KeyBins bins(grid, 1 << 16, false);
+  const std::vector<uint64_t> keys(64, grid.Key(1, 2, 0));
+  bins.Flush();
+  EXPECT_EQ(bins.AddLanes(keys.data(), 0), 0u);
+  bins.Flush();
+  EXPECT_EQ(grid.AllocatedTiles(), 0u);
+  EXPECT_EQ(grid.Total(), 0u);
+}
+
+// Past a grid's tile limit the fold lands in the scratch tile and flags the
+// overflow, as the binned flush does.
+TEST(KeyBins, PackedFoldRespectsTheTileLimit) {
+  CountGrid grid({1024, 1024, 1}, true);
+  grid.SetTileLimit(1);
+  KeyBins bins(grid, 1 << 16, false);
+  std::vector<uint64_t> keys(64, grid.Key(1, 2, 0));
+  keys[1] = grid.Key(1000, 2, 0);  // another tile
+  bins.AddLanes(keys.data(), 3);
+  EXPECT_FALSE(grid.overflowed());  // held, not yet added
+  bins.Flush();
+  EXPECT_TRUE(grid.overflowed());
+  EXPECT_EQ(grid.AllocatedTiles(), 1u);
 }
 
 }  // namespace

@@ -10,6 +10,7 @@
 #include <tuple>
 
 #include "core/chaos/chaos_game.h"
+#include "core/chaos/key_bins.h"
 #include "core/chaos/chaos_partial.h"
 #include "core/io/vdb_io.h"
 #include "tests/support/test_util.h"
@@ -166,6 +167,24 @@ TEST(ThinGrid, GeneralPathWithColourCountsAsUnfolded) {
 TEST(ThinGrid, FlamePathCountsAsUnfolded) {
   const ChaosGameParams p = Flame2d(160, 100, 2'000'000);
   ExpectSameCounts(RunGame(p, 2), RunGame(Unfolded(p), 1));
+}
+
+// A 200 x 200 picture with colour packs its keys (7 folded tiles) and its
+// threads share one grid; the unfolded reference (49 tiles) bins them into
+// a grid per thread. Same counts and colour sums at every SIMD level, with
+// the grid shared or not.
+TEST(ThinGrid, PackedKeysCountAsBinnedAtEverySimdLevel) {
+  ChaosGameParams p = Flame2d(200, 200, 1'500'000);
+  ASSERT_TRUE(KeyBins::Packs(p.CountResolution(), true));
+  ASSERT_FALSE(KeyBins::Packs(Unfolded(p).CountResolution(), true));
+  for (int level = 0; level <= int(DetectSimd()); ++level) {
+    SCOPED_TRACE(level);
+    p.simd = SimdLevel(level);
+    ExpectSameCounts(RunGame(p, 2), RunGame(Unfolded(p), 2));
+    p.shared_grid = false;
+    ExpectSameCounts(RunGame(p, 2), RunGame(Unfolded(p), 1));
+    p.shared_grid.reset();
+  }
 }
 
 TEST(ThinGrid, SplatCountsAsUnfolded) {
