@@ -77,6 +77,58 @@ struct CubeTets {
   }
 };
 
+// A necessary test for the hull of the eight images, far cheaper than the
+// tetrahedra: a voxel on the side x = min x of the images' box is a convex
+// combination only of images with that x (any other would pull its x up),
+// and likewise for every side it touches; so it must lie in the box of the
+// images on all its sides, and there must be some. Most voxels a fill tests
+// are such box corners and edges, left open by images that meet only in
+// part (the tetrahedra lie in the hull, so rejecting these is exact).
+class HullFilter {
+ public:
+  explicit HullFilter(const Int3 (&img)[8]) : img_(img) {
+    lo_[0] = hi_[0] = img[0].x;
+    lo_[1] = hi_[1] = img[0].y;
+    lo_[2] = hi_[2] = img[0].z;
+    for (int c = 1; c < 8; ++c) {
+      const int v[3] = {img[c].x, img[c].y, img[c].z};
+      for (int a = 0; a < 3; ++a) {
+        lo_[a] = std::min(lo_[a], v[a]);
+        hi_[a] = std::max(hi_[a], v[a]);
+      }
+    }
+    for (int c = 0; c < 8; ++c) {
+      const int v[3] = {img[c].x, img[c].y, img[c].z};
+      for (int a = 0; a < 3; ++a) {
+        at_lo_[a] |= unsigned(v[a] == lo_[a]) << c;
+        at_hi_[a] |= unsigned(v[a] == hi_[a]) << c;
+      }
+    }
+  }
+  // Images on the sides that coordinate v of axis a touches (all of them
+  // when it touches none): the y and z parts are shared by a whole row.
+  unsigned Side(int a, int v) const {
+    return (v == lo_[a] ? at_lo_[a] : 0xffu) & (v == hi_[a] ? at_hi_[a] : 0xffu);
+  }
+  // `on` is Side(0, x) & Side(1, y) & Side(2, z).
+  bool MayContain(unsigned on, int x, int y, int z) const {
+    if (on == 0xffu) return true;  // inside the box: only the full test decides
+    if (on == 0) return false;
+    Int3 lo{1 << 30, 1 << 30, 1 << 30}, hi{-(1 << 30), -(1 << 30), -(1 << 30)};
+    for (; on; on &= on - 1) {
+      const Int3& p = img_[std::countr_zero(on)];
+      lo = {std::min(lo.x, p.x), std::min(lo.y, p.y), std::min(lo.z, p.z)};
+      hi = {std::max(hi.x, p.x), std::max(hi.y, p.y), std::max(hi.z, p.z)};
+    }
+    return x >= lo.x && x <= hi.x && y >= lo.y && y <= hi.y && z >= lo.z && z <= hi.z;
+  }
+
+ private:
+  const Int3 (&img_)[8];
+  int lo_[3], hi_[3];
+  unsigned at_lo_[3] = {0, 0, 0}, at_hi_[3] = {0, 0, 0};
+};
+
 }  // namespace
 
 bool BoxFilled(const VoxelSet& out, const VoxelBox& box) {
@@ -97,24 +149,29 @@ bool BoxFilled(const VoxelSet& out, const VoxelBox& box) {
 // One pass over the box for all six tetrahedra (not one per tetrahedron
 // over its own box): each row word is read once and only its missing bits
 // are tested, since most are set already (the images of neighbouring cubes
-// overlap); the planes are prepared on the first missing bit, and `worth`
+// overlap); the HullFilter drops most of the rest, the planes are prepared
+// on the first missing bit it lets through, and `worth`
 // is asked on the first bit the fill would add (most boxes' missing bits
 // lie outside the tetrahedra, and then the check is never needed).
 void FillCubeImage(const Int3 (&img)[8], const VoxelBox& box, VoxelSet& out,
                    absl::FunctionRef<bool()> worth) {
   std::optional<CubeTets> tets;
+  const HullFilter hull(img);
   bool asked = false;
   for (int z = box.min.z; z <= box.max.z; ++z)
     for (int y = box.min.y; y <= box.max.y; ++y) {
+      const unsigned on_yz = hull.Side(1, y) & hull.Side(2, z);
+      if (!on_yz) continue;  // no image on both sides this row touches
       uint64_t* row = out.MutableRow(y, z);
       for (int w = box.min.x >> 6; w <= box.max.x >> 6; ++w) {
         std::atomic_ref<uint64_t> word(row[w]);
         const uint64_t want = BitRange(w == box.min.x >> 6 ? box.min.x & 63 : 0,
                                        w == box.max.x >> 6 ? box.max.x & 63 : 63);
         uint64_t missing = want & ~word.load(std::memory_order_relaxed), add = 0;
-        if (missing && !tets) tets.emplace(img);
         for (; missing; missing &= missing - 1) {
           const int b = std::countr_zero(missing), x = (w << 6) + b;
+          if (!hull.MayContain(on_yz & hull.Side(0, x), x, y, z)) continue;
+          if (!tets) tets.emplace(img);  // planes only once a voxel may be inside
           if (!tets->Contains(x, y, z)) continue;
           if (!asked && !(asked = true, worth())) return;
           add |= uint64_t{1} << b;

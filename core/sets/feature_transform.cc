@@ -2,6 +2,7 @@
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
 
 #include <algorithm>
 #include <atomic>
@@ -194,16 +195,18 @@ std::optional<Int3> ExactWeights(double wx, double wy, double wz) {
 struct BoxBits {
   Int3 size;
   int w0 = 0, nw = 0;
-  std::vector<uint64_t> bits;
+  std::vector<uint64_t, BigBufferAllocator<uint64_t>> bits;  // CopyBits writes them all
   uint64_t* Row(int yi, int zi) { return bits.data() + (size_t(zi) * size.y + yi) * nw; }
 };
 
 BoxBits CopyBits(const VoxelSet& set, const VoxelBox& box) {
   BoxBits b{box.Size(), box.min.x >> 6, (box.max.x >> 6) - (box.min.x >> 6) + 1, {}};
   b.bits.resize(size_t(b.nw) * b.size.y * b.size.z);
-  for (int zi = 0; zi < b.size.z; ++zi)
-    for (int yi = 0; yi < b.size.y; ++yi)
-      std::copy_n(set.Row(box.min.y + yi, box.min.z + zi) + b.w0, b.nw, b.Row(yi, zi));
+  tbb::parallel_for(tbb::blocked_range<int>(0, b.size.z, 8), [&](const tbb::blocked_range<int>& r) {
+    for (int zi = r.begin(); zi < r.end(); ++zi)
+      for (int yi = 0; yi < b.size.y; ++yi)
+        std::copy_n(set.Row(box.min.y + yi, box.min.z + zi) + b.w0, b.nw, b.Row(yi, zi));
+  });
   return b;
 }
 
@@ -232,59 +235,113 @@ struct BitRegion {
   }
 };
 
+// A row's words beyond the box edge (rows are at most 17 words wide).
+constexpr uint64_t kZeroWords[32] = {};
+static_assert(VoxelSet::kMaxResolution / 64 + 1 <= 32);
+
+// A few words: an inline loop, not a library call per row.
+inline void CopyWords(const uint64_t* from, int n, uint64_t* to) {
+  for (int i = 0; i < n; ++i) to[i] = from[i];
+}
+
+// The three steps of DilateOnce over part of the region (e grown by one
+// row, slice and word is g). Along x, rows of slices [z0, z1) of g, each
+// word from its old neighbours (the carry keeps the one overwritten).
+void DilateAlongX(BoxBits& d, const BitRegion& g, int z0, int z1) {
+  for (int zi = z0; zi < z1; ++zi)
+    for (int yi = g.y0; yi <= g.y1; ++yi) {
+      uint64_t* r = d.Row(yi, zi);
+      uint64_t carry_lo = g.w0 > 0 ? r[g.w0 - 1] >> 63 : 0;
+      for (int w = g.w0; w <= g.w1; ++w) {
+        const uint64_t v = r[w], next = w + 1 < d.nw ? r[w + 1] : 0;
+        r[w] = v | (v << 1) | carry_lo | (v >> 1) | (next << 63);
+        carry_lo = v >> 63;
+      }
+    }
+}
+
+// Along y, rows of e in slices [z0, z1): the row below as it was is kept.
+void DilateAlongY(BoxBits& d, const BitRegion& e, const BitRegion& g, int z0, int z1) {
+  const int ww = g.w1 - g.w0 + 1;
+  std::vector<uint64_t> prev(static_cast<size_t>(ww), 0), cur(prev);
+  for (int zi = z0; zi < z1; ++zi) {
+    if (e.y0 > 0) CopyWords(d.Row(e.y0 - 1, zi) + g.w0, ww, prev.data());
+    for (int yi = e.y0; yi <= e.y1; ++yi) {
+      uint64_t* r = d.Row(yi, zi) + g.w0;
+      CopyWords(r, ww, cur.data());
+      const uint64_t* before = yi > 0 ? prev.data() : kZeroWords;
+      const uint64_t* next = yi + 1 < d.size.y ? d.Row(yi + 1, zi) + g.w0 : kZeroWords;
+      for (int w = 0; w < ww; ++w) r[w] |= before[w] | next[w];
+      prev.swap(cur);
+    }
+  }
+}
+
+// Along z, rows [y0, y1) of e's slices: the row of the slice below as it was
+// is kept.
+void DilateAlongZ(BoxBits& d, const BitRegion& e, const BitRegion& g, int y0, int y1) {
+  const int ww = g.w1 - g.w0 + 1;
+  std::vector<uint64_t> below(static_cast<size_t>(ww), 0), cur(below);
+  for (int yi = y0; yi < y1; ++yi) {
+    if (e.z0 > 0) CopyWords(d.Row(yi, e.z0 - 1) + g.w0, ww, below.data());
+    for (int zi = e.z0; zi <= e.z1; ++zi) {
+      uint64_t* r = d.Row(yi, zi) + g.w0;
+      CopyWords(r, ww, cur.data());
+      const uint64_t* under = zi > 0 ? below.data() : kZeroWords;
+      const uint64_t* above = zi + 1 < d.size.z ? d.Row(yi, zi + 1) + g.w0 : kZeroWords;
+      for (int w = 0; w < ww; ++w) r[w] |= under[w] | above[w];
+      below.swap(cur);
+    }
+  }
+}
+
 // Grows `d` by one voxel in the 26-neighbourhood (clipped to the box),
 // exactly inside `e` and to a subset of the grown set elsewhere (bits are
 // only added, from neighbours), which is all ColumnRadii needs. Separable
 // and in place: along x by shifting words (over e grown by one row, slice
 // and word, what the y and z steps read), then along y and z by or-ing
-// neighbour rows, the overwritten row or slice kept in a small buffer.
-void DilateOnce(BoxBits& d, const BitRegion& e, std::vector<uint64_t>& prev,
-                std::vector<uint64_t>& cur) {
+// neighbour rows, the overwritten row kept in a small buffer. Each step
+// reads only values from before it, so its rows (x), slices (y) or row
+// positions (z) are independent and run in parallel: this is serial work
+// of the transform otherwise, while the other thread may have none.
+void DilateOnce(BoxBits& d, const BitRegion& e) {
   const BitRegion g = e.Grown(1, 1, d);
-  const int nw = d.nw, ww = g.w1 - g.w0 + 1;
-  for (int zi = g.z0; zi <= g.z1; ++zi)
-    for (int yi = g.y0; yi <= g.y1; ++yi) {
-      uint64_t* r = d.Row(yi, zi);
-      uint64_t carry_lo = g.w0 > 0 ? r[g.w0 - 1] >> 63 : 0;
-      for (int w = g.w0; w <= g.w1; ++w) {
-        const uint64_t v = r[w], next = w + 1 < nw ? r[w + 1] : 0;
-        r[w] = v | (v << 1) | carry_lo | (v >> 1) | (next << 63);
-        carry_lo = v >> 63;
-      }
-    }
+  using Range = tbb::blocked_range<int>;
+  tbb::parallel_for(Range(g.z0, g.z1 + 1, 4),
+                    [&](const Range& r) { DilateAlongX(d, g, r.begin(), r.end()); });
   // Along y for slices g.z0..g.z1 (the z step reads them), rows of e.
-  prev.resize(size_t(ww));
-  cur.resize(size_t(ww));
-  for (int zi = g.z0; zi <= g.z1; ++zi) {
-    if (e.y0 > 0) std::copy_n(d.Row(e.y0 - 1, zi) + g.w0, ww, prev.data());
-    for (int yi = e.y0; yi <= e.y1; ++yi) {
-      uint64_t* r = d.Row(yi, zi) + g.w0;
-      std::copy_n(r, ww, cur.data());
-      const uint64_t* next = yi + 1 < d.size.y ? d.Row(yi + 1, zi) + g.w0 : nullptr;
-      for (int w = 0; w < ww; ++w)
-        r[w] |= (yi > 0 ? prev[size_t(w)] : 0) | (next ? next[w] : 0);
-      prev.swap(cur);
-    }
-  }
-  // Along z, rows of e: the slice below as it was before this step.
-  const int rows = e.y1 - e.y0 + 1;
-  prev.resize(size_t(ww) * rows);
-  cur.resize(size_t(ww) * rows);
-  auto save = [&](int zi, std::vector<uint64_t>& to) {
-    for (int yi = e.y0; yi <= e.y1; ++yi)
-      std::copy_n(d.Row(yi, zi) + g.w0, ww, to.data() + size_t(yi - e.y0) * ww);
-  };
-  if (e.z0 > 0) save(e.z0 - 1, prev);
-  for (int zi = e.z0; zi <= e.z1; ++zi) {
-    save(zi, cur);
-    for (int yi = e.y0; yi <= e.y1; ++yi) {
-      uint64_t* r = d.Row(yi, zi) + g.w0;
-      const uint64_t* below = prev.data() + size_t(yi - e.y0) * ww;
-      const uint64_t* above = zi + 1 < d.size.z ? d.Row(yi, zi + 1) + g.w0 : nullptr;
-      for (int w = 0; w < ww; ++w) r[w] |= (zi > 0 ? below[w] : 0) | (above ? above[w] : 0);
-    }
-    prev.swap(cur);
-  }
+  tbb::parallel_for(Range(g.z0, g.z1 + 1, 4),
+                    [&](const Range& r) { DilateAlongY(d, e, g, r.begin(), r.end()); });
+  tbb::parallel_for(Range(e.y0, e.y1 + 1, 4),
+                    [&](const Range& r) { DilateAlongZ(d, e, g, r.begin(), r.end()); });
+}
+
+// Bits of `qb` not in `d` over `region`, or-ed per (y, word) into `open`
+// (which the caller cleared); returns the region where any were found.
+// Rows of y run in parallel: each owns its words of `open`.
+BitRegion OpenQueries(const BoxBits& qb, const BoxBits& d, const BitRegion& region,
+                      std::vector<uint64_t>& open) {
+  return tbb::parallel_reduce(
+      tbb::blocked_range<int>(region.y0, region.y1 + 1, 4), BitRegion{},
+      [&](const tbb::blocked_range<int>& range, BitRegion found) {
+        for (int yi = range.begin(); yi < range.end(); ++yi)
+          for (int zi = region.z0; zi <= region.z1; ++zi) {
+            const uint64_t* qr = qb.bits.data() + (size_t(zi) * qb.size.y + yi) * qb.nw;
+            const uint64_t* dr = d.bits.data() + (size_t(zi) * d.size.y + yi) * d.nw;
+            for (int w = region.w0; w <= region.w1; ++w) {
+              const uint64_t u = qr[w] & ~dr[w];
+              open[size_t(yi) * qb.nw + w] |= u;
+              if (u) found.Add(yi, zi, w);
+            }
+          }
+        return found;
+      },
+      [](BitRegion a, const BitRegion& b) {
+        if (b.Empty()) return a;
+        a.Add(b.y0, b.z0, b.w0);
+        a.Add(b.y1, b.z1, b.w1);
+        return a;
+      });
 }
 
 // For every (x, y) column of the box, a Chebyshev radius r such that each
@@ -301,22 +358,12 @@ void ColumnRadii(const VoxelSet& set, const VoxelSet& q, const VoxelBox& box, in
   const BoxBits qb = CopyBits(q, box);
   const Int3 b = box.Size();
   radius.assign(size_t(b.x) * b.y, 0);
-  std::vector<uint64_t> prev, cur, open(size_t(qb.nw) * b.y);
+  std::vector<uint64_t> open(size_t(qb.nw) * b.y);
   BitRegion region{0, b.y - 1, 0, b.z - 1, 0, qb.nw - 1};  // holds every open query
   for (int r = 1; r <= max_r + 1; ++r) {
     // Columns with a query outside the set grown by r - 1 need at least r.
     std::fill(open.begin(), open.end(), 0);
-    BitRegion found;
-    for (int zi = region.z0; zi <= region.z1; ++zi)
-      for (int yi = region.y0; yi <= region.y1; ++yi) {
-        const uint64_t* qr = qb.bits.data() + (size_t(zi) * b.y + yi) * qb.nw;
-        const uint64_t* dr = d.Row(yi, zi);
-        for (int w = region.w0; w <= region.w1; ++w) {
-          const uint64_t u = qr[w] & ~dr[w];
-          open[size_t(yi) * qb.nw + w] |= u;
-          if (u) found.Add(yi, zi, w);
-        }
-      }
+    const BitRegion found = OpenQueries(qb, d, region, open);
     if (found.Empty()) return;
     for (int yi = found.y0; yi <= found.y1; ++yi)
       for (int w = found.w0; w <= found.w1; ++w)
@@ -327,7 +374,7 @@ void ColumnRadii(const VoxelSet& set, const VoxelSet& q, const VoxelBox& box, in
     // Later rounds read the grown set only at the open queries, after at
     // most max_r - r more growths: within max_r + 1 - r voxels of them.
     region = found;
-    if (r <= max_r) DilateOnce(d, found.Grown(max_r + 1 - r, 1, d), prev, cur);
+    if (r <= max_r) DilateOnce(d, found.Grown(max_r + 1 - r, 1, d));
   }
 }
 
@@ -348,6 +395,48 @@ int SiteReach(Int3 k, int r, int ka) {
   return int(l);
 }
 
+// RowsFromColumns for the columns of one x; lo, hi and reach are scratch of
+// b.z entries.
+void ColumnsOfX(Int3 b, Int3 k, const std::vector<int>& radius, int xi, std::vector<int>& lo,
+                std::vector<int>& hi, std::vector<int>& reach, NeedRanges& need) {
+  std::fill(lo.begin(), lo.end(), b.y);
+  std::fill(hi.begin(), hi.end(), 0);
+  std::fill(reach.begin(), reach.end(), 0);
+  int all_lo = b.y, all_hi = 0;  // rows of unbounded columns
+  for (int yi = 0; yi < b.y; ++yi) {
+    const size_t c = size_t(yi) * b.x + xi;
+    if (need.zlo[c] >= need.zhi[c]) continue;
+    const int r = radius.empty() ? -1 : radius[c];
+    if (r < 0) {
+      all_lo = std::min(all_lo, yi);
+      all_hi = yi + 1;
+      continue;
+    }
+    const int ry = SiteReach(k, r, k.y), rz = SiteReach(k, r, k.z);
+    need.reach_z[c] = rz;
+    const int z1 = std::max(0, need.zlo[c] - rz), z2 = std::min(b.z, need.zhi[c] + rz);
+    for (int zi = z1; zi < z2; ++zi) {
+      lo[size_t(zi)] = std::min(lo[size_t(zi)], yi);
+      hi[size_t(zi)] = std::max(hi[size_t(zi)], yi + 1);
+      reach[size_t(zi)] = std::max(reach[size_t(zi)], ry);
+    }
+  }
+  // Unbounded columns reach every slice with every site.
+  for (int zi = 0; zi < b.z; ++zi) {
+    const size_t i = size_t(zi) * b.x + xi;
+    const size_t z = size_t(zi);
+    if (all_lo < all_hi) {
+      need.ylo[i] = std::min(lo[z], all_lo);
+      need.yhi[i] = std::max(hi[z], all_hi);
+      need.reach_y[i] = b.y;
+    } else if (lo[z] < hi[z]) {
+      need.ylo[i] = lo[z];
+      need.yhi[i] = hi[z];
+      need.reach_y[i] = reach[z];
+    }
+  }
+}
+
 // Site reaches from the column radii (-1 or none: unbounded), then the
 // pass-2 rows from the pass-3 columns: slice z of column x needs row y when
 // (x, y) has queries whose slice range, widened by the column's reach,
@@ -358,49 +447,16 @@ void RowsFromColumns(Int3 b, Int3 k, const std::vector<int>& radius, NeedRanges&
   // Per x, lines by slice (lo, hi, reach), so the loop over a column's
   // slices below is contiguous and branch-free; yi grows, so the min and
   // max give the first and last column exactly as in row order.
-  std::vector<int> lo(size_t(b.z)), hi(size_t(b.z)), reach(size_t(b.z));
+  // Each x writes only its own entries, so runs of x go in parallel.
   need.ylo.assign(size_t(b.x) * b.z, 0);
   need.yhi.assign(size_t(b.x) * b.z, 0);
   need.reach_y.assign(size_t(b.x) * b.z, 0);
   need.reach_z.assign(size_t(b.x) * b.y, b.z);
-  for (int xi = 0; xi < b.x; ++xi) {
-    std::fill(lo.begin(), lo.end(), b.y);
-    std::fill(hi.begin(), hi.end(), 0);
-    std::fill(reach.begin(), reach.end(), 0);
-    int all_lo = b.y, all_hi = 0;  // rows of unbounded columns
-    for (int yi = 0; yi < b.y; ++yi) {
-      const size_t c = size_t(yi) * b.x + xi;
-      if (need.zlo[c] >= need.zhi[c]) continue;
-      const int r = radius.empty() ? -1 : radius[c];
-      if (r < 0) {
-        all_lo = std::min(all_lo, yi);
-        all_hi = yi + 1;
-        continue;
-      }
-      const int ry = SiteReach(k, r, k.y), rz = SiteReach(k, r, k.z);
-      need.reach_z[c] = rz;
-      const int z1 = std::max(0, need.zlo[c] - rz), z2 = std::min(b.z, need.zhi[c] + rz);
-      for (int zi = z1; zi < z2; ++zi) {
-        lo[size_t(zi)] = std::min(lo[size_t(zi)], yi);
-        hi[size_t(zi)] = std::max(hi[size_t(zi)], yi + 1);
-        reach[size_t(zi)] = std::max(reach[size_t(zi)], ry);
-      }
-    }
-    // Unbounded columns reach every slice with every site.
-    for (int zi = 0; zi < b.z; ++zi) {
-      const size_t i = size_t(zi) * b.x + xi;
-      const size_t z = size_t(zi);
-      if (all_lo < all_hi) {
-        need.ylo[i] = std::min(lo[z], all_lo);
-        need.yhi[i] = std::max(hi[z], all_hi);
-        need.reach_y[i] = b.y;
-      } else if (lo[z] < hi[z]) {
-        need.ylo[i] = lo[z];
-        need.yhi[i] = hi[z];
-        need.reach_y[i] = reach[z];
-      }
-    }
-  }
+  tbb::parallel_for(tbb::blocked_range<int>(0, b.x, 16), [&](const tbb::blocked_range<int>& xs) {
+    std::vector<int> lo(static_cast<size_t>(b.z)), hi(lo), reach(lo);
+    for (int xi = xs.begin(); xi < xs.end(); ++xi)
+      ColumnsOfX(b, k, radius, xi, lo, hi, reach, need);
+  });
   SliceRows(b, need);
 }
 
@@ -415,26 +471,29 @@ void QueryRanges(const VoxelSet& q, const VoxelBox& box, NeedRanges& need) {
   std::vector<uint64_t> inside(size_t(nw), ~uint64_t{0});  // bits of a row inside the box
   inside[0] &= ~uint64_t{0} << (box.min.x & 63);
   if ((box.max.x & 63) != 63) inside[size_t(nw - 1)] &= (uint64_t{2} << (box.max.x & 63)) - 1;
-  std::vector<uint64_t> seen(size_t(b.y) * nw);
-  auto sweep = [&](int z_first, int z_step, std::vector<int>& bound, int offset) {
-    std::fill(seen.begin(), seen.end(), 0);
-    for (int zi = z_first; zi >= 0 && zi < b.z; zi += z_step)
-      for (int yi = 0; yi < b.y; ++yi) {
+  // Each row position y has its own columns, so they run in parallel.
+  tbb::parallel_for(tbb::blocked_range<int>(0, b.y, 4), [&](const tbb::blocked_range<int>& ys) {
+    std::vector<uint64_t> seen(static_cast<size_t>(nw));
+    auto sweep = [&](int yi, int z_first, int z_step, std::vector<int>& bound, int offset) {
+      std::fill(seen.begin(), seen.end(), 0);
+      for (int zi = z_first; zi >= 0 && zi < b.z; zi += z_step) {
         const uint64_t* row = q.Row(box.min.y + yi, box.min.z + zi) + w0;
-        uint64_t* s = seen.data() + size_t(yi) * nw;
         for (int w = 0; w < nw; ++w) {
-          const uint64_t fresh = row[w] & inside[size_t(w)] & ~s[w];
+          const uint64_t fresh = row[w] & inside[size_t(w)] & ~seen[size_t(w)];
           if (!fresh) continue;
-          s[w] |= fresh;
+          seen[size_t(w)] |= fresh;
           for (uint64_t bits = fresh; bits; bits &= bits - 1) {
             const int xi = ((w0 + w) << 6) + std::countr_zero(bits) - box.min.x;
             bound[size_t(yi) * b.x + xi] = zi + offset;
           }
         }
       }
-  };
-  sweep(0, 1, need.zlo, 0);
-  sweep(b.z - 1, -1, need.zhi, 1);
+    };
+    for (int yi = ys.begin(); yi < ys.end(); ++yi) {
+      sweep(yi, 0, 1, need.zlo, 0);
+      sweep(yi, b.z - 1, -1, need.zhi, 1);
+    }
+  });
 }
 
 }  // namespace
@@ -451,7 +510,7 @@ absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
       box.min.z > box.max.z) {
     return absl::InvalidArgumentError("feature transform: box outside the lattice");
   }
-  const std::optional<VoxelBox> members = set.BoundingBox();
+  const std::optional<VoxelBox> members = options.set_box ? options.set_box : set.BoundingBox();
   if (members) box = VoxelBox::Hull(box, *members);
   out.box = box;
   const Int3 b = box.Size();
@@ -532,6 +591,16 @@ absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
   });
   if (cancelled) return absl::CancelledError("feature transform interrupted");
 
+  // w d^2 of every offset d along x and y (|d| < 1024, indexed by d + 1023):
+  // the earlier axes' cost of a site, read instead of squared, converted and
+  // multiplied per site (the same double either way).
+  std::vector<double> wdd_x(2047), wdd_y(2047);
+  for (int d = -1023; d <= 1023; ++d) {
+    wdd_x[size_t(d + 1023)] = wx * Square(d);
+    wdd_y[size_t(d + 1023)] = wy * Square(d);
+  }
+  const double* const cost_x = wdd_x.data() + 1023;
+  const double* const cost_y = wdd_y.data() + 1023;
   // w pos^2 of every position of the last two passes, for EnvelopeLine.
   std::vector<double> wpp_y(size_t(b.y)), wpp_z(size_t(b.z));
   for (int yi = 0; yi < b.y; ++yi) wpp_y[size_t(yi)] = wy * double(y0 + yi) * (y0 + yi);
@@ -595,7 +664,7 @@ absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
             const int yi = rows[size_t(i0 + i)];
             const PackedVoxel f = col[size_t(yi) * kBlock];
             s.pos[i] = y0 + yi;
-            s.c[i] = wx * Square(int(f & 1023u) - x) + wpp_y[size_t(yi)];
+            s.c[i] = cost_x[int(f & 1023u) - x] + wpp_y[size_t(yi)];
             s.f[i] = f;
           }
           EnvelopeLine(s, m, wy, y0, ylo[xb + j], yhi[xb + j], col, kBlock);
@@ -646,7 +715,7 @@ absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
             const PackedVoxel f = col[size_t(zi) * kBlock];
             if (f == kNoVoxel) continue;
             s.pos[m] = z0 + zi;
-            s.c[m] = (wx * Square(int(f & 1023u) - x) + wy * Square(int((f >> 10) & 1023u) - y)) +
+            s.c[m] = (cost_x[int(f & 1023u) - x] + cost_y[int((f >> 10) & 1023u) - y]) +
                      wpp_z[size_t(zi)];
             s.f[m] = f;
             ++m;

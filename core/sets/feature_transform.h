@@ -62,6 +62,10 @@ struct FeatureTransformOptions {
   /// arithmetic so are sites out of reach of queries near the set
   /// (docs/condensation.md#feature-transform).
   const VoxelSet* queries = nullptr;
+  /// The set's bounding box, when the caller already knows it (the set is
+  /// then non-empty): saves a serial scan of the whole lattice. It must be
+  /// exact, as VoxelSet::BoundingBox would give it.
+  std::optional<VoxelBox> set_box;
 };
 
 /// @brief Exact Euclidean feature transform in linear time (Maurer-style

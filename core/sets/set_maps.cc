@@ -141,8 +141,10 @@ struct MemberRanks {
 };
 
 // Ranks the members of `set` inside `box` into `first` (reused); returns
-// the member count. Word counts run in parallel, the prefix sum serially
-// (a few hundred thousand additions).
+// the member count. A prefix sum in three steps, so that only one entry per
+// slice is summed serially: each slice's words are counted and summed in
+// parallel, then the slices' totals in order, then each slice adds the
+// members of the slices before it, in parallel again.
 uint32_t RankMembers(const VoxelSet& set, const VoxelBox& box, std::vector<uint32_t>& first,
                      MemberRanks& ranks) {
   ranks.box = box;
@@ -151,21 +153,36 @@ uint32_t RankMembers(const VoxelSet& set, const VoxelBox& box, std::vector<uint3
   ranks.ny = box.Size().y;
   const size_t per_slice = size_t(ranks.ny) * size_t(ranks.nw);
   first.resize(per_slice * size_t(box.Size().z));
-  tbb::parallel_for(tbb::blocked_range<int>(box.min.z, box.max.z + 1, 8),
-                    [&](const tbb::blocked_range<int>& r) {
-                      for (int z = r.begin(); z < r.end(); ++z)
-                        for (int y = box.min.y; y <= box.max.y; ++y) {
-                          const uint64_t* row = set.Row(y, z) + ranks.w0;
-                          uint32_t* f = first.data() + ranks.Slot(y, z);
-                          for (int w = 0; w < ranks.nw; ++w) f[w] = PopCount(row[w]);
-                        }
-                    });
+  std::vector<uint32_t> before(size_t(box.Size().z));  // members of the slice, then of those below
+  const tbb::blocked_range<int> slices(box.min.z, box.max.z + 1, 8);
+  tbb::parallel_for(slices, [&](const tbb::blocked_range<int>& r) {
+    for (int z = r.begin(); z < r.end(); ++z) {
+      uint32_t total = 0;
+      uint32_t* f = first.data() + ranks.Slot(box.min.y, z);
+      for (int y = box.min.y; y <= box.max.y; ++y) {
+        const uint64_t* row = set.Row(y, z) + ranks.w0;
+        for (int w = 0; w < ranks.nw; ++w, ++f) {
+          *f = total;
+          total += PopCount(row[w]);
+        }
+      }
+      before[size_t(z - box.min.z)] = total;
+    }
+  });
   uint32_t total = 0;
-  for (uint32_t& f : first) {
-    const uint32_t n = f;
-    f = total;
-    total += n;
+  for (uint32_t& n : before) {
+    const uint32_t in_slice = n;
+    n = total;
+    total += in_slice;
   }
+  tbb::parallel_for(slices, [&](const tbb::blocked_range<int>& r) {
+    for (int z = r.begin(); z < r.end(); ++z) {
+      const uint32_t add = before[size_t(z - box.min.z)];
+      if (add == 0) continue;
+      uint32_t* f = first.data() + ranks.Slot(box.min.y, z);
+      for (size_t i = 0; i < per_slice; ++i) f[i] += add;
+    }
+  });
   ranks.first = first.data();
   return total;
 }
@@ -215,10 +232,13 @@ absl::Status AddMidpoints(const VoxelSet& moving, const VoxelSet& source, const 
       for (int y = mbox->min.y; y <= mbox->max.y; ++y) {
         const uint64_t* row = moving.Row(y, z);
         uint32_t rank = ranks.first[ranks.Slot(y, z)];
+        // The field's row (y, z), indexed by x - box.min.x: the moving box
+        // lies in the field's box. Found once per row, not per voxel.
+        const PackedVoxel* field_row = field.nearest.data() + field.Index(field.box.min.x, y, z);
         for (int w = ranks.w0; w < ranks.w0 + ranks.nw; ++w)
           for (uint64_t bits = row[w]; bits; bits &= bits - 1, ++rank) {
             const int x = (w << 6) + std::countr_zero(bits);
-            const PackedVoxel pf = field.At(x, y, z);
+            const PackedVoxel pf = field_row[x - field.box.min.x];
             // An empty target leaves nothing to move toward: keep the voxel.
             const Int3 m =
                 pf == kNoVoxel ? Int3{x, y, z} : Midpoint({x, y, z}, UnpackVoxel(pf), round_up);
@@ -310,17 +330,20 @@ absl::Status AddMidpoints(const VoxelSet& moving, const VoxelSet& source, const 
                                             {0, 1, 0},  {0, 0, -1}, {0, 0, 1}};
         // The pairs of moving voxel (x, rank) with its neighbours: bridges
         // and, when it stretches toward +x, +y or +z, the cube fill.
-        auto bridge = [&](int x, uint32_t rank) {
+        // The neighbours to pair with come from the pretest's words (bit b
+        // of still[k] | moves[k]): source voxels inside the lattice, moving
+        // ones only along +x, +y and +z (the others pair from there).
+        auto bridge = [&](int x, uint32_t rank, int b, const uint64_t (&still)[6],
+                          const uint64_t (&moves)[6]) {
           const Int3 a{x, y, z};
           const Int3 m = UnpackVoxel(images[rank]);
           const Int3 f = UnpackVoxel(nearest[rank]);
           bool stretched = false;
           for (int k = 0; k < 6; ++k) {
+            if (!(((still[k] | moves[k]) >> b) & 1)) continue;
             const Rows& nr = around[k];
             const int nx = x + kStep[k][0];
-            if (!nr.src || nx < 0 || nx >= res.x || !bit(nr.src, nx)) continue;
-            const bool n_moving = bit(nr.mov, nx);
-            if ((k & 1) == 0 && n_moving) continue;  // that pair is handled from n
+            const bool n_moving = (moves[k] >> b) & 1;
             const Int3 n{nx, y + kStep[k][1], z + kStep[k][2]};
             // Along x a moving neighbour is the next rank.
             const uint32_t rn = !n_moving ? 0 : k == 1 ? rank + 1 : rank_in(nr, nx);
@@ -411,7 +434,7 @@ absl::Status AddMidpoints(const VoxelSet& moving, const VoxelSet& source, const 
             need = need || (((moves[1] >> b) & 1) && apart(rank + 1)) ||
                    (((moves[3] >> b) & 1) && apart(up.At(b))) ||
                    (((moves[5] >> b) & 1) && apart(far.At(b)));
-            if (need) bridge(x, rank);
+            if (need) bridge(x, rank, b, still, moves);
           }
         }
       }
@@ -424,12 +447,15 @@ absl::Status AddMidpoints(const VoxelSet& moving, const VoxelSet& source, const 
 
 // ws.field = `target`'s feature transform, computed only over the box the
 // voxels of `moving` need and queried there; timed as nearest-point work.
-absl::Status NearestFieldFor(const VoxelSet& target, const VoxelSet& moving,
-                             const VoxelBox& moving_box, Vec3 h, SetMapWorkspace& ws) {
+// `target_box` is the target's bounding box when known (else it is scanned).
+absl::Status NearestFieldFor(const VoxelSet& target, const std::optional<VoxelBox>& target_box,
+                             const VoxelSet& moving, const VoxelBox& moving_box, Vec3 h,
+                             SetMapWorkspace& ws) {
   const auto t0 = Clock::now();
   FeatureTransformOptions fo;
   fo.box = moving_box;
   fo.queries = &moving;
+  fo.set_box = target_box;
   NIMBUS_RETURN_IF_ERROR(ComputeFeatureTransform(target, h, fo, ws.field, ws.interrupter));
   ws.stats.nearest_seconds += SecondsSince(t0);
   return absl::OkStatus();
@@ -461,7 +487,11 @@ struct BoxAccumulator {
 // a \ b and (when `both_sides`) moving_b = b \ a, with the bounding boxes of
 // the two differences. Buffers are reused; slabs of slices run in parallel.
 struct SplitBoxes {
-  std::optional<VoxelBox> a, b;
+  std::optional<VoxelBox> a, b;  // of a \ b and b \ a
+  // Of the sets a and b themselves (b's only with both_sides): the
+  // transforms need them, and they come at little cost from this pass
+  // instead of a serial scan of the lattice each.
+  std::optional<VoxelBox> all_a, all_b;
 };
 SplitBoxes SplitPair(const VoxelSet& a, const VoxelSet& b, bool both_sides, VoxelSet& out,
                      VoxelSet& moving_a, VoxelSet& moving_b) {
@@ -471,7 +501,7 @@ SplitBoxes SplitPair(const VoxelSet& a, const VoxelSet& b, bool both_sides, Voxe
   const int words = a.words_per_row();
   constexpr int kSlab = 8;
   const int slabs = (res.z + kSlab - 1) / kSlab;
-  std::vector<BoxAccumulator> box_a(static_cast<size_t>(slabs)), box_b(box_a);
+  std::vector<BoxAccumulator> box_a(static_cast<size_t>(slabs)), box_b(box_a), box_o(box_a);
   tbb::parallel_for(tbb::blocked_range<int>(0, slabs), [&](const tbb::blocked_range<int>& r) {
     for (int sl = r.begin(); sl < r.end(); ++sl)
       for (int z = sl * kSlab; z < std::min(res.z, (sl + 1) * kSlab); ++z)
@@ -481,22 +511,35 @@ SplitBoxes SplitPair(const VoxelSet& a, const VoxelSet& b, bool both_sides, Voxe
           uint64_t* o = out.MutableRow(y, z);
           uint64_t* ma = moving_a.MutableRow(y, z);
           uint64_t* mb = moving_b.MutableRow(y, z);
+          uint64_t any = 0;
+          for (int w = 0; w < words; ++w) any |= ra[w] | rb[w];
+          if (!any) {  // most rows: nothing to split, and no box to grow
+            std::fill_n(o, words, 0);
+            std::fill_n(ma, words, 0);
+            if (both_sides) std::fill_n(mb, words, 0);
+            continue;
+          }
           for (int w = 0; w < words; ++w) {
             o[w] = ra[w] & rb[w];
             ma[w] = ra[w] & ~rb[w];
           }
           box_a[size_t(sl)].AddRow(ma, words, y, z);
+          box_o[size_t(sl)].AddRow(o, words, y, z);
           if (!both_sides) continue;
           for (int w = 0; w < words; ++w) mb[w] = rb[w] & ~ra[w];
           box_b[size_t(sl)].AddRow(mb, words, y, z);
         }
   });
-  BoxAccumulator all_a, all_b;
+  BoxAccumulator all_a, all_b, all_o;
   for (int sl = 0; sl < slabs; ++sl) {
     if (box_a[size_t(sl)].any) all_a.Add(box_a[size_t(sl)].box);
     if (box_b[size_t(sl)].any) all_b.Add(box_b[size_t(sl)].box);
+    if (box_o[size_t(sl)].any) all_o.Add(box_o[size_t(sl)].box);
   }
-  return {all_a.Get(), all_b.Get()};
+  BoxAccumulator set_a = all_o, set_b = all_o;  // a = (a ∩ b) ∪ (a \ b), and so for b
+  if (all_a.any) set_a.Add(all_a.box);
+  if (all_b.any) set_b.Add(all_b.box);
+  return {all_a.Get(), all_b.Get(), set_a.Get(), both_sides ? set_b.Get() : std::nullopt};
 }
 
 // out = D_a(b) (left only) or M(a, b). `b_field`, when given, is b's
@@ -522,7 +565,7 @@ absl::Status MedianInto(const VoxelSet& a, const VoxelSet& b, const FeatureField
           moved_a =
               AddMidpoints(ws.moving_a, a, *b_field, options, seed, *boxes.a, ws.side_a, out, intr);
         },
-        [&] { field_b = NearestFieldFor(a, ws.moving_b, *boxes.b, h, ws); });
+        [&] { field_b = NearestFieldFor(a, boxes.all_a, ws.moving_b, *boxes.b, h, ws); });
     NIMBUS_RETURN_IF_ERROR(moved_a);
     NIMBUS_RETURN_IF_ERROR(field_b);
     return AddMidpoints(ws.moving_b, b, ws.field, options, seed, *boxes.b, ws.side_b, out, intr);
@@ -530,7 +573,7 @@ absl::Status MedianInto(const VoxelSet& a, const VoxelSet& b, const FeatureField
   if (boxes.a) {
     const FeatureField* field = b_field;
     if (!field) {
-      NIMBUS_RETURN_IF_ERROR(NearestFieldFor(b, ws.moving_a, *boxes.a, h, ws));
+      NIMBUS_RETURN_IF_ERROR(NearestFieldFor(b, boxes.all_b, ws.moving_a, *boxes.a, h, ws));
       field = &ws.field;
     }
     NIMBUS_RETURN_IF_ERROR(
@@ -538,7 +581,7 @@ absl::Status MedianInto(const VoxelSet& a, const VoxelSet& b, const FeatureField
   }
   if (!both_sides) return absl::OkStatus();
   if (boxes.b) {
-    NIMBUS_RETURN_IF_ERROR(NearestFieldFor(a, ws.moving_b, *boxes.b, h, ws));
+    NIMBUS_RETURN_IF_ERROR(NearestFieldFor(a, boxes.all_a, ws.moving_b, *boxes.b, h, ws));
     NIMBUS_RETURN_IF_ERROR(
         AddMidpoints(ws.moving_b, b, ws.field, options, seed, *boxes.b, ws.side_b, out, intr));
   }

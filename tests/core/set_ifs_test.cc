@@ -50,6 +50,29 @@ TEST(SetIfs, RandomIterationIsDeterministicAndCountsEverySet) {
   EXPECT_LE(c1.Max(), 60u);
 }
 
+TEST(SetIfs, CountsEveryMemberOfEverySetAtAnyResolution) {
+  // Counting works a 64-bit word and a 32-voxel tile at a time: a lattice
+  // whose sides are multiples of neither, and sets reaching its far sides,
+  // against one increment per member of every counted set.
+  const GridFrame f{{100, 45, 37}, {{-1, -1, -1}, {1, 1, 1}}};
+  const VoxelSet a = *SphereSet(f, {0.5, 0.4, 0.3}, 0.6);
+  const VoxelSet b = *BoxSet(f, {{-1, -1, -1}, {-0.2, 0.1, 0.2}});
+  const SetIfs ifs{f, {*MakeMedianMap(f, a), *MakeMedianMap(f, b)}, {}, {}};
+  SetIfsRunOptions o;
+  o.iterations = 12;
+  o.warmup = 2;
+  o.observe_every = 1;
+  std::vector<uint32_t> want(size_t(f.resolution.Volume()), 0);
+  o.observer = [&](uint64_t, const CountGrid&, const VoxelSet& set) {
+    set.ForEach([&](int x, int y, int z) {
+      ++want[(size_t(z) * f.resolution.y + size_t(y)) * f.resolution.x + size_t(x)];
+    });
+  };
+  CountGrid counts(f.resolution);
+  ASSERT_TRUE(RunSetIfs(ifs, o, counts).ok());
+  EXPECT_EQ(Dense(counts), want);
+}
+
 TEST(SetIfs, CloudIsDensestInsideEverySketch) {
   // The reference description's bull, with the cow: sketch A is the cow, sketch B random
   // balls inside it; p = 2/3 and 1/3.
