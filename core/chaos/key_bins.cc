@@ -1,9 +1,6 @@
 #include "core/chaos/key_bins.h"
 
-#include <sys/mman.h>
-
 #include <bit>
-#include <new>
 
 namespace nimbus {
 
@@ -37,31 +34,12 @@ const uint64_t* ApplyTile(CountGrid& grid, const uint64_t* e, const uint64_t* en
 // packed; larger grids keep the bins, whose tile-at-a-time flushes then
 // pay for themselves.
 constexpr uint64_t kPackedTiles = 32;
-constexpr size_t kHugePage = size_t{2} << 20;
-
-// Zeroed pages straight from the kernel, 2 MiB-aligned so that transparent
-// huge pages can back them (a few faults instead of one per 4 KiB).
-uint64_t* MapZeroed(size_t bytes) {
-  void* p = mmap(nullptr, bytes + kHugePage, PROT_READ | PROT_WRITE,
-                 MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
-  if (p == MAP_FAILED) throw std::bad_alloc();
-  const uintptr_t start = uintptr_t(p), end = start + bytes + kHugePage;
-  const uintptr_t aligned = (start + kHugePage - 1) & ~uintptr_t(kHugePage - 1);
-  if (aligned > start) munmap(p, aligned - start);
-  if (end > aligned + bytes)
-    munmap(reinterpret_cast<void*>(aligned + bytes), end - (aligned + bytes));
-  madvise(reinterpret_cast<void*>(aligned), bytes, MADV_HUGEPAGE);  // a hint
-  return reinterpret_cast<uint64_t*>(aligned);
-}
-
 template <bool kColor, bool kWeighted>
 void ApplyAll(CountGrid& grid, const uint64_t* e, const uint64_t* end) {
   while (e != end) e = ApplyTile<kColor, kWeighted>(grid, e, end);
 }
 
 }  // namespace
-
-void KeyBins::Unmap::operator()(uint64_t* p) const { munmap(p, bytes); }
 
 bool KeyBins::Packs(Int3 resolution, bool color) {
   return color && CountGrid::TileCountFor(resolution) <= kPackedTiles;
@@ -72,7 +50,8 @@ KeyBins::KeyBins(CountGrid& grid, size_t capacity, bool weighted, std::mutex* fo
   const uint64_t tiles = CountGrid::TileCountFor(grid.resolution());
   if (Packs(grid.resolution(), grid.has_color())) {
     const size_t bytes = size_t(tiles) * CountGrid::kTileVoxels * sizeof(uint64_t);
-    packed_ = {MapZeroed(bytes), Unmap{bytes}};
+    // Huge pages: a few faults instead of one per 4 KiB.
+    packed_ = ZeroPages(bytes, /*huge=*/true);
     return;
   }
   shift_ = 15 + Pool::TileShift(tiles);
@@ -89,7 +68,7 @@ uint64_t KeyBins::AddLanes(const uint64_t* key, uint64_t lanes) {
 
 uint64_t KeyBins::AddLanesPacked(const uint64_t* key, uint64_t lanes) {
   if (pending_ > kFoldAfter - kMaxCallAdds) Fold();
-  const uint64_t* words = packed_.get();
+  const uint64_t* words = packed_.as<uint64_t>();
   // This round's keys are only requested now and held; the previous
   // round's, requested a whole kernel round ago, are added: their words
   // are in L1 by then, where adding right after the request waited on
@@ -110,7 +89,7 @@ uint64_t KeyBins::AddLanesPacked(const uint64_t* key, uint64_t lanes) {
 }
 
 void KeyBins::ApplyHeld() {
-  uint64_t* words = packed_.get();
+  uint64_t* words = packed_.as<uint64_t>();
   const uint64_t* held = held_[flip_];
   uint64_t touched = 0;
   for (uint32_t i = 0; i < held_count_; ++i) {
@@ -127,7 +106,7 @@ void KeyBins::AddPacked(uint64_t key) {
   if (pending_ > kFoldAfter - kMaxCallAdds) Fold();
   const uint64_t add = weighted_ ? CountGrid::WeightOf(key) : 1;
   const uint64_t voxel = key & CountGrid::kVoxelMask;
-  packed_.get()[voxel] += (add << kCountShift) + add * (key >> CountGrid::kColorShift);
+  packed_.as<uint64_t>()[voxel] += (add << kCountShift) + add * (key >> CountGrid::kColorShift);
   touched_ |= uint64_t{1} << (voxel >> 15);
   pending_ += add;
 }
@@ -147,7 +126,7 @@ void KeyBins::FoldTile(uint64_t tile) {
   constexpr uint64_t kColorMask = (uint64_t{1} << kCountShift) - 1;
   uint32_t* counts = grid_.MutableTile(tile);
   uint64_t* colors = grid_.MutableColorTile(tile);
-  uint64_t* words = packed_.get() + (tile << 15);
+  uint64_t* words = packed_.as<uint64_t>() + (tile << 15);
   // Counts saturate at 2^32 - 1, as CountGrid::Merge does, so a grid that
   // threads share holds min(visits, 2^32 - 1) whatever their number.
   for (int i = 0; i < CountGrid::kTileVoxels; ++i) {
@@ -174,7 +153,7 @@ void KeyBins::Flush() {
 }
 
 uint64_t KeyBins::MemoryBytes() const {
-  return packed_ ? packed_.get_deleter().bytes : pool_.MemoryBytes();
+  return packed_ ? packed_.bytes() : pool_.MemoryBytes();
 }
 
 uint64_t KeyBins::Bytes(Int3 resolution, size_t capacity, bool color) {

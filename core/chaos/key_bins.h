@@ -4,9 +4,9 @@
 
 #include <cstddef>
 #include <cstdint>
-#include <memory>
 #include <mutex>
 
+#include "core/base/zero_pages.h"
 #include "core/chaos/bin_pool.h"
 #include "core/grid/count_grid.h"
 
@@ -67,7 +67,7 @@ class KeyBins {
   /// True when a grid of `resolution` (with colour or not) takes the
   /// packed words rather than bins.
   static bool Packs(Int3 resolution, bool color);
-  bool packed() const { return packed_ != nullptr; }
+  bool packed() const { return bool(packed_); }
   /// The grid outgrew its tile limit (CountGrid::overflowed); packed, as
   /// seen at this thread's last fold, so a shared grid is read under its
   /// lock only.
@@ -105,12 +105,8 @@ class KeyBins {
   bool weighted_ = false;
   uint32_t shift_ = 15;  // key bits below the bin index
   Pool pool_;
-  struct Unmap {
-    size_t bytes;
-    void operator()(uint64_t* p) const;
-  };
   // Packed mode: a word per stored voxel, indexed by the key's voxel bits.
-  std::unique_ptr<uint64_t, Unmap> packed_{nullptr, Unmap{0}};
+  ZeroPages packed_;
   std::mutex* fold_lock_ = nullptr;
   bool overflowed_ = false;
   uint64_t pending_ = 0;  // adds since the last fold

@@ -1,13 +1,8 @@
 #include "core/chaos/tile_bins.h"
 
-#include <sys/mman.h>
-
 #include <algorithm>
-#include <new>
 
 namespace nimbus {
-
-void TileBins::Unmap::operator()(uint32_t* p) const { munmap(p, bytes); }
 
 uint32_t TileBins::BinShift(Int3 resolution) {
   const uint64_t tiles = CountGrid::TileCountFor(resolution);
@@ -27,12 +22,8 @@ TileBins::TileBins(CountGrid& grid, size_t capacity, bool direct, Int3 lattice,
       lattice_fold_(lattice_fold) {
   const uint64_t tiles = CountGrid::TileCountFor(grid.resolution());
   if (direct && Flat(lattice_)) {
-    // Fresh pages are zero and only the touched ones take memory.
     flat_voxels_ = uint32_t(uint64_t(lattice_.x) * lattice_.y * lattice_.z);
-    const size_t bytes = (size_t(flat_voxels_) + 16) * sizeof(uint32_t);
-    void* p = mmap(nullptr, bytes, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
-    if (p == MAP_FAILED) throw std::bad_alloc();
-    flat_ = std::unique_ptr<uint32_t, Unmap>(static_cast<uint32_t*>(p), Unmap{bytes});
+    flat_ = ZeroPages((size_t(flat_voxels_) + 16) * sizeof(uint32_t), /*huge=*/false);
     return;
   }
   if (direct) {
@@ -120,7 +111,7 @@ void TileBins::DrainFlat() {
   // a line that one did is located by one division, then walked. A tile is
   // allocated in the grid exactly when a counter in it is not zero, as a
   // point landing there would have allocated it.
-  uint32_t* flat = flat_.get();
+  uint32_t* flat = flat_.as<uint32_t>();
   const uint32_t ny = uint32_t(lattice_.y), nz = uint32_t(lattice_.z);
   const uint32_t mask = (1u << lattice_fold_) - 1;
   for (uint32_t i = 0; i < flat_voxels_; i += 16) {

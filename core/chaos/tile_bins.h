@@ -4,9 +4,9 @@
 
 #include <cstddef>
 #include <cstdint>
-#include <memory>
 #include <vector>
 
+#include "core/base/zero_pages.h"
 #include "core/chaos/affine_walk.h"
 #include "core/chaos/bin_pool.h"
 #include "core/chaos/shared_tiles.h"
@@ -76,7 +76,7 @@ class TileBins {
   uint32_t** tiles() { return direct_ && !flat_ ? tiles_.data() : nullptr; }
   /// Flat direct mode's array for walk::AffineWalk::flat (null otherwise),
   /// and the index of its scratch counter (walk::AffineWalk::flat_discard).
-  uint32_t* flat() { return flat_.get(); }
+  uint32_t* flat() { return flat_.as<uint32_t>(); }
   uint32_t flat_discard() const { return flat_voxels_; }
   /// Whether direct mode on this lattice is flat.
   static bool Flat(Int3 lattice) {
@@ -130,12 +130,8 @@ class TileBins {
   uint64_t split_first_ = 0;  // the first tile of the bin being split
   bool direct_ = false;
   std::vector<uint32_t*> tiles_;  // direct mode: a copy of the grid's table
-  // Flat mode: fresh zero pages from mmap, unmapped on destruction.
-  struct Unmap {
-    size_t bytes;  // no initializer: default-constructible inside the class
-    void operator()(uint32_t* p) const;
-  };
-  std::unique_ptr<uint32_t, Unmap> flat_;
+  // Flat mode: fresh zero pages, so only the touched ones take memory.
+  ZeroPages flat_;
   uint32_t flat_voxels_ = 0;  // lattice voxels; the scratch counter follows
   Int3 lattice_;
   uint32_t lattice_fold_ = 0;

@@ -3,8 +3,9 @@
 
 #include <cstddef>
 #include <cstdint>
-#include <memory>
 #include <vector>
+
+#include "core/base/zero_pages.h"
 
 namespace nimbus {
 
@@ -26,14 +27,11 @@ class TileArena {
   void* Allocate();
 
  private:
-  struct Unmap {
-    void operator()(char* p) const;
-  };
   void NewBlock();
 
   size_t tile_bytes_;
   size_t used_ = 0;  // bytes handed out from the last block
-  std::vector<std::unique_ptr<char, Unmap>> blocks_;
+  std::vector<ZeroPages> blocks_;
 };
 
 }  // namespace nimbus

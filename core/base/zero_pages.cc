@@ -1,0 +1,42 @@
+#include "core/base/zero_pages.h"
+
+#include <sys/mman.h>
+#include <unistd.h>
+
+#include <cstdint>
+#include <new>
+#include <utility>
+
+namespace nimbus {
+
+ZeroPages::ZeroPages(size_t bytes, bool huge) {
+  // Whole pages, so that the tail trimmed off below starts on a page.
+  const size_t page = size_t(sysconf(_SC_PAGESIZE));
+  bytes_ = (bytes + page - 1) / page * page;
+  // Map a huge page more than needed and keep an aligned range of it.
+  void* p = mmap(nullptr, bytes_ + kHugePage, PROT_READ | PROT_WRITE,
+                 MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+  if (p == MAP_FAILED) throw std::bad_alloc();
+  const uintptr_t start = uintptr_t(p), end = start + bytes_ + kHugePage;
+  const uintptr_t aligned = (start + kHugePage - 1) & ~uintptr_t(kHugePage - 1);
+  if (aligned > start) munmap(p, aligned - start);
+  if (end > aligned + bytes_)
+    munmap(reinterpret_cast<void*>(aligned + bytes_), end - aligned - bytes_);
+  data_ = reinterpret_cast<void*>(aligned);
+  if (huge) madvise(data_, bytes_, MADV_HUGEPAGE);  // a hint: failure is harmless
+}
+
+ZeroPages::ZeroPages(ZeroPages&& other) noexcept
+    : data_(std::exchange(other.data_, nullptr)), bytes_(std::exchange(other.bytes_, 0)) {}
+
+ZeroPages& ZeroPages::operator=(ZeroPages&& other) noexcept {
+  std::swap(data_, other.data_);
+  std::swap(bytes_, other.bytes_);
+  return *this;
+}
+
+ZeroPages::~ZeroPages() {
+  if (data_) munmap(data_, bytes_);
+}
+
+}  // namespace nimbus
