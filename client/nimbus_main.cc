@@ -28,6 +28,7 @@
 #include "client/flame_import.h"
 #include "client/nimbus_client.h"
 #include "client/preview_files.h"
+#include "core/base/heap_tuning.h"
 #include "core/base/status_macros.h"
 #include "proto/asset_paths.h"
 #include "proto/spec_convert.h"
@@ -839,6 +840,7 @@ std::vector<Command> AddCommands(CLI::App& app, Options& o) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  nimbus::KeepFreedHeapForReuse();  // downloads stream 1 MiB chunks
   CLI::App app{"nimbus: grow fractal volumes (OpenVDB) with a Nimbus server"};
   app.require_subcommand(1);
   Options o;

@@ -14,6 +14,7 @@
 #include <thread>
 
 #include "absl/strings/str_cat.h"
+#include "core/base/heap_tuning.h"
 #include "server/job_store.h"
 #include "server/server.h"
 
@@ -65,6 +66,7 @@ void AddSecurityFlags(CLI::App& app, nimbus::server::ServerOptions& o, double& r
 }  // namespace
 
 int main(int argc, char** argv) {
+  nimbus::KeepFreedHeapForReuse();  // uploads and downloads stream 1 MiB chunks
   CLI::App app{"nimbusd: grows fractal volumes for Nimbus clients over gRPC"};
   nimbus::server::ServerOptions o;
   std::string data_dir = o.data_dir.string();
