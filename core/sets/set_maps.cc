@@ -18,6 +18,7 @@
 #include "core/base/random.h"
 #include "core/base/status_macros.h"
 #include "core/sets/cube_image.h"
+#include "core/sets/gap_pretest.h"
 
 namespace nimbus {
 namespace {
@@ -315,6 +316,7 @@ absl::Status AddMidpoints(const VoxelSet& moving, const VoxelSet& source, const 
     };
     FillCubeImage(img, CubeImageBox(img, res), out, coherent);
   };
+  const gap::NeedFn need_of = gap::NeedKernel();
   tbb::parallel_for(slabs, [&](const tbb::blocked_range<int>& r) {
     if (cancelled) return;
     for (int z = r.begin(); z < r.end(); ++z) {
@@ -392,49 +394,25 @@ absl::Status AddMidpoints(const VoxelSet& moving, const VoxelSet& source, const 
             still[k] = s & ~mv;
             if (k & 1) moves[k] = mv;
           }
-          uint32_t rank = here.first[w];
-          // Ranks of the moving neighbours along +y and +z, counted as x
-          // grows (each cursor only moves forward) instead of a popcount
-          // per lookup.
-          struct Cursor {
-            uint32_t rank;
-            uint64_t ahead;  // moving voxels of the word not counted yet
-            uint32_t At(int b) {
-              for (; ahead && std::countr_zero(ahead) < b; ahead &= ahead - 1) ++rank;
-              return rank;
-            }
-          };
-          Cursor up{moves[3] ? around[3].first[w] : 0, moves[3]};
-          Cursor far{moves[5] ? around[5].first[w] : 0, moves[5]};
-          for (uint64_t bits = mov; bits; bits &= bits - 1, ++rank) {
-            const int b = std::countr_zero(bits), x = (w << 6) + b;
-            // A pair shows a gap only when the images are two or more
-            // voxels apart; most pairs are closer, and this test on the
-            // displacement d = image - voxel (for neighbours that stay) and
-            // on the neighbours' images rules them out without the
-            // branches of the full test.
-            const PackedVoxel pm = images[rank];
-            const int dx = int(pm & 1023u) - x, dy = int((pm >> 10) & 1023u) - y,
-                      dz = int(pm >> 20) - z;
-            const bool far_y = dy > 1 || dy < -1, far_z = dz > 1 || dz < -1;
-            const bool far_x = dx > 1 || dx < -1;
-            // Neighbour a + e stays at a + e: the gap is max |d - e|.
-            bool need = (((still[0] >> b) & 1) && (dx >= 1 || dx <= -3 || far_y || far_z)) ||
-                        (((still[1] >> b) & 1) && (dx <= -1 || dx >= 3 || far_y || far_z)) ||
-                        (((still[2] >> b) & 1) && (dy >= 1 || dy <= -3 || far_x || far_z)) ||
-                        (((still[3] >> b) & 1) && (dy <= -1 || dy >= 3 || far_x || far_z)) ||
-                        (((still[4] >> b) & 1) && (dz >= 1 || dz <= -3 || far_x || far_y)) ||
-                        (((still[5] >> b) & 1) && (dz <= -1 || dz >= 3 || far_x || far_y));
-            auto apart = [&](uint32_t rn) {
-              const PackedVoxel q = images[rn];
-              return uint32_t(int(q & 1023u) - int(pm & 1023u) + 1) > 2u ||
-                     uint32_t(int((q >> 10) & 1023u) - int((pm >> 10) & 1023u) + 1) > 2u ||
-                     uint32_t(int(q >> 20) - int(pm >> 20) + 1) > 2u;
-            };
-            need = need || (((moves[1] >> b) & 1) && apart(rank + 1)) ||
-                   (((moves[3] >> b) & 1) && apart(up.At(b))) ||
-                   (((moves[5] >> b) & 1) && apart(far.At(b)));
-            if (need) bridge(x, rank, b, still, moves);
+          // The pretest (gap_pretest.h) leaves the voxels that may need a
+          // bridge: about one in five.
+          const uint32_t rank0 = here.first[w];
+          gap::Word g;
+          g.mov = mov;
+          std::copy_n(still, 6, g.still);
+          g.moves_x = moves[1];
+          g.moves_y = moves[3];
+          g.moves_z = moves[5];
+          g.images = images.data() + rank0;
+          if (moves[3]) g.images_y = images.data() + around[3].first[w];
+          if (moves[5]) g.images_z = images.data() + around[5].first[w];
+          g.x0 = w << 6;
+          g.y = y;
+          g.z = z;
+          for (uint64_t need = need_of(g); need; need &= need - 1) {
+            const int b = std::countr_zero(need);
+            const uint32_t rank = rank0 + PopCount(mov & ((uint64_t{1} << b) - 1));
+            bridge((w << 6) + b, rank, b, still, moves);
           }
         }
       }
