@@ -9,22 +9,36 @@
 
 namespace nimbus {
 
-ZeroPages::ZeroPages(size_t bytes, bool huge) {
-  // Whole pages, so that the tail trimmed off below starts on a page.
+namespace {
+size_t WholePages(size_t bytes) {
   const size_t page = size_t(sysconf(_SC_PAGESIZE));
-  bytes_ = (bytes + page - 1) / page * page;
+  return (bytes + page - 1) / page * page;
+}
+}  // namespace
+
+void* ZeroPages::Map(size_t bytes, bool huge) {
+  // Whole pages, so that the tail trimmed off below starts on a page.
+  bytes = WholePages(bytes);
   // Map a huge page more than needed and keep an aligned range of it.
-  void* p = mmap(nullptr, bytes_ + kHugePage, PROT_READ | PROT_WRITE,
+  void* p = mmap(nullptr, bytes + kHugePage, PROT_READ | PROT_WRITE,
                  MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
   if (p == MAP_FAILED) throw std::bad_alloc();
-  const uintptr_t start = uintptr_t(p), end = start + bytes_ + kHugePage;
+  const uintptr_t start = uintptr_t(p), end = start + bytes + kHugePage;
   const uintptr_t aligned = (start + kHugePage - 1) & ~uintptr_t(kHugePage - 1);
   if (aligned > start) munmap(p, aligned - start);
-  if (end > aligned + bytes_)
-    munmap(reinterpret_cast<void*>(aligned + bytes_), end - aligned - bytes_);
-  data_ = reinterpret_cast<void*>(aligned);
-  if (huge) madvise(data_, bytes_, MADV_HUGEPAGE);  // a hint: failure is harmless
+  if (end > aligned + bytes)
+    munmap(reinterpret_cast<void*>(aligned + bytes), end - aligned - bytes);
+  void* data = reinterpret_cast<void*>(aligned);
+  if (huge) madvise(data, bytes, MADV_HUGEPAGE);  // a hint: failure is harmless
+  return data;
 }
+
+void ZeroPages::Unmap(void* data, size_t bytes) {
+  if (data) munmap(data, WholePages(bytes));
+}
+
+ZeroPages::ZeroPages(size_t bytes, bool huge)
+    : data_(Map(bytes, huge)), bytes_(WholePages(bytes)) {}
 
 ZeroPages::ZeroPages(ZeroPages&& other) noexcept
     : data_(std::exchange(other.data_, nullptr)), bytes_(std::exchange(other.bytes_, 0)) {}
@@ -35,8 +49,6 @@ ZeroPages& ZeroPages::operator=(ZeroPages&& other) noexcept {
   return *this;
 }
 
-ZeroPages::~ZeroPages() {
-  if (data_) munmap(data_, bytes_);
-}
+ZeroPages::~ZeroPages() { Unmap(data_, bytes_); }
 
 }  // namespace nimbus

@@ -130,7 +130,7 @@ class TileBins {
   uint64_t split_first_ = 0;  // the first tile of the bin being split
   bool direct_ = false;
   std::vector<uint32_t*> tiles_;  // direct mode: a copy of the grid's table
-  // Flat mode: fresh zero pages, so only the touched ones take memory.
+  // Flat mode: fresh zero pages (huge ones).
   ZeroPages flat_;
   uint32_t flat_voxels_ = 0;  // lattice voxels; the scratch counter follows
   Int3 lattice_;

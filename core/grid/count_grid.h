@@ -156,6 +156,13 @@ class CountGrid {
   /// beyond the cap land in a scratch tile and set overflowed(): the owner
   /// then abandons the run instead of running the machine out of memory.
   void SetTileLimit(size_t max_tiles) { tile_limit_ = max_tiles; }
+  /// Transparent huge pages from the first block of tiles on (TileArena):
+  /// for owners that expect to fill most of a small grid's tiles, where 4
+  /// KiB pages would only add page faults.
+  void PreferHugePages() {
+    arena_.PreferHugePages();
+    color_arena_.PreferHugePages();
+  }
   bool overflowed() const { return overflowed_; }
   size_t MemoryBytes() const;
   /// Worst-case bytes for a grid of this resolution (every tile allocated).

@@ -72,8 +72,8 @@ absl::StatusOr<ImageDensity> BoxFilterImage(const std::vector<const CountGrid*>&
   out.width = (samples_w + factor - 1) / factor;
   out.height = (samples_h + factor - 1) / factor;
   const size_t n = size_t(out.width) * size_t(out.height);
-  out.density.assign(n, 0.f);
-  out.color.assign(n, 0.f);
+  out.density.resize(n);  // uncleared: every pixel is written below
+  out.color.resize(n);
   std::vector<PartTiles> tiles;
   for (const CountGrid* g : parts) tiles.push_back(IndexTiles(*g));
   // Folded layout: sample (sx, sy) is voxel (sx, sy >> 5, sy & 31), whose
@@ -101,7 +101,7 @@ absl::StatusOr<ImageDensity> BoxFilterImage(const std::vector<const CountGrid*>&
       }
       const size_t p = size_t(row) * size_t(out.width) + size_t(x);
       out.density[p] = float(double(sum) / double(used));
-      if (sum) out.color[p] = float(double(col) / (double(sum) * CountGrid::kColorScale));
+      out.color[p] = sum ? float(double(col) / (double(sum) * CountGrid::kColorScale)) : 0.f;
     }
   });
   if (!st.ok()) return st;
@@ -142,7 +142,7 @@ absl::StatusOr<RgbImage> DevelopImage(const ImageDensity& image, const LookParam
   RgbImage out;
   out.width = image.width;
   out.height = image.height;
-  out.rgb.assign(3 * size_t(image.width) * size_t(image.height), 0.f);
+  out.rgb.resize(3 * size_t(image.width) * size_t(image.height));  // every pixel is written
   const double keep = 1 - look.desaturation;
   absl::Status st = ForRows(image.height, interrupter, [&](int row) {
     for (int x = 0; x < image.width; ++x) {
@@ -221,7 +221,7 @@ void AddGlow(RgbImage& image, double amount, double radius) {
   // and the same result for any thread count.
   const std::array<int, 3> widths = BoxWidths(radius);
   const int W = image.width, H = image.height;
-  std::vector<float> blur = image.rgb;
+  PixelBuffer blur = image.rgb;
   tbb::parallel_for(0, H, [&](int y) {
     std::vector<float> a, b;
     for (int c = 0; c < 3; ++c) BoxLine(&blur[3 * size_t(y) * W + c], W, 3, widths, a, b);

@@ -9,6 +9,7 @@
 #include "absl/status/statusor.h"
 #include "core/base/geometry.h"
 #include "core/base/interrupter.h"
+#include "core/base/zero_pages.h"
 #include "core/grid/count_grid.h"
 #include "core/grid/palette.h"
 
@@ -38,18 +39,22 @@ struct LookParams {
   Vec3 background;          // colour of pixels no point reached
 };
 
+/// Pixel buffers: huge pages and no clearing from 1 MiB on
+/// (ZeroPageAllocator); whoever fills one writes every element.
+using PixelBuffer = std::vector<float, ZeroPageAllocator<float>>;
+
 /// @brief Box-filtered pixel data: mean visits per sample and mean colour
 /// coordinate of each output pixel (rows top first).
 struct ImageDensity {
   int width = 0, height = 0;
-  std::vector<float> density;  // visits per supersample
-  std::vector<float> color;    // in [0, 1]; 0 where nothing landed
+  PixelBuffer density;  // visits per supersample
+  PixelBuffer color;    // in [0, 1]; 0 where nothing landed
 };
 
 /// @brief Linear RGB floats, rows top first, 3 per pixel.
 struct RgbImage {
   int width = 0, height = 0;
-  std::vector<float> rgb;
+  PixelBuffer rgb;
   float* At(int x, int row) { return &rgb[3 * (size_t(row) * size_t(width) + size_t(x))]; }
   const float* At(int x, int row) const {
     return &rgb[3 * (size_t(row) * size_t(width) + size_t(x))];

@@ -13,7 +13,7 @@ void* TileArena::Allocate() {
 
 void TileArena::NewBlock() {
   // Huge pages from the second block on (see the class comment).
-  const bool huge = !blocks_.empty();
+  const bool huge = huge_first_ || !blocks_.empty();
   blocks_.emplace_back(kBlockBytes, huge);
   used_ = 0;
 }

@@ -25,12 +25,15 @@ class TileArena {
 
   /// A zeroed tile; throws std::bad_alloc when the kernel has no memory.
   void* Allocate();
+  /// Huge pages from the first block on, for grids known to fill it.
+  void PreferHugePages() { huge_first_ = true; }
 
  private:
   void NewBlock();
 
   size_t tile_bytes_;
   size_t used_ = 0;  // bytes handed out from the last block
+  bool huge_first_ = false;
   std::vector<ZeroPages> blocks_;
 };
 

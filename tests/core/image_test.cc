@@ -50,6 +50,23 @@ std::vector<uint32_t> Pixels(const CountGrid& g, int w, int h) {
   return out;
 }
 
+// Pixel buffers from 1 MiB on are fresh huge-page-aligned mappings (zero,
+// and resize writes nothing); smaller ones come from the heap; copies and
+// growth keep the values.
+TEST(PixelBuffer, LargeBuffersAreFreshAlignedMappings) {
+  const size_t n = (size_t{3} << 20) / sizeof(float);
+  PixelBuffer big;
+  big.resize(n);
+  EXPECT_EQ(reinterpret_cast<uintptr_t>(big.data()) % ZeroPages::kHugePage, 0u);
+  for (size_t i = 0; i < n; i += 1000) ASSERT_EQ(big[i], 0.f);
+  for (size_t i = 0; i < n; ++i) big[i] = float(i % 977);
+  PixelBuffer copy = big;
+  copy.resize(2 * n);  // moves into a new mapping
+  for (size_t i = 0; i < n; i += 997) ASSERT_EQ(copy[i], float(i % 977));
+  PixelBuffer small(100, 2.5f);
+  EXPECT_EQ(small[99], 2.5f);
+}
+
 TEST(ImagePlane, AxisZDrawsThePlaneUprightWithSquarePixels) {
   ImageView view;  // axis Z
   const Bounds box{{0, 0, -1}, {2, 1, 1}};
