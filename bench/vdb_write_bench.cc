@@ -1,9 +1,10 @@
-// Writing results: the streamed writer (grids encoded leaf by leaf, one
-// grid at a time, leaves compressed in parallel) against building every
-// grid whole and writing it with OpenVDB's writer (the path before it, and
-// still that of downsampled results). Prints wall and process CPU time and
-// the peak-RSS growth of each, for a 2D flame-like grid with colour and a
-// dense cloud. Both write the same bytes (tests/core/vdb_stream_test.cc).
+// Writing results: the native writer (WriteDensityVdb: no OpenVDB, leaves
+// encoded in parallel, one grid at a time), the module's streamed writer
+// (the same through OpenVDB's leaf encoder) and building every grid whole
+// and writing it with OpenVDB's writer (still the path of downsampled
+// results). Prints wall and process CPU time and the peak-RSS growth of
+// each, for a 2D flame-like grid with colour and a dense cloud. All three
+// write the same bytes (tests/core/vdb_native_test.cc, vdb_stream_test.cc).
 //
 //   build/bin/vdb_write_bench [repeats]
 #include <tbb/global_control.h>
@@ -18,6 +19,7 @@
 #include <random>
 #include <vector>
 
+#include "core/io/vdb_impl.h"
 #include "core/io/vdb_internal.h"
 #include "core/io/vdb_io.h"
 #include "tests/support/test_util.h"
@@ -84,8 +86,11 @@ void Case(const char* name, const CountGrid& counts, const DensityOptions& o, in
   std::printf("%s (%zu MB of counters):\n", name, counts.MemoryBytes() >> 20);
   // Streamed first: the peak-RSS column only grows, so the whole-grid
   // writer's figure is what it adds on top.
-  Time("streamed (WriteDensityVdb)", repeats, [&] {
+  Time("native (WriteDensityVdb)", repeats, [&] {
     if (!WriteDensityVdb(dir / "s.vdb", counts, f, o, {}).ok()) std::exit(1);
+  });
+  Time("module's streamed writer", repeats, [&] {
+    if (!vdb_impl::WriteDensityVdb(dir / "m.vdb", counts, f, o, {}, {}).ok()) std::exit(1);
   });
   Time("whole grids + OpenVDB's writer", repeats, [&] {
     if (!vdb_internal::WriteBuiltDensityVdb(dir / "w.vdb", counts, f, o, {}).ok()) std::exit(1);

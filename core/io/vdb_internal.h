@@ -11,6 +11,7 @@
 
 #include "absl/status/status.h"
 #include "core/base/geometry.h"
+#include "core/io/vdb_file.h"  // SetWriteFaultForTesting, StampContentUuid
 #include "core/io/vdb_io.h"
 
 namespace nimbus::vdb_internal {
@@ -46,14 +47,5 @@ absl::Status WriteBuiltDensityVdb(const std::filesystem::path& path, const Count
 absl::Status WriteBuiltIntegerCountsVdb(const std::filesystem::path& path,
                                         const CountGrid& counts, const GridFrame& frame,
                                         const DensityOptions& options, const Metadata& metadata);
-/// Tests only: every later write fails with `error` (errno) once a file
-/// would grow past `fail_after_bytes`; -1 turns the fault off.
-void SetWriteFaultForTesting(int64_t fail_after_bytes, int error);
-/// OpenVDB writes a random UUID into every file; these replace it with one
-/// derived from the SHA-256 of the rest of the file, so the same grids give
-/// the same bytes. The UUID only tells readers whether two files are the
-/// same, which a content hash says truthfully.
-absl::Status StampContentUuid(const std::filesystem::path& path);
-void StampContentUuid(std::string& bytes);
 
 }  // namespace nimbus::vdb_internal

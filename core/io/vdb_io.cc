@@ -27,6 +27,7 @@
 #include "core/io/vdb_impl.h"
 #include "core/io/vdb_internal.h"
 #include "core/io/vdb_stream.h"
+#include "core/io/result_values.h"
 
 namespace nimbus {
 
@@ -76,116 +77,6 @@ openvdb::GridPtrVecPtr ReadAllGrids(const std::filesystem::path& path) {
 }
 
 namespace {
-// OpenVDB's header: magic (8 bytes), file version, library major and minor
-// (4 each), the grid-offsets flag (1), then the UUID as 36 characters.
-constexpr size_t kUuidOffset = 21;
-constexpr size_t kUuidSize = 36;
-
-bool LooksLikeHeader(std::string_view head) {
-  if (head.size() < kUuidOffset + kUuidSize) return false;
-  int64_t magic = 0;
-  std::memcpy(&magic, head.data(), sizeof(magic));
-  return magic == int64_t(openvdb::OPENVDB_MAGIC) && head[kUuidOffset + 8] == '-' &&
-         head[kUuidOffset + 13] == '-';
-}
-
-// A version-8 (custom) UUID from a digest's first 32 hex digits.
-std::string UuidFromDigest(const std::string& hex) {
-  std::string u = hex.substr(0, 32);
-  u[12] = '8';
-  u[16] = "89ab"[std::stoi(u.substr(16, 1), nullptr, 16) & 3];
-  return u.substr(0, 8) + "-" + u.substr(8, 4) + "-" + u.substr(12, 4) + "-" + u.substr(16, 4) +
-         "-" + u.substr(20, 12);
-}
-}  // namespace
-
-void StampContentUuid(std::string& bytes) {
-  if (!LooksLikeHeader(bytes)) return;
-  Sha256 h;
-  h.Update(std::string_view(bytes).substr(0, kUuidOffset));
-  h.Update(std::string_view(bytes).substr(kUuidOffset + kUuidSize));
-  const std::string uuid = UuidFromDigest(h.HexDigest());
-  bytes.replace(kUuidOffset, kUuidSize, uuid);
-}
-
-namespace {
-
-std::atomic<int64_t> g_fail_after{-1};
-std::atomic<int> g_fail_errno{0};
-
-// The status of a failed write: a full disk or quota is the client's
-// RESOURCE_EXHAUSTED (retry later, or somewhere else), anything else an
-// internal error; both name the file.
-absl::Status WriteError(const std::filesystem::path& path, int err, const std::string& what) {
-  const std::string detail = absl::StrCat(path.string(), ": ", what, ": ", std::strerror(err));
-  if (err == ENOSPC || err == EDQUOT)
-    return absl::ResourceExhaustedError(
-        absl::StrCat("disk full while writing the result: ", detail));
-  return absl::InternalError(absl::StrCat("cannot write the result: ", detail));
-}
-
-// A seekable output buffer over a file descriptor that keeps the first
-// write error: std::ofstream (and so openvdb::io::File) loses errno and
-// OpenVDB never checks the stream, so a full disk left a short file that
-// looked written.
-class CheckedFileBuf : public std::streambuf {
- public:
-  explicit CheckedFileBuf(int fd) : fd_(fd), buf_(size_t{1} << 16) {
-    setp(buf_.data(), buf_.data() + buf_.size());
-  }
-  int error() const { return error_; }
-  uint64_t end() const { return end_; }
-  bool Flush() {
-    const char* p = pbase();
-    size_t n = size_t(pptr() - pbase());
-    setp(buf_.data(), buf_.data() + buf_.size());
-    while (n > 0 && error_ == 0) {
-      const int64_t limit = g_fail_after.load();
-      if (limit >= 0 && pos_ + n > uint64_t(limit)) {
-        error_ = g_fail_errno.load();
-        break;
-      }
-      const ssize_t w = ::pwrite(fd_, p, n, off_t(pos_));
-      if (w < 0 && errno == EINTR) continue;
-      if (w <= 0) {
-        error_ = w < 0 ? errno : ENOSPC;
-        break;
-      }
-      p += w, n -= size_t(w), pos_ += uint64_t(w);
-      end_ = std::max(end_, pos_);
-    }
-    return error_ == 0;
-  }
-
- protected:
-  int_type overflow(int_type ch) override {
-    if (!Flush()) return traits_type::eof();
-    if (!traits_type::eq_int_type(ch, traits_type::eof())) {
-      *pptr() = char(ch);
-      pbump(1);
-    }
-    return traits_type::not_eof(ch);
-  }
-  int sync() override { return Flush() ? 0 : -1; }
-  pos_type seekoff(off_type off, std::ios_base::seekdir dir, std::ios_base::openmode) override {
-    if (!Flush()) return pos_type(off_type(-1));
-    const int64_t base = dir == std::ios_base::beg   ? 0
-                         : dir == std::ios_base::cur ? int64_t(pos_)
-                                                     : int64_t(end_);
-    if (base + off < 0) return pos_type(off_type(-1));
-    pos_ = uint64_t(base + off);
-    return pos_type(off_type(pos_));
-  }
-  pos_type seekpos(pos_type p, std::ios_base::openmode m) override {
-    return seekoff(off_type(p), std::ios_base::beg, m);
-  }
-
- private:
-  int fd_;
-  std::vector<char> buf_;
-  int error_ = 0;
-  uint64_t pos_ = 0, end_ = 0;
-};
 
 // openvdb::io::File::write, byte for byte, into a stream of ours: the
 // archive's stream writer is protected.
@@ -196,75 +87,6 @@ class ArchiveWriter : public openvdb::io::Archive {
   }
 };
 
-using ArchiveFn = std::function<void(std::ostream&)>;
-
-// Writes the archive to `tmp`, fsyncs it and checks its size on disk.
-absl::Status WriteChecked(const std::filesystem::path& path, const std::filesystem::path& tmp,
-                          const ArchiveFn& write_archive) {
-  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-  if (fd < 0) return WriteError(path, errno, "cannot create " + tmp.filename().string());
-  CheckedFileBuf buf(fd);
-  std::ostream os(&buf);
-  absl::Status st;
-  try {
-    write_archive(os);
-    os.flush();
-  } catch (const std::exception& e) {
-    if (buf.error() == 0)
-      st = absl::InternalError(absl::StrCat("writing ", path.string(), ": ", e.what()));
-  }
-  buf.Flush();
-  if (st.ok() && buf.error() != 0) st = WriteError(path, buf.error(), "write failed");
-  if (st.ok() && ::fsync(fd) != 0) st = WriteError(path, errno, "fsync failed");
-  struct stat sb {};
-  if (st.ok() && (::fstat(fd, &sb) != 0 || uint64_t(sb.st_size) != buf.end()))
-    st = absl::InternalError(absl::StrCat("writing ", path.string(), ": ", buf.end(),
-                                          " bytes written but the file holds ", sb.st_size));
-  if (::close(fd) != 0 && st.ok()) st = WriteError(path, errno, "close failed");
-  return st;
-}
-
-// fsync of the folder, so the rename itself survives a crash.
-void SyncDir(const std::filesystem::path& dir) {
-  const int fd = ::open(dir.empty() ? "." : dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (fd < 0) return;
-  ::fsync(fd);
-  ::close(fd);
-}
-
-}  // namespace
-
-void SetWriteFaultForTesting(int64_t fail_after_bytes, int error) {
-  g_fail_errno = error;
-  g_fail_after = fail_after_bytes;
-}
-
-namespace {
-// Writes an archive through a temporary file renamed into place (see
-// WriteGridsAtomically).
-absl::Status WriteArchiveAtomically(const std::filesystem::path& path,
-                                    const ArchiveFn& write_archive) {
-  const std::filesystem::path tmp = path.string() + ".partial";
-  std::error_code ec;
-  absl::Status st = WriteChecked(path, tmp, write_archive);
-  // The UUID is stamped in place (36 bytes, no new blocks), then synced.
-  if (st.ok()) st = StampContentUuid(tmp);
-  if (st.ok()) {
-    const int fd = ::open(tmp.c_str(), O_WRONLY | O_CLOEXEC);
-    if (fd < 0 || ::fsync(fd) != 0) st = WriteError(path, errno, "fsync failed");
-    if (fd >= 0) ::close(fd);
-  }
-  if (st.ok()) {
-    std::filesystem::rename(tmp, path, ec);
-    if (ec) st = WriteError(path, ec.value(), "rename failed");
-  }
-  if (!st.ok()) {
-    std::filesystem::remove(tmp, ec);
-    return st;
-  }
-  SyncDir(path.parent_path());
-  return absl::OkStatus();
-}
 }  // namespace
 
 absl::Status WriteGridsAtomically(const std::filesystem::path& path,
@@ -286,70 +108,12 @@ absl::Status WriteStreamedAtomically(const std::filesystem::path& path,
   return WriteArchiveAtomically(path, [&](std::ostream& os) { WriteStreamedArchive(os, grids); });
 }
 
-absl::Status StampContentUuid(const std::filesystem::path& path) {
-  std::fstream f(path, std::ios::in | std::ios::out | std::ios::binary);
-  std::string head(kUuidOffset + kUuidSize, '\0');
-  if (!f || !f.read(head.data(), std::streamsize(head.size())) || !LooksLikeHeader(head))
-    return absl::InternalError(absl::StrCat(path.string(), ": not a VDB file header"));
-  Sha256 h;
-  h.Update(std::string_view(head).substr(0, kUuidOffset));
-  std::string buf(size_t{1} << 20, '\0');
-  while (f.read(buf.data(), std::streamsize(buf.size())) || f.gcount() > 0)
-    h.Update(std::string_view(buf.data(), size_t(f.gcount())));
-  f.clear();
-  const std::string uuid = UuidFromDigest(h.HexDigest());
-  f.seekp(std::streamoff(kUuidOffset));
-  f.write(uuid.data(), std::streamsize(uuid.size()));
-  f.close();
-  if (!f) return absl::InternalError(absl::StrCat(path.string(), ": cannot stamp the UUID"));
-  return absl::OkStatus();
-}
-
 }  // namespace vdb_internal
 
 using vdb_internal::FrameTransform;
 using vdb_internal::InitOpenVdb;
 
 namespace {
-
-const char* MappingName(DensityMapping m) {
-  switch (m) {
-    case DensityMapping::kLinear:
-      return "linear";
-    case DensityMapping::kSqrt:
-      return "sqrt";
-    case DensityMapping::kLog:
-      return "log";
-    case DensityMapping::kGamma:
-      return "gamma";
-  }
-  return "linear";
-}
-
-// Maps a count to [0, 1] given the largest count.
-struct Normaliser {
-  DensityMapping mapping;
-  double max, inv_max, inv_log_max, inv_gamma;
-  Normaliser(const DensityOptions& o, uint32_t max_count)
-      : mapping(o.mapping),
-        max(std::max<double>(1, max_count)),
-        inv_max(1.0 / max),
-        inv_log_max(1.0 / std::log1p(max)),
-        inv_gamma(1.0 / (o.gamma > 0 ? o.gamma : 1.0)) {}
-  float operator()(uint32_t c) const {
-    switch (mapping) {
-      case DensityMapping::kLinear:
-        return float(c * inv_max);
-      case DensityMapping::kSqrt:
-        return float(std::sqrt(c * inv_max));
-      case DensityMapping::kLog:
-        return float(std::log1p(double(c)) * inv_log_max);
-      case DensityMapping::kGamma:
-        return float(std::pow(c * inv_max, inv_gamma));
-    }
-    return 0.f;
-  }
-};
 
 void AddMeta(openvdb::MetaMap& meta, const std::string& key, const MetaValue& v) {
   if (auto* s = std::get_if<std::string>(&v)) meta.insertMeta(key, openvdb::StringMetadata(*s));
@@ -557,27 +321,8 @@ using vdb_internal::EncodedGrid;
 using vdb_internal::EncodeLeaves;
 using vdb_internal::GridProducer;
 
-// The 512 counters (and colour sums, when `cs`) of the voxel leaf at `o`,
-// in LeafNode order, as CountGrid::ForEachLeaf hands them out.
 void GatherLeaf(const CountGrid& counts, const openvdb::Coord& o, uint32_t* v, uint64_t* cs) {
-  if (!counts.folded()) {
-    // Unfolded, a voxel leaf is 512 consecutive counters of one tile.
-    const uint64_t key = counts.Key(o.x(), o.y(), o.z());
-    const uint64_t tile = key >> 15, off = key & 0x7fff;
-    std::memcpy(v, counts.TileOrNull(tile) + off, 512 * sizeof(uint32_t));
-    if (cs) std::memcpy(cs, counts.ColorTileOrNull(tile) + off, 512 * sizeof(uint64_t));
-    return;
-  }
-  // Folded, only the z = 0 slice exists, scattered over a tile's rows.
-  std::memset(v, 0, 512 * sizeof(uint32_t));
-  if (cs) std::memset(cs, 0, 512 * sizeof(uint64_t));
-  for (int i = 0; i < 8; ++i)
-    for (int k = 0; k < 8; ++k) {
-      const uint64_t key = counts.Key(o.x() + i, o.y() + k, 0);
-      const uint64_t tile = key >> 15, off = key & 0x7fff;
-      v[(i << 6) | (k << 3)] = counts.TileOrNull(tile)[off];
-      if (cs) cs[(i << 6) | (k << 3)] = counts.ColorTileOrNull(tile)[off];
-    }
+  GatherCountLeaf(counts, {o.x(), o.y(), o.z()}, v, cs);
 }
 
 // A tree of buffer-less leaves, one per leaf of counts, active where counted.

@@ -22,61 +22,13 @@
 #include <vector>
 
 #include "absl/status/status.h"
+#include "core/io/leaf_runs.h"
 
 namespace nimbus::vdb_internal {
 
 /// The archive compression of every Nimbus file.
 inline constexpr uint32_t kArchiveCompression =
     openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK;
-
-/// @brief Every leaf's LeafNode::writeBuffers bytes of one grid, in tree
-/// order, appended run by run. The archive needs them all before it can
-/// write the grid's header (which records each leaf's encoded size), so a
-/// large grid would hold its whole compressed size in memory: past
-/// `keep_bytes`, runs go to an unnamed temporary file in the spill
-/// directory that a SpillScope names on this thread (none: all in memory).
-class LeafRuns {
- public:
-  LeafRuns();
-  LeafRuns(LeafRuns&& other) noexcept;
-  LeafRuns& operator=(LeafRuns&&) = delete;
-  ~LeafRuns();
-  /// Appends a run (kept runs are moved in, not copied). Throws
-  /// openvdb::IoError when the spill file fails.
-  void Append(std::string&& run);
-  /// Writes every run to `os`, in order, through one bounded buffer.
-  void WriteTo(std::ostream& os) const;
-  uint64_t bytes() const { return bytes_; }
-  bool spilled() const { return fd_ >= 0; }
-
- private:
-  std::vector<std::string> memory_;  // runs kept (a large grid never reallocates one string)
-  int fd_ = -1;                      // the spill file, once past keep_bytes
-  uint64_t bytes_ = 0, kept_ = 0;
-};
-
-/// Names, for this thread's EncodeLeaves calls while it lives, the
-/// directory where grids past `keep_bytes` of encoded leaves spill (the
-/// result's own directory: same disk, no RAM).
-class SpillScope {
- public:
-  SpillScope(std::filesystem::path dir, uint64_t keep_bytes);
-  ~SpillScope();
-  SpillScope(const SpillScope&) = delete;
-  SpillScope& operator=(const SpillScope&) = delete;
-  /// The innermost scope alive on this thread, or null.
-  static const SpillScope* Current();
-  const std::filesystem::path& dir() const { return dir_; }
-  uint64_t keep_bytes() const { return keep_bytes_; }
-
- private:
-  const SpillScope* outer_;
-  std::filesystem::path dir_;
-  uint64_t keep_bytes_;
-};
-
-/// Encoded bytes a grid keeps in memory before it spills (WriteStreamedAtomically).
-inline constexpr uint64_t kSpillKeepBytes = uint64_t{4} << 20;
 
 /// @brief One grid ready to be written. `grid` carries the metadata, the
 /// transform and the tree's topology: its leaves may be created without

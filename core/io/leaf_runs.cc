@@ -1,0 +1,82 @@
+#include "core/io/leaf_runs.h"
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstdlib>
+#include <cstring>
+#include <stdexcept>
+#include <utility>
+
+namespace nimbus::vdb_internal {
+
+namespace {
+
+thread_local const SpillScope* g_spill = nullptr;
+
+[[noreturn]] void SpillError(const char* what, const std::filesystem::path& dir) {
+  throw std::runtime_error(std::string("leaf spill file in ") + dir.string() + ": " + what + ": " +
+                           std::strerror(errno));
+}
+
+// An unnamed file in `dir` (O_TMPFILE), or a named one removed at once where
+// the file system lacks O_TMPFILE: either way nothing is left behind.
+int OpenSpill(const std::filesystem::path& dir) {
+  int fd = ::open(dir.c_str(), O_TMPFILE | O_RDWR | O_CLOEXEC, 0600);
+  if (fd >= 0) return fd;
+  std::string name = (dir / "leaves.spill.XXXXXX").string();
+  fd = ::mkostemp(name.data(), O_CLOEXEC);
+  if (fd < 0) SpillError("cannot create", dir);
+  ::unlink(name.c_str());
+  return fd;
+}
+
+}  // namespace
+
+SpillScope::SpillScope(std::filesystem::path dir, uint64_t keep_bytes)
+    : outer_(g_spill), dir_(std::move(dir)), keep_bytes_(keep_bytes) {
+  g_spill = this;
+}
+SpillScope::~SpillScope() { g_spill = outer_; }
+const SpillScope* SpillScope::Current() { return g_spill; }
+
+LeafRuns::LeafRuns() = default;
+LeafRuns::LeafRuns(LeafRuns&& other) noexcept
+    : memory_(std::move(other.memory_)), fd_(std::exchange(other.fd_, -1)),
+      bytes_(other.bytes_), kept_(other.kept_) {}
+LeafRuns::~LeafRuns() {
+  if (fd_ >= 0) ::close(fd_);
+}
+
+void LeafRuns::Append(std::string&& run) {
+  bytes_ += run.size();
+  const SpillScope* spill = SpillScope::Current();
+  if (fd_ < 0 && (spill == nullptr || kept_ + run.size() <= spill->keep_bytes())) {
+    kept_ += run.size();
+    memory_.push_back(std::move(run));
+    return;
+  }
+  if (fd_ < 0) fd_ = OpenSpill(spill->dir());
+  for (size_t done = 0; done < run.size();) {
+    const ssize_t n = ::write(fd_, run.data() + done, run.size() - done);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) SpillError("write failed", spill->dir());
+    done += size_t(n);
+  }
+}
+
+void LeafRuns::WriteTo(std::ostream& os) const {
+  for (const std::string& run : memory_) os.write(run.data(), std::streamsize(run.size()));
+  if (fd_ < 0) return;
+  std::string buf(size_t{1} << 20, '\0');
+  for (uint64_t at = 0; at < bytes_ - kept_;) {
+    const ssize_t n = ::pread(fd_, buf.data(), buf.size(), off_t(at));
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) throw std::runtime_error("leaf spill file: read failed");
+    os.write(buf.data(), n);
+    at += uint64_t(n);
+  }
+}
+
+}  // namespace nimbus::vdb_internal

@@ -1,0 +1,291 @@
+#include "core/io/vdb_native_result.h"
+
+#include <bit>
+#include <cmath>
+#include <cstring>
+#include <map>
+#include <memory>
+#include <optional>
+#include <string>
+#include <utility>
+
+#include "absl/strings/str_cat.h"
+#include "core/io/metadata_keys.h"
+#include "core/io/result_values.h"
+#include "core/io/vdb_file.h"
+#include "core/io/vdb_native.h"
+
+namespace nimbus::vdb_native {
+
+namespace {
+
+// vdb_internal::FrameTransform without OpenVDB: voxel centres at integer
+// index coordinates, and for Z up the quarter turn (x, y, z) -> (x, -z, y)
+// multiplied in as Mat4d::operator* sums it.
+LinearTransform FrameTransform(const GridFrame& frame, UpAxis up) {
+  const Vec3 h = frame.VoxelSize();
+  LinearTransform t{};
+  for (int i = 0; i < 4; ++i) t.m[i][i] = 1;
+  t.m[0][0] = h.x, t.m[1][1] = h.y, t.m[2][2] = h.z;
+  t.m[3][0] = frame.bounds.min.x + 0.5 * h.x;
+  t.m[3][1] = frame.bounds.min.y + 0.5 * h.y;
+  t.m[3][2] = frame.bounds.min.z + 0.5 * h.z;
+  if (up != UpAxis::kZ) return t;
+  const double r[4][4] = {{1, 0, 0, 0}, {0, 0, 1, 0}, {0, -1, 0, 0}, {0, 0, 0, 1}};
+  LinearTransform out{};
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < 4; ++j)
+      out.m[i][j] = t.m[i][0] * r[0][j] + t.m[i][1] * r[1][j] + t.m[i][2] * r[2][j] +
+                    t.m[i][3] * r[3][j];
+  return out;
+}
+
+void AddMeta(MetaMap& meta, const std::string& key, const MetaValue& v) {
+  if (auto* s = std::get_if<std::string>(&v)) meta.String(key, *s);
+  if (auto* i = std::get_if<int64_t>(&v)) meta.Int64(key, *i);
+  if (auto* d = std::get_if<double>(&v)) meta.Double(key, *d);
+}
+
+// The counts' leaves in tree order, each active where counted.
+std::shared_ptr<const std::vector<Leaf>> CountLeaves(const CountGrid& counts) {
+  auto leaves = std::make_shared<std::vector<Leaf>>();
+  counts.ForEachLeaf([&](Int3 o, const uint32_t* v, const uint64_t*) {
+    Leaf leaf{{o.x, o.y, o.z}, {}};
+    for (int i = 0; i < 512; ++i)
+      if (v[i]) leaf.mask[size_t(i >> 6)] |= uint64_t{1} << (i & 63);
+    leaves->push_back(leaf);
+  });
+  SortTreeOrder(*leaves);
+  return leaves;
+}
+
+template <typename F>
+void ForEachActive(const Leaf& leaf, F&& f) {
+  for (size_t w = 0; w < 8; ++w)
+    for (uint64_t bits = leaf.mask[w]; bits; bits &= bits - 1)
+      f(int(w * 64 + size_t(std::countr_zero(bits))));
+}
+
+// A result's grids as the module's StreamedResult makes them.
+struct Result {
+  const CountGrid& counts;
+  const GridFrame& frame;
+  const DensityOptions& options;
+  const Metadata& metadata;
+  Normaliser norm;
+  std::shared_ptr<const std::vector<Leaf>> leaves;  // shared by every grid
+  bool color;
+
+  Result(const CountGrid& c, const GridFrame& f, const DensityOptions& o, const Metadata& m)
+      : counts(c), frame(f), options(o), metadata(m), norm(o, c.Max()), leaves(CountLeaves(c)),
+        color(o.color && c.has_color()) {}
+
+  // An empty grid of the result: NewGrid's name and class plus FinishGrid's
+  // conventions (transform, frame, up axis, factor 1, half floats).
+  Grid Base(const std::string& name, const char* grid_class, ValueKind kind) const {
+    return Conventions(frame, options.conventions, name, grid_class, kind);
+  }
+  static Grid Conventions(const GridFrame& frame, const OutputConventions& c,
+                          const std::string& name, const char* grid_class, ValueKind kind) {
+    Grid g;
+    g.name = name, g.kind = kind, g.half = c.half_float;
+    g.meta.String("name", name);
+    g.meta.String("class", grid_class);
+    g.transform = FrameTransform(frame, c.up_axis);
+    const Int3 r = frame.resolution;
+    const Bounds& b = frame.bounds;
+    g.meta.Vec3i("nimbus_resolution", r.x, r.y, r.z);
+    g.meta.Vec3d("nimbus_bounds_min", b.min.x, b.min.y, b.min.z);
+    g.meta.Vec3d("nimbus_bounds_max", b.max.x, b.max.y, b.max.z);
+    g.meta.String(meta_key::kUpAxis, c.up_axis == UpAxis::kZ ? "Z" : "Y");
+    g.meta.Int64(meta_key::kDownsampleFactor, 1);
+    g.meta.Bool("is_saved_as_half_float", c.half_float);
+    return g;
+  }
+
+  // Encodes `g` on the counts' leaves with value(count, colour sum) at
+  // each counted voxel; visit sees each leaf's values in tree order.
+  template <typename T, typename Value>
+  void Encode(Grid& g, bool colors, const Value& value,
+              const std::function<void(const Leaf&, const void*, size_t)>& visit =
+                  [](const Leaf&, const void*, size_t) {}) const {
+    g.leaves = leaves;
+    EncodeLeaves(
+        g,
+        [&](const Leaf& leaf, void* dense) {
+          uint32_t v[512];
+          uint64_t cs[512];
+          GatherCountLeaf(counts, {leaf.origin[0], leaf.origin[1], leaf.origin[2]}, v,
+                          colors ? cs : nullptr);
+          T* out = static_cast<T*>(dense);
+          ForEachActive(leaf, [&](int i) { out[i] = value(leaf, i, v[i], colors ? cs[i] : 0); });
+        },
+        visit);
+  }
+
+  float Density(const Leaf& leaf, int i, uint32_t c) const {
+    const float d = norm(c);
+    if (!options.modulation) return d;
+    const Int3 p{leaf.origin[0] + (i >> 6), leaf.origin[1] + ((i >> 3) & 7),
+                 leaf.origin[2] + (i & 7)};
+    const double m = options.modulation(frame.VoxelCenter(p));
+    return float(double(d) * std::max(0.0, m));
+  }
+
+  Grid DensityGrid() const;
+  std::vector<GridSource> Sources(bool int64_counts) const;
+};
+
+Grid Result::DensityGrid() const {
+  Grid g = Base(options.grid_name, "fog volume", ValueKind::kFloat);
+  // nimbus_suggested_density sums the written densities in tree order.
+  double sum = 0;
+  Encode<float>(
+      g, false, [&](const Leaf& leaf, int i, uint32_t c, uint64_t) { return Density(leaf, i, c); },
+      [&](const Leaf&, const void* values, size_t n) {
+        const float* f = static_cast<const float*>(values);
+        for (size_t k = 0; k < n; ++k) sum += f[k];
+      });
+  g.meta.Int64("nimbus_max_count", int64_t(counts.Max()));
+  g.meta.Int64("nimbus_total_count", int64_t(counts.Total()));
+  g.meta.String("nimbus_density_mapping", MappingName(options.mapping));
+  if (options.mapping == DensityMapping::kGamma)
+    g.meta.Double("nimbus_density_gamma", options.gamma);
+  if (color) g.meta.String("nimbus_palette", options.palette.is_sine() ? "sine" : "stops");
+  const uint64_t n = g.active_voxels;
+  const std::array<double, 3> h = g.transform.VoxelSize();
+  g.meta.Double(meta_key::kSuggestedDensity,
+                SuggestedDensity(n, n ? sum / double(n) : 0.0, std::cbrt(h[0] * h[1] * h[2])));
+  for (const auto& [k, v] : metadata) AddMeta(g.meta, k, v);
+  return g;
+}
+
+std::vector<GridSource> Result::Sources(bool int64_counts) const {
+  std::vector<GridSource> out;
+  const double inv_scale = 1.0 / CountGrid::kColorScale;
+  auto coord = [inv_scale](uint32_t c, uint64_t cs) { return double(cs) * inv_scale / double(c); };
+  if (int64_counts) {
+    out.push_back({"counts", [this] {
+      Grid g = Base("counts", "unknown", ValueKind::kInt64);
+      g.meta.Int64("nimbus_max_count", int64_t(counts.Max()));
+      g.meta.Int64("nimbus_total_count", int64_t(counts.Total()));
+      for (const auto& [k, v] : metadata) AddMeta(g.meta, k, v);
+      Encode<int64_t>(g, false, [](const Leaf&, int, uint32_t c, uint64_t) { return int64_t(c); });
+      return g;
+    }});
+    return out;
+  }
+  out.push_back({options.grid_name, [this] { return DensityGrid(); }});
+  if (color)
+    out.push_back({"Cd", [this, coord] {
+      Grid g = Base("Cd", "unknown", ValueKind::kVec3f);
+      Encode<std::array<float, 3>>(g, true, [&](const Leaf&, int, uint32_t c, uint64_t cs) {
+        const Vec3 rgb = options.palette.Eval(coord(c, cs));
+        return std::array<float, 3>{float(rgb.x), float(rgb.y), float(rgb.z)};
+      });
+      return g;
+    }});
+  if (options.address_grid && counts.has_color())
+    out.push_back({"address", [this, coord] {
+      Grid g = Base("address", "unknown", ValueKind::kFloat);
+      Encode<float>(g, true, [&](const Leaf&, int, uint32_t c, uint64_t cs) {
+        return float(coord(c, cs));
+      });
+      return g;
+    }});
+  if (options.raw_counts != RawCounts::kNone)
+    out.push_back({"counts", [this] {
+      Grid g = Base("counts", "unknown", ValueKind::kFloat);
+      Encode<float>(g, false, [](const Leaf&, int, uint32_t c, uint64_t) { return float(c); });
+      return g;
+    }});
+  return out;
+}
+
+// BuildVec3Grid's grid: the field's vectors (turned with a Z-up file) on
+// its voxels, the last value of a repeated voxel winning.
+Grid FieldGrid(const Vec3Field& field, const GridFrame& frame, const OutputConventions& c) {
+  Grid g = Result::Conventions(frame, c, field.name, "unknown", ValueKind::kVec3f);
+  g.meta.String("vector_type", "contravariant relative");
+  const bool z_up = c.up_axis == UpAxis::kZ;
+  using Values = std::array<std::array<float, 3>, 512>;
+  std::map<std::array<int32_t, 3>, std::pair<LeafMask, Values>> by_leaf;
+  for (const auto& [p, v] : field.voxels) {
+    auto& [mask, values] = by_leaf[{p.x & ~7, p.y & ~7, p.z & ~7}];
+    const int i = ((p.x & 7) << 6) | ((p.y & 7) << 3) | (p.z & 7);
+    mask[size_t(i >> 6)] |= uint64_t{1} << (i & 63);
+    values[size_t(i)] = z_up ? std::array<float, 3>{float(v.x), float(-v.z), float(v.y)}
+                             : std::array<float, 3>{float(v.x), float(v.y), float(v.z)};
+  }
+  auto leaves = std::make_shared<std::vector<Leaf>>();
+  for (const auto& [origin, entry] : by_leaf) leaves->push_back({origin, entry.first});
+  SortTreeOrder(*leaves);
+  g.leaves = std::move(leaves);
+  EncodeLeaves(
+      g,
+      [&](const Leaf& leaf, void* dense) {
+        std::memcpy(dense, by_leaf.at(leaf.origin).second.data(), sizeof(Values));
+      },
+      [](const Leaf&, const void*, size_t) {});
+  return g;
+}
+
+absl::Status WriteResult(const std::filesystem::path& path, const std::vector<GridSource>& grids) {
+  // Large grids' encoded leaves wait on the result's own disk, not in RAM
+  // (unless the caller named another place).
+  std::optional<vdb_internal::SpillScope> spill;
+  if (vdb_internal::SpillScope::Current() == nullptr)
+    spill.emplace(path.parent_path().empty() ? "." : path.parent_path(),
+                  vdb_internal::kSpillKeepBytes);
+  return vdb_internal::WriteArchiveAtomically(
+      path, [&](std::ostream& os) { WriteArchive(os, grids); });
+}
+
+}  // namespace
+
+bool CanWriteResult(const CountGrid& counts, const DensityOptions& options,
+                    const std::vector<Vec3Field>& fields) {
+  for (const Vec3Field& f : fields)
+    for (const auto& [p, v] : f.voxels)
+      if (p.x < 0 || p.y < 0 || p.z < 0) return false;
+  return OutputDownsampleFactor(counts, options) == 1;
+}
+
+DensityOptions IntegerCountsOptions(const DensityOptions& options) {
+  DensityOptions o = options;
+  o.color = o.address_grid = false;
+  o.raw_counts = RawCounts::kInteger;
+  return o;
+}
+
+absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid& counts,
+                             const GridFrame& frame, const DensityOptions& options,
+                             const Metadata& metadata, const std::vector<Vec3Field>& fields) {
+  std::optional<Result> result;
+  try {
+    result.emplace(counts, frame, options, metadata);
+  } catch (const std::exception& e) {
+    return absl::InternalError(
+        absl::StrCat("building the grids of ", path.string(), ": ", e.what()));
+  }
+  std::vector<GridSource> grids = result->Sources(false);
+  for (const Vec3Field& f : fields)
+    grids.push_back({f.name, [&] { return FieldGrid(f, frame, options.conventions); }});
+  return WriteResult(path, grids);
+}
+
+absl::Status WriteIntegerCountsVdb(const std::filesystem::path& path, const CountGrid& counts,
+                                   const GridFrame& frame, const DensityOptions& options,
+                                   const Metadata& metadata) {
+  const DensityOptions o = IntegerCountsOptions(options);
+  std::optional<Result> result;
+  try {
+    result.emplace(counts, frame, o, metadata);
+  } catch (const std::exception& e) {
+    return absl::InternalError(
+        absl::StrCat("building the counts grid of ", path.string(), ": ", e.what()));
+  }
+  return WriteResult(path, result->Sources(true));
+}
+
+}  // namespace nimbus::vdb_native
