@@ -7,9 +7,11 @@
 
 #include <atomic>
 #include <chrono>
+#include <cerrno>
 #include <csignal>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -69,6 +71,9 @@ std::filesystem::path DefaultDataDir() {
 }
 
 struct Connection {
+  // A private data dir for this run only, removed after the server stops
+  // (first member: destroyed last).
+  std::shared_ptr<const std::filesystem::path> scratch;
   std::unique_ptr<nimbus::server::NimbusServer> embedded;
   std::unique_ptr<NimbusClient> client;
 };
@@ -81,7 +86,25 @@ struct GlobalOptions {
   bool verbose = false;
 };
 
-absl::StatusOr<Connection> Connect(const GlobalOptions& g) {
+// A fresh folder under the system's temp dir, removed with the last copy
+// of the pointer.
+absl::StatusOr<std::shared_ptr<const std::filesystem::path>> ScratchDataDir() {
+  std::string pattern = (std::filesystem::temp_directory_path() / "nimbus-run-XXXXXX").string();
+  if (::mkdtemp(pattern.data()) == nullptr)
+    return absl::InternalError(absl::StrCat("cannot create ", pattern, ": ", std::strerror(errno)));
+  return std::shared_ptr<const std::filesystem::path>(
+      new std::filesystem::path(pattern), [](const std::filesystem::path* p) {
+        std::error_code ec;
+        std::filesystem::remove_all(*p, ec);
+        delete p;
+      });
+}
+
+// Without --server, an embedded server on the data dir. With
+// `private_if_busy` (commands that fetch their result before they exit), a
+// default data dir another process serves gives way to a private one: two
+// renders in two terminals both run instead of the second failing.
+absl::StatusOr<Connection> Connect(const GlobalOptions& g, bool private_if_busy = false) {
   Connection c;
   if (!g.server.empty()) {
     NIMBUS_ASSIGN_OR_RETURN(c.client, NimbusClient::Connect(g.server, g.connect));
@@ -97,6 +120,14 @@ absl::StatusOr<Connection> Connect(const GlobalOptions& g) {
   // fails the render with "disk full while writing the result".
   o.min_free_disk_mib = 0;
   auto server = nimbus::server::NimbusServer::Start(o);
+  if (!server.ok() && absl::IsFailedPrecondition(server.status()) && private_if_busy &&
+      g.data_dir.empty()) {
+    NIMBUS_ASSIGN_OR_RETURN(c.scratch, ScratchDataDir());
+    std::cerr << "note: " << server.status().message() << "\nnote: this render uses a private "
+              << "data dir instead (" << c.scratch->string() << "), removed when it ends\n";
+    o.data_dir = *c.scratch;
+    server = nimbus::server::NimbusServer::Start(o);
+  }
   if (!server.ok()) return server.status();
   c.embedded = std::move(*server);
   c.client = std::make_unique<NimbusClient>(c.embedded->InProcessChannel());
@@ -425,13 +456,13 @@ struct SpecSession {
   v1::JobSpec spec;
 };
 
-absl::StatusOr<SpecSession> OpenWithSpec(const Options& o) {
+absl::StatusOr<SpecSession> OpenWithSpec(const Options& o, bool private_if_busy) {
   SpecSession s;
   NIMBUS_ASSIGN_OR_RETURN(s.spec, nimbus::spec::LoadSpecFile(o.spec_path));
   // Command-line overrides of the spec (docs/result_cache.md, docs/sharding.md).
   if (o.no_cache) s.spec.set_no_cache(true);
   if (o.shards > 0) s.spec.set_shards(o.shards);
-  NIMBUS_ASSIGN_OR_RETURN(s.conn, Connect(o.global));
+  NIMBUS_ASSIGN_OR_RETURN(s.conn, Connect(o.global, private_if_busy));
   NIMBUS_RETURN_IF_ERROR(
       s.conn.client->UploadSpecAssets(s.spec, std::filesystem::path(o.spec_path).parent_path()));
   return s;
@@ -454,7 +485,7 @@ absl::StatusOr<std::filesystem::path> PrepareOutputs(const Options& o) {
 }
 
 int RunRender(const Options& o) {
-  auto session = OpenWithSpec(o);
+  auto session = OpenWithSpec(o, /*private_if_busy=*/true);
   if (!session.ok()) return ExitFor(session.status());
   NimbusClient& client = *session->conn.client;
   auto job = client.Submit(session->spec);
@@ -549,7 +580,7 @@ int RunExplore(const Options& o) {
   // Checked here too, so a bad flag fails before a server starts.
   if (auto plan = nimbus::spec::ConvertSpec(*spec, nimbus::spec::Limits{}); !plan.ok())
     return ExitFor(plan.status());
-  auto conn = Connect(o.global);
+  auto conn = Connect(o.global, /*private_if_busy=*/true);
   if (!conn.ok()) return ExitFor(conn.status());
   NimbusClient& client = *conn->client;
   auto job = client.Submit(*spec);
@@ -579,7 +610,7 @@ int RunExplore(const Options& o) {
 }
 
 int RunSubmit(const Options& o) {
-  auto session = OpenWithSpec(o);
+  auto session = OpenWithSpec(o, /*private_if_busy=*/false);
   if (!session.ok()) return ExitFor(session.status());
   auto job = session->conn.client->Submit(session->spec);
   if (!job.ok()) return ExitFor(job.status());

@@ -8,11 +8,13 @@
 
 #include <cstring>
 #include <fstream>
+#include <optional>
 #include <sstream>
 
 #include "absl/strings/str_cat.h"
 #include "server/asset_store.h"
 #include "server/auth.h"
+#include "server/data_dir_lock.h"
 #include "server/job_hub.h"
 #include "server/job_store.h"
 #include "server/job_view.h"
@@ -24,6 +26,7 @@
 namespace nimbus::server {
 
 struct NimbusServer::Impl {
+  std::optional<DataDirLock> data_dir_lock;  // first member: released last
   std::unique_ptr<JobStore> store;
   std::unique_ptr<ResultStore> results;
   std::unique_ptr<AssetStore> assets;
@@ -172,6 +175,11 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
   const bool shared_store = !options.store_url.empty();
   const std::string replica_id =
       options.replica_id.empty() ? DefaultReplicaId() : options.replica_id;
+  if (!shared_store) {
+    auto lock = DataDirLock::Acquire(options.data_dir);
+    if (!lock.ok()) return lock.status();
+    impl->data_dir_lock.emplace(std::move(*lock));
+  }
   auto store = shared_store ? OpenPostgresJobStore(options.store_url)
                             : OpenSqliteJobStore((options.data_dir / "jobs.db").string());
   if (!store.ok()) return store.status();

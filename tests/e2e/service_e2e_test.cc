@@ -4,17 +4,20 @@
 #include <gtest/gtest.h>
 #include <sqlite3.h>
 #include <sys/wait.h>
+#include <unistd.h>
 
 #include <chrono>
 #include <fstream>
 #include <future>
 #include <optional>
+#include <sstream>
 
 #include "client/nimbus_client.h"
 #include "core/base/sha256.h"
 #include "core/io/vdb_io.h"
 #include "proto/spec_convert.h"
 #include "proto/spec_io.h"
+#include "server/data_dir_lock.h"
 #include "tests/support/nimbusd_process.h"
 #include "tests/support/test_util.h"
 
@@ -315,6 +318,37 @@ TEST(CliE2E, RenderWithEmbeddedServerAndBadInput) {
   std::ofstream(dir / "broken.json") << "{\"grid\": ";
   EXPECT_EQ(RunCli(data + " render " + (dir / "broken.json").string() + " -o x.vdb"), 2);
   EXPECT_EQ(RunCli(data + " get j-missing"), 2);
+}
+
+// A render started while another process serves the default data dir (a
+// second terminal) runs in a private data dir and removes it; commands that
+// need the shared queue are refused with a message naming the holder.
+TEST(CliE2E, RenderWhileAnotherProcessServesTheDataDir) {
+  testing::TempDir dir;
+  std::filesystem::create_directories(dir / "data");
+  std::filesystem::create_directories(dir / "tmp");
+  auto held = server::DataDirLock::Acquire(dir / "data");
+  ASSERT_TRUE(held.ok()) << held.status();
+  const std::string env = "NIMBUS_DATA_DIR=" + (dir / "data").string() +
+                          " TMPDIR=" + (dir / "tmp").string() + " ";
+  const std::string spec = testing::SourcePath("examples/sierpinski_tetrahedron.json").string();
+  const std::string log = (dir / "render.log").string();
+  const std::string render = env + NIMBUS_BIN_DIR + "/nimbus --threads 1 render --no-cache " +
+                             spec + " -o " + (dir / "t.vdb").string() + " 2>" + log;
+  ASSERT_EQ(WEXITSTATUS(std::system(render.c_str())), 0);
+  auto digest = Sha256File(dir / "t.vdb");
+  ASSERT_TRUE(digest.ok());
+  EXPECT_EQ(digest->substr(0, 8), "0f51d7aa");
+  std::stringstream text;
+  text << std::ifstream(log).rdbuf();
+  EXPECT_NE(text.str().find("uses a private data dir"), std::string::npos) << text.str();
+  EXPECT_TRUE(std::filesystem::is_empty(dir / "tmp"));  // the private dir is gone
+  const std::string jobs = env + NIMBUS_BIN_DIR + "/nimbus jobs 2>" + log;
+  EXPECT_NE(WEXITSTATUS(std::system(jobs.c_str())), 0);
+  text.str("");
+  text << std::ifstream(log).rdbuf();
+  EXPECT_NE(text.str().find("(pid " + std::to_string(::getpid()) + ")"), std::string::npos)
+      << text.str();
 }
 
 // Issue 3, item 7: the same spec and seed give a bitwise-identical .vdb
