@@ -26,6 +26,7 @@
 #include "core/io/metadata_keys.h"
 #include "core/io/vdb_impl.h"
 #include "core/io/vdb_internal.h"
+#include "core/io/vdb_native_result.h"
 #include "core/io/vdb_stream.h"
 #include "core/io/result_values.h"
 
@@ -685,9 +686,7 @@ absl::Status WriteIntegerCountsVdb(const std::filesystem::path& path, const Coun
                                    const Metadata& metadata) {
   InitOpenVdb();
   // The result's options (its downsampling factor), without its grids.
-  DensityOptions o = options;
-  o.color = o.address_grid = false;
-  o.raw_counts = RawCounts::kInteger;
+  const DensityOptions o = vdb_native::IntegerCountsOptions(options);
   if (OutputDownsampleFactor(counts, o) == 1) {
     std::optional<StreamedResult> result;
     try {
@@ -709,9 +708,7 @@ absl::Status WriteBuiltIntegerCountsVdb(const std::filesystem::path& path,
                                         const CountGrid& counts, const GridFrame& frame,
                                         const DensityOptions& options, const Metadata& metadata) {
   InitOpenVdb();
-  DensityOptions o = options;
-  o.color = o.address_grid = false;
-  o.raw_counts = RawCounts::kInteger;
+  const DensityOptions o = vdb_native::IntegerCountsOptions(options);
   openvdb::GridPtrVec grids;
   try {
     grids = BuildGrids(counts, frame, o, metadata, true);

@@ -19,6 +19,7 @@
 #include "core/io/vdb_io.h"
 #include "core/io/vdb_native_result.h"
 #include "core/io/vdb_stream.h"
+#include "tests/support/count_scatter.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus {
@@ -155,20 +156,6 @@ TEST(VdbNative, LinearTransformsMatchOpenVdb) {
   CheckTransform(m);
 }
 
-// Counts with colour scattered over `r`, some voxels hit often.
-CountGrid Scatter(Int3 r, int n, uint32_t seed) {
-  CountGrid counts(r, /*with_color=*/true);
-  std::mt19937 rng(seed);
-  for (int k = 0; k < n; ++k) {
-    const int x = int(rng() % uint32_t(r.x)), y = int(rng() % uint32_t(r.y)),
-              z = int(rng() % uint32_t(r.z));
-    const uint32_t times = k % 7 == 0 ? 1 + rng() % 40 : 1;
-    for (uint32_t t = 0; t < times; ++t)
-      counts.AddKey(CountGrid::WithColor(counts.Key(x, y, z), rng() % CountGrid::kColorScale));
-  }
-  return counts;
-}
-
 struct Shape {
   Int3 resolution;
   int samples;
@@ -187,7 +174,8 @@ TEST_P(VdbNativeResults, MatchTheModule) {
   GridFrame frame;
   frame.resolution = k.resolution;
   frame.bounds = {{-1.5, 0, -0.25}, {2.5, 3, 0.75}};
-  const CountGrid counts = Scatter(k.resolution, k.samples, uint32_t(k.resolution.x));
+  const CountGrid counts =
+      testing::ScatterColorCounts(k.resolution, k.samples, uint32_t(k.resolution.x));
   DensityOptions o;
   o.mapping = DensityMapping::kSqrt;
   o.color = k.color;
@@ -222,7 +210,7 @@ INSTANTIATE_TEST_SUITE_P(
         Shape{{16, 16, 16}, 0, true, true, false, RawCounts::kFloat, UpAxis::kY}));
 
 TEST(VdbNative, DownsampledResultsAreLeftToTheModule) {
-  const CountGrid counts = Scatter({64, 64, 64}, 30000, 1);
+  const CountGrid counts = testing::ScatterColorCounts({64, 64, 64}, 30000, 1);
   DensityOptions o;
   EXPECT_TRUE(vdb_native::CanWriteResult(counts, o));
   o.conventions.max_voxels = 1000;

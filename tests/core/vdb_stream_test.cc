@@ -14,6 +14,7 @@
 
 #include "core/io/vdb_internal.h"
 #include "core/io/vdb_io.h"
+#include "tests/support/count_scatter.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus {
@@ -122,21 +123,6 @@ TEST(VdbStream, SpilledLeavesWriteTheSameBytes) {
   EXPECT_FALSE(std::filesystem::exists(dir.path() / "x.vdb.partial"));
 }
 
-// Counts with colour scattered over a grid of resolution `r`.
-CountGrid Scatter(Int3 r, int n) {
-  CountGrid counts(r, /*with_color=*/true);
-  std::mt19937 rng(3);
-  for (int k = 0; k < n; ++k) {
-    const int x = int(rng() % uint32_t(r.x)), y = int(rng() % uint32_t(r.y)),
-              z = int(rng() % uint32_t(r.z));
-    // Some voxels hit often, most once: a spread of densities.
-    const uint32_t times = k % 7 == 0 ? 1 + rng() % 40 : 1;
-    for (uint32_t t = 0; t < times; ++t)
-      counts.AddKey(CountGrid::WithColor(counts.Key(x, y, z), rng() % CountGrid::kColorScale));
-  }
-  return counts;
-}
-
 struct Case {
   Int3 resolution;
   DensityMapping mapping;
@@ -153,7 +139,7 @@ TEST_P(VdbStreamResults, MatchWholeGridWriter) {
   GridFrame frame;
   frame.resolution = k.resolution;
   frame.bounds = {{-1, -2, -0.5}, {1, 2, 0.5}};
-  const CountGrid counts = Scatter(k.resolution, 40000);
+  const CountGrid counts = testing::ScatterColorCounts(k.resolution, 40000, 3);
   DensityOptions o;
   o.mapping = k.mapping;
   o.color = o.address_grid = true;
