@@ -203,10 +203,11 @@ TEST(FlameKernel, VectorKernelsPickTheSameMapsAndAgreeWithManyMaps) {
   for (uint32_t m : scalar.maps) ++taken[m];
   for (size_t m = 0; m < maps.size(); ++m) EXPECT_GT(taken[m], 0) << m;
   EXPECT_GT(taken[10], taken[1]);
-  if (vector_runs.size() == 2)
+  if (vector_runs.size() == 2) {
     EXPECT_EQ(std::memcmp(vector_runs[0].points.data(), vector_runs[1].points.data(),
                           pts.size() * sizeof(Vec3)),
               0);
+  }
 }
 
 // The AVX-512 kernel stages each map's walkers into runs (up to

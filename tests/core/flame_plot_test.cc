@@ -125,7 +125,9 @@ TEST(FlamePlot, ScalarKernelGivesTheEnginesKeys) {
                                                    w->col[k]);
         ASSERT_EQ((out->inside & bit) != 0, want.has_value())
             << "lane " << k << " at " << px[k] << " " << py[k] << " " << pz[k];
-        if (want) EXPECT_EQ(out->key[k], *want) << k;
+        if (want) {
+          EXPECT_EQ(out->key[k], *want) << k;
+        }
         inside += want.has_value();
       }
     }
@@ -155,9 +157,14 @@ TEST(FlamePlot, VectorKernelsGiveTheScalarKernelsKeysBitForBit) {
         ASSERT_EQ(got->inside, want->inside);
         ASSERT_EQ(got->bad_walker, want->bad_walker);
         ASSERT_EQ(got->bad_final, want->bad_final);
-        if (n < kN) EXPECT_EQ(want->inside >> n, 0u);
-        for (int k = 0; k < n; ++k)
-          if ((want->inside >> k) & 1) EXPECT_EQ(got->key[k], want->key[k]) << k;
+        if (n < kN) {
+          EXPECT_EQ(want->inside >> n, 0u);
+        }
+        for (int k = 0; k < n; ++k) {
+          if ((want->inside >> k) & 1) {
+            EXPECT_EQ(got->key[k], want->key[k]) << k;
+          }
+        }
       }
     }
   }

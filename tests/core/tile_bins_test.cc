@@ -190,7 +190,9 @@ TEST(TileBins, FlatModeAddsItsCountersIntoTheGrid) {
       for (uint64_t t = 0; t < grid.TileCount(); ++t) {
         const uint32_t *a = grid.TileOrNull(t), *b = want.TileOrNull(t);
         ASSERT_EQ(a == nullptr, b == nullptr) << t;
-        if (a) ASSERT_TRUE(std::equal(a, a + CountGrid::kTileVoxels, b)) << t;
+        if (a) {
+          ASSERT_TRUE(std::equal(a, a + CountGrid::kTileVoxels, b)) << t;
+        }
       }
       for (uint32_t i = 0; i < bins.flat_discard(); ++i) ASSERT_EQ(bins.flat()[i], 0u) << i;
     }

@@ -91,7 +91,9 @@ TEST_F(ServiceE2E, WatchSendsNewestPreviewsOnly) {
     auto vol = ReadVdbBytes(r.preview().vdb());
     ASSERT_TRUE(vol.ok()) << vol.status();
     EXPECT_EQ(vol->frame.resolution, (Int3{16, 16, 16}));
-    if (++previews == 3) ASSERT_TRUE(other->Cancel(job->id()).ok());
+    if (++previews == 3) {
+      ASSERT_TRUE(other->Cancel(job->id()).ok());
+    }
   });
   ASSERT_TRUE(final_job.ok()) << final_job.status();
   EXPECT_EQ(final_job->state(), v1::JOB_STATE_CANCELLED);
