@@ -14,8 +14,9 @@ BUILD_DIR="${BUILD_DIR:-build-fuzz}"
 TARGETS="${FUZZ_TARGETS:-spec_fuzzer obj_fuzzer ply_fuzzer stl_fuzzer vdb_fuzzer}"
 WORK="${FUZZ_WORK:-$(mktemp -d "${TMPDIR:-/tmp}/nimbus-fuzz.XXXXXX")}"
 
-# -O1 and line tables only: ASan still reports file:line, and the build, which
-# compiles the core a second time, is the longer half of a CI fuzz pass.
+# -O1 and line tables only: ASan still reports file:line. It trims the build
+# (the core compiled a second time) only a little: 6 min 59 s to 6 min 45 s
+# on 2 cores, cold cache: little of its time goes to optimising.
 cmake -S . -B "$BUILD_DIR" -G Ninja -DCMAKE_CXX_COMPILER=clang++ \
   -DCMAKE_BUILD_TYPE=RelWithDebInfo -DNIMBUS_BUILD_FUZZERS=ON \
   -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1 -gline-tables-only -DNDEBUG" \
