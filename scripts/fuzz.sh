@@ -17,11 +17,14 @@ WORK="${FUZZ_WORK:-$(mktemp -d "${TMPDIR:-/tmp}/nimbus-fuzz.XXXXXX")}"
 # -O1 and line tables only: ASan still reports file:line. It trims the build
 # (the core compiled a second time) only a little: 6 min 59 s to 6 min 45 s
 # on 2 cores, cold cache: little of its time goes to optimising.
+# Only the named targets are built: the OpenVDB module, which only
+# vdb_fuzzer links, is half of the tree's compile time (443 of 960 CPU s).
 cmake -S . -B "$BUILD_DIR" -G Ninja -DCMAKE_CXX_COMPILER=clang++ \
   -DCMAKE_BUILD_TYPE=RelWithDebInfo -DNIMBUS_BUILD_FUZZERS=ON \
   -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1 -gline-tables-only -DNDEBUG" \
   -DNIMBUS_BUILD_TESTS=OFF -DNIMBUS_BUILD_BENCH=OFF >/dev/null
-cmake --build "$BUILD_DIR" --target nimbus_fuzzers
+# shellcheck disable=SC2086 # one word per target
+cmake --build "$BUILD_DIR" --target $TARGETS
 
 # Per-target flags: the spec fuzzer gets the proto's names as a dictionary.
 # OpenVDB's reader is not hardened (docs/fuzzing.md): vdb_fuzzer makes an
