@@ -3,6 +3,7 @@
 #include <pwd.h>
 #include <stdlib.h>
 #include <fcntl.h>
+#include <signal.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -10,6 +11,7 @@
 #include <pqxx/pqxx>
 
 #include <algorithm>
+#include <chrono>
 #include <cstdlib>
 #include <fstream>
 #include <mutex>
@@ -107,11 +109,44 @@ absl::StatusOr<std::unique_ptr<PostgresServer>> PostgresServer::Start() {
   if (::mkdtemp(dir.data()) == nullptr)
     return absl::InternalError("cannot create a folder for the PostgreSQL server");
   std::unique_ptr<PostgresServer> server(new PostgresServer(dir, bin));
-  if (absl::Status s = server->Init(); !s.ok()) return s;
+  if (absl::Status s = server->Init(/*watchdog=*/true); !s.ok()) return s;
   return server;
 }
 
-absl::Status PostgresServer::Init() {
+absl::Status PostgresServer::StartDetached(const fs::path& dir) {
+  const fs::path bin = PostgresBinDir();
+  if (bin.empty()) return absl::UnavailableError("PostgreSQL is not installed");
+  StopDetached(dir);
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (ec) return absl::InternalError(absl::StrCat("cannot create ", dir.string()));
+  PostgresServer server(dir, bin);
+  absl::Status s = server.Init(/*watchdog=*/false);
+  server.attached_ = true;  // left running for the run's tests
+  return s;
+}
+
+void PostgresServer::StopDetached(const fs::path& dir) {
+  const fs::path bin = PostgresBinDir();
+  if (!bin.empty() && fs::exists(dir / "data" / "postmaster.pid"))
+    (void)Run(AsServerUser(absl::StrCat((bin / "pg_ctl").string(), " -D ",
+                                        (dir / "data").string(), " -m immediate -w stop")),
+              "/dev/null");
+  std::error_code ec;
+  fs::remove_all(dir, ec);
+}
+
+std::unique_ptr<PostgresServer> PostgresServer::Attach(const fs::path& dir) {
+  // The first line of postmaster.pid is the server's pid.
+  std::ifstream pid_file(dir / "data" / "postmaster.pid");
+  pid_t pid = 0;
+  if (!(pid_file >> pid) || pid <= 0 || ::kill(pid, 0) != 0) return nullptr;
+  std::unique_ptr<PostgresServer> server(new PostgresServer(dir, PostgresBinDir()));
+  server->attached_ = true;
+  return server;
+}
+
+absl::Status PostgresServer::Init(bool watchdog) {
   ChownToServerUser(dir_);
   absl::StatusOr<fs::path> tmpl = TemplateDataDir(bin_);
   if (!tmpl.ok()) return tmpl.status();
@@ -133,7 +168,7 @@ absl::Status PostgresServer::Init() {
       !s.ok())
     return s;
   running_ = true;
-  StartWatchdog();
+  if (watchdog) StartWatchdog();
   return absl::OkStatus();
 }
 
@@ -166,6 +201,7 @@ void PostgresServer::StartWatchdog() {
 }
 
 PostgresServer::~PostgresServer() {
+  if (attached_) return;
   if (watchdog_ > 0) {
     // The watchdog stops the server and removes the folder; wait for it.
     ::close(watchdog_fd_);
@@ -187,7 +223,11 @@ std::string PostgresServer::Url(const std::string& database) const {
 }
 
 absl::StatusOr<std::string> PostgresServer::NewDatabase() {
-  const std::string name = absl::StrCat("nimbus_test_", ::getpid(), "_", next_db_++);
+  // The pid and the clock: a shared server outlives test processes, whose
+  // pids can come round again.
+  const std::string name =
+      absl::StrCat("nimbus_test_", ::getpid(), "_", next_db_++, "_",
+                   std::chrono::steady_clock::now().time_since_epoch().count());
   try {
     pqxx::connection c(Url());
     pqxx::nontransaction n(c);
@@ -203,6 +243,10 @@ PostgresServer* PostgresServer::Shared(std::string* why) {
   static std::unique_ptr<PostgresServer> server;
   static absl::Status failure;
   std::lock_guard<std::mutex> lock(mu);
+  if (server == nullptr && failure.ok()) {
+    if (const char* dir = std::getenv(kFixtureDirEnv); dir != nullptr && *dir != 0)
+      server = Attach(dir);
+  }
   if (server == nullptr && failure.ok()) {
     absl::StatusOr<std::unique_ptr<PostgresServer>> s = Start();
     if (s.ok()) {

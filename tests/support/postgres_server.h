@@ -21,8 +21,17 @@ class PostgresServer {
   /// installed (the message says what to install; tests skip on it).
   static absl::StatusOr<std::unique_ptr<PostgresServer>> Start();
   /// The server of this process, started on first use and stopped at exit;
-  /// null with `*why` set when it cannot start.
+  /// null with `*why` set when it cannot start. Under ctest it is the run's
+  /// server instead (kFixtureDirEnv), shared by every test process.
   static PostgresServer* Shared(std::string* why);
+
+  /// One server for a whole ctest run (tests/postgres_fixture.cc): each
+  /// test process would otherwise start its own, about a second apiece.
+  /// StartDetached leaves a server running in `dir` (replacing whatever a
+  /// killed run left there); StopDetached stops it and removes `dir`.
+  static constexpr const char* kFixtureDirEnv = "NIMBUS_TEST_POSTGRES_DIR";
+  static absl::Status StartDetached(const std::filesystem::path& dir);
+  static void StopDetached(const std::filesystem::path& dir);
   /// Stops the server and removes its folder (a watchdog process does the
   /// same if this process dies first).
   ~PostgresServer();
@@ -38,7 +47,9 @@ class PostgresServer {
  private:
   explicit PostgresServer(std::filesystem::path dir, std::filesystem::path bin)
       : dir_(std::move(dir)), bin_(std::move(bin)) {}
-  absl::Status Init();
+  absl::Status Init(bool watchdog);
+  // A running fixture server in `dir`, or null.
+  static std::unique_ptr<PostgresServer> Attach(const std::filesystem::path& dir);
 
   std::filesystem::path dir_;
   std::filesystem::path bin_;
@@ -47,6 +58,7 @@ class PostgresServer {
   void StartWatchdog();
 
   bool running_ = false;
+  bool attached_ = false;  // the run's server: neither stopped nor removed here
   int next_db_ = 0;
   // The write end of the watchdog's pipe, and its pid.
   int watchdog_fd_ = -1;
