@@ -3,6 +3,11 @@
 #include <algorithm>
 
 namespace nimbus {
+namespace {
+// A flat lattice's counters, then a spare 16-counter line whose first
+// counter is the discard counter (flat_discard()).
+uint64_t FlatBytes(uint64_t voxels) { return (voxels + 16) * sizeof(uint32_t); }
+}  // namespace
 
 uint32_t TileBins::BinShift(Int3 resolution) {
   const uint64_t tiles = CountGrid::TileCountFor(resolution);
@@ -26,7 +31,7 @@ TileBins::TileBins(CountGrid& grid, size_t capacity, bool direct, Int3 lattice,
     // Huge pages: an attractor spread over the lattice touches most of its
     // 4 KiB pages anyway, each at the cost of a page fault (1024 per 4 MiB
     // picture, microseconds each), and Flush reads every page.
-    flat_ = ZeroPages((size_t(flat_voxels_) + 16) * sizeof(uint32_t), /*huge=*/true);
+    flat_ = ZeroPages(size_t(FlatBytes(flat_voxels_)), /*huge=*/true);
     // Flushes write the attractor's tiles, usually most of the grid's few.
     grid.PreferHugePages();
     return;
@@ -140,7 +145,7 @@ void TileBins::DrainFlat() {
 }
 
 uint64_t TileBins::MemoryBytes() const {
-  if (flat_) return (uint64_t(flat_voxels_) + 16) * sizeof(uint32_t);
+  if (flat_) return FlatBytes(flat_voxels_);
   if (direct_) return tiles_.capacity() * sizeof(uint32_t*);
   return pool_.MemoryBytes() + (shift_ > 0 ? split_.MemoryBytes() : 0);
 }
@@ -149,7 +154,7 @@ uint64_t TileBins::Bytes(Int3 resolution, size_t capacity, bool direct) {
   const uint64_t tiles = CountGrid::TileCountFor(resolution);
   // A picture's lattice has no more voxels than its folded grid.
   const uint64_t voxels = uint64_t(resolution.x) * resolution.y * resolution.z;
-  if (direct && Flat(resolution)) return (voxels + 16) * sizeof(uint32_t);
+  if (direct && Flat(resolution)) return FlatBytes(voxels);
   if (direct) return tiles * sizeof(uint32_t*);
   const uint32_t shift = BinShift(resolution);
   return Pool::Bytes(BinCount(resolution), capacity) +
