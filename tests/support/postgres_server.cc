@@ -11,6 +11,7 @@
 #include <pqxx/pqxx>
 
 #include <algorithm>
+#include <cerrno>
 #include <chrono>
 #include <cstdlib>
 #include <fstream>
@@ -122,7 +123,7 @@ absl::Status PostgresServer::StartDetached(const fs::path& dir) {
   if (ec) return absl::InternalError(absl::StrCat("cannot create ", dir.string()));
   PostgresServer server(dir, bin);
   absl::Status s = server.Init(/*watchdog=*/false);
-  server.attached_ = true;  // left running for the run's tests
+  server.attached_ = s.ok();  // left running for the run's tests
   return s;
 }
 
@@ -137,10 +138,11 @@ void PostgresServer::StopDetached(const fs::path& dir) {
 }
 
 std::unique_ptr<PostgresServer> PostgresServer::Attach(const fs::path& dir) {
-  // The first line of postmaster.pid is the server's pid.
+  // The first line of postmaster.pid is the server's pid; EPERM: alive,
+  // but another user's (the `postgres` user when tests run as root).
   std::ifstream pid_file(dir / "data" / "postmaster.pid");
   pid_t pid = 0;
-  if (!(pid_file >> pid) || pid <= 0 || ::kill(pid, 0) != 0) return nullptr;
+  if (!(pid_file >> pid) || pid <= 0 || (::kill(pid, 0) != 0 && errno != EPERM)) return nullptr;
   std::unique_ptr<PostgresServer> server(new PostgresServer(dir, PostgresBinDir()));
   server->attached_ = true;
   return server;
