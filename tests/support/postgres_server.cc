@@ -97,7 +97,9 @@ fs::path PostgresBinDir() {
   return found.back();
 }
 
-absl::StatusOr<std::unique_ptr<PostgresServer>> PostgresServer::Start() {
+// The folder of initdb and pg_ctl, or UNAVAILABLE saying why no test
+// server can run here.
+static absl::StatusOr<fs::path> ServerBinDir() {
   const fs::path bin = PostgresBinDir();
   if (bin.empty())
     return absl::UnavailableError(
@@ -106,22 +108,28 @@ absl::StatusOr<std::unique_ptr<PostgresServer>> PostgresServer::Start() {
   if (AsRoot() && ::getpwnam("postgres") == nullptr)
     return absl::UnavailableError("running as root but there is no `postgres` user to run "
                                   "the test server as");
+  return bin;
+}
+
+absl::StatusOr<std::unique_ptr<PostgresServer>> PostgresServer::Start() {
+  absl::StatusOr<fs::path> bin = ServerBinDir();
+  if (!bin.ok()) return bin.status();
   std::string dir = (fs::temp_directory_path() / "nimbus-pg-XXXXXX").string();
   if (::mkdtemp(dir.data()) == nullptr)
     return absl::InternalError("cannot create a folder for the PostgreSQL server");
-  std::unique_ptr<PostgresServer> server(new PostgresServer(dir, bin));
+  std::unique_ptr<PostgresServer> server(new PostgresServer(dir, *bin));
   if (absl::Status s = server->Init(/*watchdog=*/true); !s.ok()) return s;
   return server;
 }
 
 absl::Status PostgresServer::StartDetached(const fs::path& dir) {
-  const fs::path bin = PostgresBinDir();
-  if (bin.empty()) return absl::UnavailableError("PostgreSQL is not installed");
+  absl::StatusOr<fs::path> bin = ServerBinDir();
+  if (!bin.ok()) return bin.status();
   StopDetached(dir);
   std::error_code ec;
   fs::create_directories(dir, ec);
   if (ec) return absl::InternalError(absl::StrCat("cannot create ", dir.string()));
-  PostgresServer server(dir, bin);
+  PostgresServer server(dir, *bin);
   absl::Status s = server.Init(/*watchdog=*/false);
   server.attached_ = s.ok();  // left running for the run's tests
   return s;
