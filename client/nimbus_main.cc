@@ -134,6 +134,14 @@ absl::StatusOr<Connection> Connect(const GlobalOptions& g, bool private_if_busy 
   return c;
 }
 
+// A job's main result to `path`: an embedded server's store hands it over
+// directly (the same hash check, no gRPC stream); a remote one streams it.
+absl::Status FetchMain(const Connection& c, const std::string& job_id,
+                       const std::filesystem::path& path) {
+  if (c.embedded) return c.embedded->ExportResult(job_id, path);
+  return c.client->Fetch(job_id, path);
+}
+
 std::string Human(double v) {
   const char* units[] = {"", "K", "M", "G", "T"};
   int u = 0;
@@ -508,7 +516,7 @@ int RunRender(const Options& o) {
   // The final list carries every file with its committed hash.
   if (auto full = client.Get(job->id()); full.ok())
     if (auto s = frames.FetchNew(*full); !s.ok()) return ExitFor(s);
-  if (auto s = client.Fetch(job->id(), o.out_path); !s.ok()) return ExitFor(s);
+  if (auto s = FetchMain(session->conn, job->id(), o.out_path); !s.ok()) return ExitFor(s);
   std::cerr << absl::StrFormat("wrote %s (%s bytes, sha256 %s)\n", o.out_path,
                                Human(double(final_job->result().size_bytes())),
                                final_job->result().sha256());
@@ -603,7 +611,7 @@ int RunExplore(const Options& o) {
   if (!full.ok()) return ExitFor(full.status());
   if (auto s = files.FetchNew(*full); !s.ok()) return ExitFor(s);
   const std::filesystem::path sheet = dir / (name + ".png");
-  if (auto s = client.Fetch(job->id(), sheet); !s.ok()) return ExitFor(s);
+  if (auto s = FetchMain(*conn, job->id(), sheet); !s.ok()) return ExitFor(s);
   std::cerr << absl::StrFormat("wrote %s and %d candidate specs (%s.0001.json ...) in %s\n",
                                sheet.string(), files.count(), name, dir.string());
   return 0;
@@ -633,7 +641,10 @@ int RunWatch(const Options& o) {
 int RunFetch(const Options& o) {
   auto conn = Connect(o.global);
   if (!conn.ok()) return ExitFor(conn.status());
-  if (auto s = conn->client->Fetch(o.job_id, o.out_path, o.fetch_file); !s.ok()) return ExitFor(s);
+  const absl::Status s = o.fetch_file.empty()
+                             ? FetchMain(*conn, o.job_id, o.out_path)
+                             : conn->client->Fetch(o.job_id, o.out_path, o.fetch_file);
+  if (!s.ok()) return ExitFor(s);
   std::cerr << "wrote " << o.out_path << "\n";
   return 0;
 }

@@ -15,6 +15,7 @@
 #include "server/bounded_text.h"
 #include "server/job_view.h"
 #include "server/memory_admission.h"
+#include "server/result_export.h"
 #include "server/shard_runner.h"
 #include "server/untrusted_file.h"
 
@@ -59,16 +60,7 @@ absl::StatusOr<Principal> Authenticate(const TokenTable& tokens,
 
 // FetchResult's answer for a result the retention sweep deleted.
 grpc::Status ResultExpired(const JobRecord& rec, int64_t retention_ms) {
-  return grpc::Status(
-      grpc::StatusCode::FAILED_PRECONDITION,
-      absl::StrCat(
-          "the result of job ", rec.id, " expired: it was deleted at ",
-          absl::FormatTime("%Y-%m-%dT%H:%M:%SZ", absl::FromUnixMillis(rec.result_expire_time),
-                           absl::UTCTimeZone()),
-          retention_ms > 0 ? absl::StrCat(", as this server keeps results ", retention_ms / 1000,
-                                          " s after their job ends")
-                           : std::string(),
-          "; pin jobs (nimbus pin) to keep their results"));
+  return ToGrpc(ResultExpiredError(rec, retention_ms));
 }
 
 bool IsTerminal(v1::JobState s) {

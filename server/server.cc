@@ -19,6 +19,7 @@
 #include "server/job_store.h"
 #include "server/job_view.h"
 #include "server/nimbus_service.h"
+#include "server/result_export.h"
 #include "server/result_store.h"
 #include "server/retention.h"
 #include "server/worker_pool.h"
@@ -40,6 +41,7 @@ struct NimbusServer::Impl {
   std::mutex mu;
   bool shut_down = false;
   int64_t drain_ms = 2'000;
+  int64_t retention_ms = 0;
 };
 
 NimbusServer::NimbusServer(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
@@ -240,6 +242,7 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
       std::move(*tokens),
       Quotas{options.quota_jobs, options.quota_asset_bytes, options.quota_result_bytes},
       options.retention_ms);
+  impl->retention_ms = options.retention_ms;
   impl->sweeper = std::make_unique<RetentionSweeper>(impl->store.get(), impl->results.get(),
                                                      impl->assets.get(), options.retention_ms,
                                                      SweepIntervalMs(options.retention_ms));
@@ -285,6 +288,11 @@ std::shared_ptr<grpc::Channel> NimbusServer::InProcessChannel() {
   grpc::ChannelArguments args;
   args.SetMaxReceiveMessageSize(64 << 20);
   return impl_->server->InProcessChannel(args);
+}
+
+absl::Status NimbusServer::ExportResult(const std::string& job_id,
+                                       const std::filesystem::path& path) {
+  return server::ExportResult(*impl_->store, *impl_->results, job_id, path, impl_->retention_ms);
 }
 
 void NimbusServer::Wait() { impl_->server->Wait(); }

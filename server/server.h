@@ -95,6 +95,10 @@ class NimbusServer {
   std::string address() const;
   /// A channel to this server that never leaves the process.
   std::shared_ptr<grpc::Channel> InProcessChannel();
+  /// Copies a succeeded job's main result to `path` in this process, the
+  /// hash checked as FetchResult's client checks it, but without streaming
+  /// the bytes through gRPC messages (result_export.h). Blocks on disk I/O.
+  absl::Status ExportResult(const std::string& job_id, const std::filesystem::path& path);
   /// Blocks until Shutdown() is called from another thread.
   void Wait();
   /// Interrupts running jobs (they go back to the queue), then closes the

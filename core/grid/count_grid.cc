@@ -97,8 +97,12 @@ uint64_t CountGrid::Total() const {
 
 uint32_t CountGrid::Max() const {
   uint32_t m = 0;
-  ForEachTile(
-      [&](Int3, const uint32_t* t) { m = std::max(m, *std::max_element(t, t + kTileVoxels)); });
+  ForEachTile([&](Int3, const uint32_t* t) {
+    // A plain reduction vectorises; std::max_element's index does not.
+    uint32_t tm = 0;
+    for (int i = 0; i < kTileVoxels; ++i) tm = std::max(tm, t[i]);
+    m = std::max(m, tm);
+  });
   return m;
 }
 

@@ -218,8 +218,18 @@ class CountGrid {
   /// eight voxel leaves' only slice, gathered into a buffer.
   template <typename F>
   void ForEachLeaf(F&& f) const {
+    ForEachLeafInTiles(0, table_.size(), f);
+  }
+  /// ForEachLeaf over tiles [begin, end) only (< TileCount()): disjoint
+  /// ranges may be walked on several threads.
+  template <typename F>
+  void ForEachLeafInTiles(size_t begin, size_t end, F&& f) const {
+    auto tiles = [&](auto&& g) {
+      for (size_t t = begin; t < end; ++t)
+        if (table_[t]) g(TileOrigin(t), table_[t], with_color_ ? color_[t] : nullptr);
+    };
     if (!folded()) {
-      ForEachTileWithColor([&](Int3 o, const uint32_t* t, const uint64_t* c) {
+      tiles([&](Int3 o, const uint32_t* t, const uint64_t* c) {
         for (int leaf = 0; leaf < 64; ++leaf) {
           const uint32_t* v = t + leaf * 512;
           if (AllZero(v, 512)) continue;
@@ -231,7 +241,7 @@ class CountGrid {
     }
     uint32_t v[512] = {};
     uint64_t cs[512] = {};
-    ForEachTileWithColor([&](Int3 o, const uint32_t* t, const uint64_t* c) {
+    tiles([&](Int3 o, const uint32_t* t, const uint64_t* c) {
       for (int leaf = 0; leaf < 64; ++leaf) {
         const int x0 = o.x + ((leaf >> 4) & 3) * 8, sy0 = o.y + ((leaf >> 2) & 3) * 8,
                   sz0 = o.z + (leaf & 3) * 8;

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -54,8 +55,11 @@ struct Normaliser {
 };
 
 // The 512 counters (and colour sums, when `cs`) of the voxel leaf at `o`,
-// in LeafNode order, as CountGrid::ForEachLeaf hands them out.
-inline void GatherCountLeaf(const CountGrid& counts, Int3 o, uint32_t* v, uint64_t* cs) {
+// in LeafNode order, as CountGrid::ForEachLeaf hands them out. With
+// `active` (the leaf's value mask), a folded grid fills only those voxels
+// and leaves the rest as they were, instead of zeroing 6 KiB per leaf.
+inline void GatherCountLeaf(const CountGrid& counts, Int3 o, uint32_t* v, uint64_t* cs,
+                            const uint64_t* active = nullptr) {
   if (!counts.folded()) {
     // Unfolded, a voxel leaf is 512 consecutive counters of one tile.
     const uint64_t key = counts.Key(o.x, o.y, o.z);
@@ -65,6 +69,17 @@ inline void GatherCountLeaf(const CountGrid& counts, Int3 o, uint32_t* v, uint64
     return;
   }
   // Folded, only the z = 0 slice exists, scattered over a tile's rows.
+  if (active) {
+    for (int w = 0; w < 8; ++w)
+      for (uint64_t bits = active[w]; bits; bits &= bits - 1) {
+        const int i = w * 64 + std::countr_zero(bits);
+        const uint64_t key = counts.Key(o.x + (i >> 6), o.y + ((i >> 3) & 7), o.z + (i & 7));
+        const uint64_t tile = key >> 15, off = key & 0x7fff;
+        v[i] = counts.TileOrNull(tile)[off];
+        if (cs) cs[i] = counts.ColorTileOrNull(tile)[off];
+      }
+    return;
+  }
   std::memset(v, 0, 512 * sizeof(uint32_t));
   if (cs) std::memset(cs, 0, 512 * sizeof(uint64_t));
   for (int i = 0; i < 8; ++i)

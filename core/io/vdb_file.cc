@@ -69,7 +69,9 @@ absl::Status WriteError(const std::filesystem::path& path, int err, const std::s
 // A seekable output buffer over a file descriptor that keeps the first
 // write error: std::ofstream (and so openvdb::io::File) loses errno and
 // OpenVDB never checks the stream, so a full disk left a short file that
-// looked written.
+// looked written. While the file is written front to back (the native
+// writer) it also hashes the content for the UUID as the bytes pass, so
+// the file need not be read again to stamp it.
 class CheckedFileBuf : public std::streambuf {
  public:
   explicit CheckedFileBuf(int fd) : fd_(fd), buf_(size_t{1} << 16) {
@@ -81,6 +83,7 @@ class CheckedFileBuf : public std::streambuf {
     const char* p = pbase();
     size_t n = size_t(pptr() - pbase());
     setp(buf_.data(), buf_.data() + buf_.size());
+    Hash(p, n);
     while (n > 0 && error_ == 0) {
       const int64_t limit = g_fail_after.load();
       if (limit >= 0 && pos_ + n > uint64_t(limit)) {
@@ -97,6 +100,12 @@ class CheckedFileBuf : public std::streambuf {
       end_ = std::max(end_, pos_);
     }
     return error_ == 0;
+  }
+  /// The content UUID of a file written front to back with a VDB header;
+  /// empty when it was not (then the file must be read to stamp it).
+  std::string ContentUuid() {
+    if (!sequential_ || hashed_ != end_ || !LooksLikeHeader(head_)) return "";
+    return UuidFromDigest(content_.HexDigest());
   }
 
  protected:
@@ -123,16 +132,37 @@ class CheckedFileBuf : public std::streambuf {
   }
 
  private:
+  // Feeds bytes about to be written at pos_ to the content hash, all but
+  // the UUID's; any write not at the hashed end (a back-patch) ends it.
+  void Hash(const char* p, size_t n) {
+    if (!sequential_ || n == 0) return;
+    if (pos_ != hashed_) {
+      sequential_ = false;
+      return;
+    }
+    const uint64_t a = pos_, b = pos_ + n;
+    if (a < kUuidOffset + kUuidSize)
+      head_.append(p, size_t(std::min<uint64_t>(b, kUuidOffset + kUuidSize) - a));
+    if (a < kUuidOffset) content_.Update({p, size_t(std::min<uint64_t>(b, kUuidOffset) - a)});
+    const uint64_t from = std::max<uint64_t>(a, kUuidOffset + kUuidSize);
+    if (from < b) content_.Update({p + (from - a), size_t(b - from)});
+    hashed_ = b;
+  }
+
   int fd_;
   std::vector<char> buf_;
   int error_ = 0;
   uint64_t pos_ = 0, end_ = 0;
+  Sha256 content_;
+  std::string head_;  // the first bytes, up to the UUID's end
+  uint64_t hashed_ = 0;
+  bool sequential_ = true;
 };
 
-
-// Writes the archive to `tmp`, fsyncs it and checks its size on disk.
+// Writes the archive to `tmp`, stamps its UUID when it could hash the
+// content on the way (`stamped`), fsyncs it and checks its size on disk.
 absl::Status WriteChecked(const std::filesystem::path& path, const std::filesystem::path& tmp,
-                          const ArchiveFn& write_archive) {
+                          const ArchiveFn& write_archive, bool& stamped) {
   const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   if (fd < 0) return WriteError(path, errno, "cannot create " + tmp.filename().string());
   CheckedFileBuf buf(fd);
@@ -147,6 +177,11 @@ absl::Status WriteChecked(const std::filesystem::path& path, const std::filesyst
   }
   buf.Flush();
   if (st.ok() && buf.error() != 0) st = WriteError(path, buf.error(), "write failed");
+  const std::string uuid = st.ok() ? buf.ContentUuid() : "";
+  if (!uuid.empty()) {
+    stamped = ::pwrite(fd, uuid.data(), uuid.size(), off_t(kUuidOffset)) == ssize_t(uuid.size());
+    if (!stamped) st = WriteError(path, errno, "cannot stamp the UUID");
+  }
   if (st.ok() && ::fsync(fd) != 0) st = WriteError(path, errno, "fsync failed");
   struct stat sb {};
   if (st.ok() && (::fstat(fd, &sb) != 0 || uint64_t(sb.st_size) != buf.end()))
@@ -175,10 +210,13 @@ absl::Status WriteArchiveAtomically(const std::filesystem::path& path,
                                     const ArchiveFn& write_archive) {
   const std::filesystem::path tmp = path.string() + ".partial";
   std::error_code ec;
-  absl::Status st = WriteChecked(path, tmp, write_archive);
-  // The UUID is stamped in place (36 bytes, no new blocks), then synced.
-  if (st.ok()) st = StampContentUuid(tmp);
-  if (st.ok()) {
+  bool stamped = false;
+  absl::Status st = WriteChecked(path, tmp, write_archive, stamped);
+  // A file written out of order (OpenVDB's writer seeks back to patch
+  // offsets) is read again to stamp its UUID in place (36 bytes, no new
+  // blocks), then synced again.
+  if (st.ok() && !stamped) st = StampContentUuid(tmp);
+  if (st.ok() && !stamped) {
     const int fd = ::open(tmp.c_str(), O_WRONLY | O_CLOEXEC);
     if (fd < 0 || ::fsync(fd) != 0) st = WriteError(path, errno, "fsync failed");
     if (fd >= 0) ::close(fd);

@@ -1,5 +1,7 @@
 #include "core/io/vdb_native_result.h"
 
+#include <tbb/parallel_for.h>
+
 #include <bit>
 #include <cmath>
 #include <cstring>
@@ -46,15 +48,27 @@ void AddMeta(MetaMap& meta, const std::string& key, const MetaValue& v) {
   if (auto* d = std::get_if<double>(&v)) meta.Double(key, *d);
 }
 
-// The counts' leaves in tree order, each active where counted.
+// The counts' leaves in tree order, each active where counted. Tiles are
+// scanned in parallel, each range into its own list, joined in tile order.
 std::shared_ptr<const std::vector<Leaf>> CountLeaves(const CountGrid& counts) {
-  auto leaves = std::make_shared<std::vector<Leaf>>();
-  counts.ForEachLeaf([&](Int3 o, const uint32_t* v, const uint64_t*) {
-    Leaf leaf{{o.x, o.y, o.z}, {}};
-    for (int i = 0; i < 512; ++i)
-      if (v[i]) leaf.mask[size_t(i >> 6)] |= uint64_t{1} << (i & 63);
-    leaves->push_back(leaf);
+  constexpr size_t kTilesPerRange = 16;
+  const size_t ranges = (counts.TileCount() + kTilesPerRange - 1) / kTilesPerRange;
+  std::vector<std::vector<Leaf>> parts(ranges);
+  tbb::parallel_for(size_t{0}, ranges, [&](size_t r) {
+    const size_t end = std::min(counts.TileCount(), (r + 1) * kTilesPerRange);
+    counts.ForEachLeafInTiles(r * kTilesPerRange, end,
+                              [&](Int3 o, const uint32_t* v, const uint64_t*) {
+                                Leaf leaf{{o.x, o.y, o.z}, {}};
+                                for (int i = 0; i < 512; ++i)
+                                  if (v[i]) leaf.mask[size_t(i >> 6)] |= uint64_t{1} << (i & 63);
+                                parts[r].push_back(leaf);
+                              });
   });
+  auto leaves = std::make_shared<std::vector<Leaf>>();
+  size_t total = 0;
+  for (const auto& p : parts) total += p.size();
+  leaves->reserve(total);
+  for (const auto& p : parts) leaves->insert(leaves->end(), p.begin(), p.end());
   SortTreeOrder(*leaves);
   return leaves;
 }
@@ -116,7 +130,7 @@ struct Result {
           uint32_t v[512];
           uint64_t cs[512];
           GatherCountLeaf(counts, {leaf.origin[0], leaf.origin[1], leaf.origin[2]}, v,
-                          colors ? cs : nullptr);
+                          colors ? cs : nullptr, leaf.mask.data());
           T* out = static_cast<T*>(dense);
           ForEachActive(leaf, [&](int i) { out[i] = value(leaf, i, v[i], colors ? cs[i] : 0); });
         },

@@ -12,7 +12,6 @@
 #include "core/grid/image_look.h"
 #include "core/io/image_io.h"
 #include "tests/support/test_util.h"
-#include "tests/support/vdb_fixtures.h"
 
 namespace nimbus {
 namespace {

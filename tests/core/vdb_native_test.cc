@@ -209,6 +209,30 @@ INSTANTIATE_TEST_SUITE_P(
         // Nothing counted: an empty tree, its invalid bounding box.
         Shape{{16, 16, 16}, 0, true, true, false, RawCounts::kFloat, UpAxis::kY}));
 
+// Grids of several MiB: their leaves leave the encoder in many runs, every
+// run spilled (a scope that keeps nothing in memory), and the UUID hashed
+// as the file is written front to back is the one read back from it.
+TEST(VdbNative, SpilledMultiRunGridsMatchTheModule) {
+  testing::TempDir dir;
+  GridFrame frame;
+  frame.resolution = {96, 96, 96};
+  frame.bounds = {{-1, -1, -1}, {1, 1, 1}};
+  const CountGrid counts = testing::ScatterColorCounts(frame.resolution, 1'500'000, 7);
+  DensityOptions o;
+  o.color = true;
+  const auto n = dir.path() / "n.vdb", m = dir.path() / "m.vdb";
+  {
+    vdb_internal::SpillScope keep_nothing(dir.path(), 0);
+    ASSERT_TRUE(vdb_native::WriteDensityVdb(n, counts, frame, o, {}, {}).ok());
+  }
+  ASSERT_TRUE(vdb_impl::WriteDensityVdb(m, counts, frame, o, {}, {}).ok());
+  const std::string native = Slurp(n);
+  EXPECT_GT(native.size(), size_t{8} << 20);
+  EXPECT_EQ(native, Slurp(m));
+  ASSERT_TRUE(vdb_internal::StampContentUuid(n).ok());
+  EXPECT_EQ(Slurp(n), native);
+}
+
 TEST(VdbNative, DownsampledResultsAreLeftToTheModule) {
   const CountGrid counts = testing::ScatterColorCounts({64, 64, 64}, 30000, 1);
   DensityOptions o;

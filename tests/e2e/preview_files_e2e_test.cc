@@ -13,7 +13,6 @@
 #include "proto/spec_io.h"
 #include "tests/support/nimbusd_process.h"
 #include "tests/support/test_util.h"
-#include "tests/support/vdb_fixtures.h"
 
 namespace nimbus {
 namespace {

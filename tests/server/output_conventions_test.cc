@@ -16,7 +16,6 @@
 #include "server/job_runner.h"
 #include "tests/support/fake_job_context.h"
 #include "tests/support/test_util.h"
-#include "tests/support/vdb_fixtures.h"
 #include "tests/support/volume_oracles.h"
 
 namespace nimbus {

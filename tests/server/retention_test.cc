@@ -15,25 +15,19 @@
 #include "server/asset_store.h"
 #include "server/job_store.h"
 #include "server/result_store.h"
+#include "tests/support/result_fixtures.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus::server {
 namespace {
 
-using ::nimbus::testing::TempDir;
-
 constexpr TimeMs kT0 = 1'700'000'000'000;
 constexpr int64_t kHour = 3'600'000;
 
-class RetentionTest : public ::testing::Test {
+class RetentionTest : public testing::LocalStoresTest {
  protected:
   void SetUp() override {
-    auto store = OpenSqliteJobStore((dir_ / "jobs.db").string());
-    ASSERT_TRUE(store.ok()) << store.status();
-    store_ = std::move(*store);
-    auto results = OpenLocalResultStore(dir_ / "results");
-    ASSERT_TRUE(results.ok());
-    results_ = std::move(*results);
+    LocalStoresTest::SetUp();
     auto assets = AssetStore::Open(dir_ / "assets");
     ASSERT_TRUE(assets.ok());
     assets_ = std::move(*assets);
@@ -52,17 +46,8 @@ class RetentionTest : public ::testing::Test {
   // Runs the oldest queued job to success at `end` with a real result file
   // of `size` bytes.
   void Succeed(TimeMs end, size_t size) {
-    auto claimed = store_->ClaimNext("w", end, 1000);
-    ASSERT_TRUE(claimed.ok() && claimed->has_value());
-    const std::string id = (*claimed)->id;
-    std::ofstream(results_->ScratchPath(id), std::ios::binary) << std::string(size, 'v');
-    auto stored = results_->Commit(id, results_->ScratchPath(id));
-    ASSERT_TRUE(stored.ok()) << stored.status();
-    Completion c;
-    c.result_key = stored->key;
-    c.result_size = stored->size;
-    c.result_sha256 = stored->sha256;
-    ASSERT_TRUE(store_->Complete(id, "w", c, end).ok());
+    const auto id = testing::SucceedNext(*store_, *results_, std::string(size, 'v'), end);
+    ASSERT_TRUE(id.ok()) << id.status();
   }
 
   std::string Upload(const std::string& data, const std::string& owner) {
@@ -74,9 +59,6 @@ class RetentionTest : public ::testing::Test {
     return sha;
   }
 
-  TempDir dir_;
-  std::unique_ptr<JobStore> store_;
-  std::unique_ptr<ResultStore> results_;
   std::unique_ptr<AssetStore> assets_;
 };
 

@@ -1,6 +1,8 @@
 #include "tests/support/test_util.h"
 
 #include <atomic>
+#include <fstream>
+#include <iterator>
 #include <random>
 #include <unistd.h>
 
@@ -22,6 +24,11 @@ TempDir::~TempDir() {
 
 std::filesystem::path SourcePath(const std::string& relative) {
   return std::filesystem::path(NIMBUS_SOURCE_DIR) / relative;
+}
+
+std::string ReadFileBytes(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), {});
 }
 
 }  // namespace nimbus::testing

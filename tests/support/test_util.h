@@ -24,4 +24,7 @@ class TempDir {
 /// Absolute path of a file in the source tree, e.g. SourcePath("examples/tree.json").
 std::filesystem::path SourcePath(const std::string& relative);
 
+/// A whole file's bytes; empty when it cannot be read.
+std::string ReadFileBytes(const std::filesystem::path& path);
+
 }  // namespace nimbus::testing

@@ -3,15 +3,9 @@
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/LevelSetSphere.h>
 
-#include <fstream>
-#include <iterator>
+#include "tests/support/test_util.h"
 
 namespace nimbus::testing {
-
-std::string ReadFileBytes(const std::filesystem::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::string(std::istreambuf_iterator<char>(in), {});
-}
 
 std::string SphereVdbBytes(const std::filesystem::path& scratch) {
   openvdb::initialize();
