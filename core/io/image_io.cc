@@ -21,12 +21,18 @@ namespace nimbus {
 
 namespace {
 
-// Quantised samples of `image`, clamped to [0, 1] and rounded to nearest.
+// Quantised samples of `image`, clamped to [0, 1] (NaN to 0) and rounded
+// to nearest, halves up: what std::lround gives on [0, max], without a
+// library call per sample (a 1024^2 picture has three million of them).
 template <typename T>
 std::vector<T> Quantise(const RgbImage& image, double max) {
   std::vector<T> out(image.rgb.size());
-  for (size_t i = 0; i < out.size(); ++i)
-    out[i] = T(std::lround(std::clamp(double(image.rgb[i]), 0.0, 1.0) * max));
+  for (size_t i = 0; i < out.size(); ++i) {
+    const float x = image.rgb[i];
+    const double v = (x >= 0 ? std::min(double(x), 1.0) : 0.0) * max;
+    const int64_t down = int64_t(v);  // v >= 0: truncation is floor
+    out[i] = T(down + (v - double(down) >= 0.5));  // the difference is exact
+  }
   return out;
 }
 

@@ -3,8 +3,11 @@
 // libpng and OpenEXR.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
 #include <numbers>
+#include <vector>
 
 #include "core/chaos/auto_frame.h"
 #include "core/chaos/chaos_game.h"
@@ -107,8 +110,8 @@ TEST(ImagePlane, PerspectiveCameraCentresItsTarget) {
 }
 
 TEST(ImagePlane, InverseUndoesAnAffineMap) {
-  const Affine3 a = Affine3::Translate({1, -2, 3}) * Affine3::Rotate({1, 2, 3}, 40) *
-                    Affine3::Scale({2, 0.5, 3});
+  const Affine3 a =
+      Affine3::Translate({1, -2, 3}) * Affine3::Rotate({1, 2, 3}, 40) * Affine3::Scale({2, 0.5, 3});
   const Vec3 p{0.3, -0.7, 1.1};
   const Vec3 q = Inverse(a).Apply(a.Apply(p));
   EXPECT_NEAR(q.x, p.x, 1e-12);
@@ -293,6 +296,38 @@ TEST(ImageFiles, PngAndExrReadBackWithTheirLibraries) {
   // Same picture, same bytes.
   ASSERT_TRUE(WriteImage(dir / "a2.png", img, ImageFormat::kPng8).ok());
   EXPECT_EQ(testing::ReadFileBytes(dir / "a.png"), testing::ReadFileBytes(dir / "a2.png"));
+}
+
+// Samples on and next to every rounding boundary of both depths, and the
+// odd ones (NaN, -0, below 0, above 1), quantise as std::lround of the
+// clamped value does.
+TEST(ImageFiles, PngSamplesRoundAsLroundOnEveryBoundary) {
+  testing::TempDir dir;
+  std::vector<float> values = {
+      std::nanf(""), -0.f, -1e-30f, -3.f, 1.f, 2.f, std::numeric_limits<float>::infinity(), 0.f};
+  for (double max : {255.0, 65535.0})
+    for (int k = 0; k <= 200; ++k) {
+      // Halfway between steps k and k + 1 (and near the top of the range).
+      const int step = k < 100 ? k : int(max) - 200 + k;
+      const float half = float((step + 0.5) / max);
+      for (float v : {half, std::nextafter(half, 0.f), std::nextafter(half, 2.f)})
+        values.push_back(v);
+    }
+  RgbImage img;
+  img.width = 1, img.height = int(values.size() + 2) / 3;
+  img.rgb.assign(3 * size_t(img.height), 0.f);
+  std::copy(values.begin(), values.end(), img.rgb.begin());
+  for (auto [format, max] :
+       {std::pair{ImageFormat::kPng8, 255.0}, {ImageFormat::kPng16, 65535.0}}) {
+    ASSERT_TRUE(WriteImage(dir / "q.png", img, format).ok());
+    auto png = ReadPngPixels(dir / "q.png");
+    ASSERT_TRUE(png.ok()) << png.status();
+    for (size_t i = 0; i < img.rgb.size(); ++i) {
+      const float x = img.rgb[i];
+      const long want = std::isnan(x) ? 0 : std::lround(std::clamp(double(x), 0.0, 1.0) * max);
+      ASSERT_EQ(png->samples[i], uint16_t(want)) << "sample " << i << " = " << x << " of " << max;
+    }
+  }
 }
 
 TEST(AutoFrame, FitsTheSierpinskiTriangleWithItsMargin) {
