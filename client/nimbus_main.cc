@@ -6,8 +6,9 @@
 #include <unistd.h>
 
 #include <atomic>
-#include <chrono>
 #include <cerrno>
+#include <chrono>
+#include <condition_variable>
 #include <csignal>
 #include <cstdio>
 #include <cstdlib>
@@ -17,6 +18,7 @@
 #include <functional>
 #include <iostream>
 #include <memory>
+#include <mutex>
 #include <set>
 #include <string>
 #include <thread>
@@ -326,15 +328,18 @@ std::atomic<bool> g_interrupted{false};
 void OnSigint(int) { g_interrupted = true; }
 
 // While alive, Ctrl-C cancels the job rather than leaving it queued behind.
-// Stop() (or the destructor) ends the watch for it.
+// Stop() (or the destructor) ends the watch for it at once: the command
+// does not wait out a polling interval before it exits.
 class CancelOnInterrupt {
  public:
   CancelOnInterrupt(NimbusClient& client, std::string job_id) {
     std::signal(SIGINT, OnSigint);
     thread_ = std::thread([this, &client, id = std::move(job_id)] {
-      while (!finished_) {
-        std::this_thread::sleep_for(std::chrono::milliseconds(50));
-        if (g_interrupted && !finished_) {
+      std::unique_lock<std::mutex> lock(mu_);
+      // A signal handler may not notify, so the flag is polled.
+      while (!cv_.wait_for(lock, std::chrono::milliseconds(50), [this] { return finished_; })) {
+        if (g_interrupted) {
+          lock.unlock();
           (void)client.Cancel(id);
           return;
         }
@@ -345,10 +350,18 @@ class CancelOnInterrupt {
     Stop();
     thread_.join();
   }
-  void Stop() { finished_ = true; }
+  void Stop() {
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      finished_ = true;
+    }
+    cv_.notify_all();
+  }
 
  private:
-  std::atomic<bool> finished_{false};
+  std::mutex mu_;
+  std::condition_variable cv_;
+  bool finished_ = false;
   std::thread thread_;
 };
 
