@@ -1,16 +1,19 @@
 // End to end against a real nimbusd on loopback: submit, watch previews,
 // fetch, kill -9 and restart, cancel, error codes, and reads that a blocked
 // job store must not hold up.
+#include <fcntl.h>
 #include <gtest/gtest.h>
 #include <sqlite3.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
 #include <chrono>
+#include <csignal>
 #include <fstream>
 #include <future>
 #include <optional>
 #include <sstream>
+#include <thread>
 
 #include "client/nimbus_client.h"
 #include "core/base/sha256.h"
@@ -351,6 +354,68 @@ TEST(CliE2E, RenderWhileAnotherProcessServesTheDataDir) {
   text << std::ifstream(log).rdbuf();
   EXPECT_NE(text.str().find("(pid " + std::to_string(::getpid()) + ")"), std::string::npos)
       << text.str();
+}
+
+// Ctrl-C during `nimbus render` cancels the job instead of leaving it
+// queued: the command ends with the job's failure code, writes no result,
+// and the job is CANCELLED in the data dir afterwards.
+TEST(CliE2E, CtrlCCancelsTheRendersJob) {
+  testing::TempDir dir;
+  const std::string data = (dir / "data").string(), log = (dir / "render.log").string();
+  // The README's example, run for far longer than the test.
+  std::string spec =
+      testing::ReadFileBytes(testing::SourcePath("examples/sierpinski_tetrahedron.json"));
+  const size_t it = spec.find("\"iterations\"");
+  ASSERT_NE(it, std::string::npos);
+  spec.replace(it, spec.find(',', it) - it, "\"iterations\": \"1000000000000\"");
+  std::ofstream(dir / "long.json") << spec;
+  // Everything the child needs is built before fork: it may only exec.
+  const std::string bin = std::string(NIMBUS_BIN_DIR) + "/nimbus";
+  const std::string spec_path = (dir / "long.json").string(), out = (dir / "long.vdb").string();
+  const int log_fd = ::open(log.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  ASSERT_GE(log_fd, 0);
+  const pid_t pid = ::fork();
+  ASSERT_GE(pid, 0);
+  if (pid == 0) {
+    ::dup2(log_fd, STDERR_FILENO);
+    ::execl(bin.c_str(), bin.c_str(), "--data-dir", data.c_str(), "--threads", "1", "render",
+            "--no-cache", spec_path.c_str(), "-o", out.c_str(), static_cast<char*>(nullptr));
+    ::_exit(127);
+  }
+  ::close(log_fd);
+  // Interrupt once the job is queued (its id is in the log).
+  std::string job;
+  for (int i = 0; i < 600 && job.empty(); ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    const std::string text = testing::ReadFileBytes(log);
+    if (const size_t at = text.find("job j-");
+        at != std::string::npos && text.find(" queued", at) != std::string::npos)
+      job = text.substr(at + 4, text.find(' ', at + 4) - at - 4);
+  }
+  ASSERT_FALSE(job.empty()) << testing::ReadFileBytes(log);
+  ASSERT_EQ(::kill(pid, SIGINT), 0);
+  // A render that ignored the signal would run for hours: give up after a minute.
+  int status = 0;
+  pid_t done = 0;
+  for (int i = 0; i < 1200 && done == 0; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    done = ::waitpid(pid, &status, WNOHANG);
+  }
+  if (done == 0) {
+    ::kill(pid, SIGKILL);
+    ::waitpid(pid, &status, 0);
+    FAIL() << "the render kept running after Ctrl-C: " << testing::ReadFileBytes(log);
+  }
+  ASSERT_TRUE(WIFEXITED(status)) << status;
+  EXPECT_EQ(WEXITSTATUS(status), 1) << testing::ReadFileBytes(log);
+  EXPECT_NE(testing::ReadFileBytes(log).find(job + " cancelled"), std::string::npos)
+      << testing::ReadFileBytes(log);
+  EXPECT_FALSE(std::filesystem::exists(dir / "long.vdb"));
+  const std::string get = std::string(NIMBUS_BIN_DIR) + "/nimbus --data-dir " + data + " get " +
+                          job + " >" + (dir / "job.json").string() + " 2>/dev/null";
+  ASSERT_EQ(WEXITSTATUS(std::system(get.c_str())), 0);
+  EXPECT_NE(testing::ReadFileBytes(dir / "job.json").find("JOB_STATE_CANCELLED"), std::string::npos)
+      << testing::ReadFileBytes(dir / "job.json");
 }
 
 // Issue 3, item 7: the same spec and seed give a bitwise-identical .vdb
