@@ -49,10 +49,9 @@ LeafRuns::~LeafRuns() {
   if (fd_ >= 0) ::close(fd_);
 }
 
-void LeafRuns::Append(std::string&& run) { Append(std::move(run), SpillScope::Current()); }
-
-void LeafRuns::Append(std::string&& run, const SpillScope* spill) {
+void LeafRuns::Append(std::string&& run) {
   bytes_ += run.size();
+  const SpillScope* spill = SpillScope::Current();
   if (fd_ < 0 && (spill == nullptr || kept_ + run.size() <= spill->keep_bytes())) {
     kept_ += run.size();
     memory_.push_back(std::move(run));

@@ -12,8 +12,6 @@
 
 namespace nimbus::vdb_internal {
 
-class SpillScope;
-
 /// @brief Every leaf's LeafNode::writeBuffers bytes of one grid, in tree
 /// order, appended run by run. The archive needs them all before it can
 /// write the grid's header (which records each leaf's encoded size), so a
@@ -26,11 +24,9 @@ class LeafRuns {
   LeafRuns(LeafRuns&& other) noexcept;
   LeafRuns& operator=(LeafRuns&&) = delete;
   ~LeafRuns();
-  /// Appends a run (kept runs are moved in, not copied), spilling as
-  /// `spill` says (the innermost SpillScope on this thread by default).
-  /// Throws std::runtime_error when the spill file fails.
+  /// Appends a run (kept runs are moved in, not copied). Throws
+  /// std::runtime_error when the spill file fails.
   void Append(std::string&& run);
-  void Append(std::string&& run, const SpillScope* spill);
   /// Writes every run to `os`, in order, through one bounded buffer.
   void WriteTo(std::ostream& os) const;
   uint64_t bytes() const { return bytes_; }

@@ -1,7 +1,8 @@
 #include "core/io/vdb_native.h"
 
 #include <blosc.h>
-#include <tbb/parallel_pipeline.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 
 #include <algorithm>
 #include <bit>
@@ -488,84 +489,42 @@ void SortTreeOrder(std::vector<Leaf>& leaves) {
   });
 }
 
-namespace {
-
-// Leaves encoded together in EncodeLeaves: their active values (kept for
-// `visit`) and their encodings, one after another. A batch is reused once
-// its leaves have left the pipeline.
-struct LeafBatch {
-  size_t first = 0, count = 0;
-  std::vector<char> dense, packed;  // one leaf's values; the batch's active values
-  std::vector<size_t> actives;      // active values per leaf
-  std::string bytes;
-};
-
-// Encodes `b`'s leaves (runs on any thread; each leaf's delayed size goes
-// to its own slot of `g`).
-void EncodeBatch(Grid& g, const std::function<void(const Leaf&, void*)>& fill, LeafBatch& b) {
-  const size_t vb = ValueBytes(g.kind);
-  b.dense.resize(512 * vb);
-  b.packed.resize(b.count * 512 * vb);
-  b.actives.assign(b.count, 0);
-  b.bytes.clear();
-  for (size_t j = 0; j < b.count; ++j) {
-    const Leaf& leaf = (*g.leaves)[b.first + j];
-    fill(leaf, b.dense.data());
-    char* out = b.packed.data() + j * 512 * vb;
-    size_t k = 0;
-    for (size_t w = 0; w < 8; ++w)
-      for (uint64_t bits = leaf.mask[w]; bits; bits &= bits - 1, ++k)
-        std::memcpy(out + k * vb, b.dense.data() + (w * 64 + size_t(std::countr_zero(bits))) * vb,
-                    vb);
-    b.actives[j] = k;
-    g.delayed_size[b.first + j] = EncodeLeaf(g.kind, g.half, leaf.mask, out, k, b.bytes);
-  }
-}
-
-}  // namespace
-
 void EncodeLeaves(Grid& g, const std::function<void(const Leaf&, void*)>& fill,
                   const std::function<void(const Leaf&, const void*, size_t)>& visit) {
   const size_t n = (*g.leaves).size(), vb = ValueBytes(g.kind);
   g.delayed_mask.assign(n, 0);
   g.delayed_size.assign(n, 0);
-  // A pipeline, not a loop of parallel_for: no barrier every few hundred
-  // leaves, and the in-order stage (visit, runs) overlaps the encoding.
-  // Batches amortise the hand-offs; the batches in flight bound the memory.
-  constexpr size_t kBatch = 32, kInFlight = 8;
-  constexpr size_t kRunBytes = size_t{1} << 20;
-  std::vector<LeafBatch> batches(kInFlight);
-  const vdb_internal::SpillScope* spill = vdb_internal::SpillScope::Current();
-  size_t next = 0, made = 0;
-  std::string run;
-  auto take = [&](tbb::flow_control& fc) -> LeafBatch* {
-    if (next >= n) {
-      fc.stop();
-      return nullptr;
+  // Runs of leaves bound the scratch; enough leaves per task to amortise it.
+  constexpr size_t kChunk = 256;
+  std::vector<std::string> bytes(std::min(n, kChunk));
+  std::vector<char> packed(std::min(n, kChunk) * 512 * vb);
+  std::vector<size_t> counts(bytes.size());
+  for (size_t first = 0; first < n; first += kChunk) {
+    const size_t count = std::min(kChunk, n - first);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 32), [&](const auto& r) {
+      std::vector<char> dense(512 * vb);
+      for (size_t j = r.begin(); j < r.end(); ++j) {
+        const Leaf& leaf = (*g.leaves)[first + j];
+        fill(leaf, dense.data());
+        char* out = packed.data() + j * 512 * vb;
+        size_t k = 0;
+        for (size_t w = 0; w < 8; ++w)
+          for (uint64_t bits = leaf.mask[w]; bits; bits &= bits - 1, ++k)
+            std::memcpy(out + k * vb, dense.data() + (w * 64 + size_t(std::countr_zero(bits))) * vb,
+                        vb);
+        counts[j] = k;
+        bytes[j].clear();
+        g.delayed_size[first + j] = EncodeLeaf(g.kind, g.half, leaf.mask, out, k, bytes[j]);
+      }
+    });
+    std::string run;
+    for (size_t j = 0; j < count; ++j) {
+      run += bytes[j];
+      g.active_voxels += counts[j];
+      visit((*g.leaves)[first + j], packed.data() + j * 512 * vb, counts[j]);
     }
-    // At most kInFlight batches live: batch `made - kInFlight` has left.
-    LeafBatch* b = &batches[made++ % kInFlight];
-    b->first = next, b->count = std::min(kBatch, n - next);
-    next += b->count;
-    return b;
-  };
-  auto encode = [&](LeafBatch* b) {
-    EncodeBatch(g, fill, *b);
-    return b;
-  };
-  auto keep = [&](LeafBatch* b) {
-    for (size_t j = 0; j < b->count; ++j) {
-      g.active_voxels += b->actives[j];
-      visit((*g.leaves)[b->first + j], b->packed.data() + j * 512 * vb, b->actives[j]);
-    }
-    run += b->bytes;
-    if (run.size() >= kRunBytes) g.buffers.Append(std::exchange(run, {}), spill);
-  };
-  tbb::parallel_pipeline(
-      kInFlight, tbb::make_filter<void, LeafBatch*>(tbb::filter_mode::serial_in_order, take) &
-                     tbb::make_filter<LeafBatch*, LeafBatch*>(tbb::filter_mode::parallel, encode) &
-                     tbb::make_filter<LeafBatch*, void>(tbb::filter_mode::serial_in_order, keep));
-  if (!run.empty()) g.buffers.Append(std::move(run), spill);
+    g.buffers.Append(std::move(run));
+  }
 }
 
 void WriteArchive(std::ostream& os, const std::vector<GridSource>& grids) {
