@@ -5,7 +5,9 @@
 
 #include <cerrno>
 #include <cstring>
+#include <string>
 #include <string_view>
+#include <utility>
 
 #include "absl/strings/str_cat.h"
 #include "absl/time/time.h"
@@ -25,9 +27,14 @@ absl::Status WriteAll(int fd, std::string_view data, const std::filesystem::path
   while (!data.empty()) {
     const ssize_t n = ::write(fd, data.data(), data.size());
     if (n < 0 && errno == EINTR) continue;
-    if (n <= 0)
-      return absl::ResourceExhaustedError(absl::StrCat("cannot write ", path.string(), ": ",
-                                                       std::strerror(n < 0 ? errno : ENOSPC)));
+    if (n <= 0) {
+      const int err = n < 0 ? errno : ENOSPC;
+      const std::string what =
+          absl::StrCat("cannot write ", path.string(), ": ", std::strerror(err));
+      // A full disk is the user's to fix (free space, or write elsewhere).
+      return err == ENOSPC || err == EDQUOT ? absl::ResourceExhaustedError(what)
+                                            : absl::InternalError(what);
+    }
     data.remove_prefix(size_t(n));
   }
   return absl::OkStatus();
