@@ -9,7 +9,6 @@
 #include <random>
 
 #include "absl/strings/str_cat.h"
-#include "absl/time/time.h"
 #include "proto/spec_convert.h"
 #include "server/access.h"
 #include "server/bounded_text.h"
@@ -56,11 +55,6 @@ absl::StatusOr<Principal> Authenticate(const TokenTable& tokens,
   auto p = tokens.Authenticate(AuthorizationOf(ctx));
   if (!p.ok()) spdlog::warn("event=unauthenticated peer={}", ctx.peer());
   return p;
-}
-
-// FetchResult's answer for a result the retention sweep deleted.
-grpc::Status ResultExpired(const JobRecord& rec, int64_t retention_ms) {
-  return ToGrpc(ResultExpiredError(rec, retention_ms));
 }
 
 bool IsTerminal(v1::JobState s) {
@@ -400,15 +394,12 @@ class FetchReactor : public grpc::ServerWriteReactor<v1::FetchResultResponse> {
   grpc::Status Open() {
     auto rec = LoadVisibleJob(*store_, caller_, job_id_);
     if (!rec.ok()) return ToGrpc(rec.status());
-    if (rec->result_expire_time != 0) return ResultExpired(*rec, retention_ms_);
+    if (rec->result_expire_time != 0) return ToGrpc(ResultExpiredError(*rec, retention_ms_));
     // Further files (book pages) of a running job can be fetched as soon as
     // they are listed; everything else waits for success.
     running_ = rec->state == JobState::kRunning;
     if (rec->state != JobState::kSucceeded && !(running_ && !file_name_.empty()))
-      return grpc::Status(
-          grpc::StatusCode::FAILED_PRECONDITION,
-          absl::StrCat("job ", rec->id, " is ", v1::JobState_Name(ToProto(rec->state)),
-                       "; results exist only for JOB_STATE_SUCCEEDED"));
+      return ToGrpc(ResultNotReadyError(*rec));
     size_ = rec->result_size;
     std::string sha256 = rec->result_sha256;
     // Committed further files live under the job id (the result key).

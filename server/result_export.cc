@@ -27,14 +27,8 @@ absl::Status WriteAll(int fd, std::string_view data, const std::filesystem::path
   while (!data.empty()) {
     const ssize_t n = ::write(fd, data.data(), data.size());
     if (n < 0 && errno == EINTR) continue;
-    if (n <= 0) {
-      const int err = n < 0 ? errno : ENOSPC;
-      const std::string what =
-          absl::StrCat("cannot write ", path.string(), ": ", std::strerror(err));
-      // A full disk is the user's to fix (free space, or write elsewhere).
-      return err == ENOSPC || err == EDQUOT ? absl::ResourceExhaustedError(what)
-                                            : absl::InternalError(what);
-    }
+    if (n <= 0)
+      return DiskError(absl::StrCat("cannot write ", path.string()), n < 0 ? errno : ENOSPC);
     data.remove_prefix(size_t(n));
   }
   return absl::OkStatus();
@@ -72,14 +66,17 @@ absl::Status ResultExpiredError(const JobRecord& rec, int64_t retention_ms) {
       "; pin jobs (nimbus pin) to keep their results"));
 }
 
+absl::Status ResultNotReadyError(const JobRecord& rec) {
+  return absl::FailedPreconditionError(
+      absl::StrCat("job ", rec.id, " is ", v1::JobState_Name(ToProto(rec.state)),
+                   "; results exist only for JOB_STATE_SUCCEEDED"));
+}
+
 absl::Status ExportResult(JobStore& store, ResultStore& results, const std::string& job_id,
                           const std::filesystem::path& path, int64_t retention_ms) {
   NIMBUS_ASSIGN_OR_RETURN(const JobRecord rec, store.Get(job_id));
   if (rec.result_expire_time != 0) return ResultExpiredError(rec, retention_ms);
-  if (rec.state != JobState::kSucceeded)
-    return absl::FailedPreconditionError(
-        absl::StrCat("job ", rec.id, " is ", v1::JobState_Name(ToProto(rec.state)),
-                     "; results exist only for JOB_STATE_SUCCEEDED"));
+  if (rec.state != JobState::kSucceeded) return ResultNotReadyError(rec);
   const std::filesystem::path part = path.string() + ".part";
   const int fd = ::open(part.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0666);
   if (fd < 0)

@@ -19,6 +19,10 @@ namespace nimbus::server {
 /// why (`retention_ms` > 0 names the server's keep time).
 absl::Status ResultExpiredError(const JobRecord& rec, int64_t retention_ms);
 
+/// FAILED_PRECONDITION for a job whose result is not there yet (or never
+/// will be): its state, and that results exist only for SUCCEEDED jobs.
+absl::Status ResultNotReadyError(const JobRecord& rec);
+
 /// Copies job `job_id`'s committed result to `path`, hashing the bytes as
 /// they pass. The copy is written beside `path` and renamed over it only
 /// when its size and SHA-256 match the job's record; otherwise DATA_LOSS

@@ -53,14 +53,6 @@ absl::StatusOr<std::string> ReadRange(const std::filesystem::path& path, uint64_
   return buf;
 }
 
-absl::Status DiskError(const std::string& what, int err) {
-  const std::string detail = absl::StrCat(what, ": ", std::strerror(err));
-  if (err == ENOSPC || err == EDQUOT)
-    return absl::ResourceExhaustedError(
-        absl::StrCat("disk full while writing the result: ", detail));
-  return absl::InternalError(detail);
-}
-
 // Writes a small file with every error checked, and fsyncs it.
 absl::Status WriteSmallFile(const std::filesystem::path& path, const std::string& bytes) {
   const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
@@ -315,6 +307,14 @@ class LocalResultStore : public ResultStore {
 };
 
 }  // namespace
+
+absl::Status DiskError(const std::string& what, int err) {
+  const std::string detail = absl::StrCat(what, ": ", std::strerror(err));
+  if (err == ENOSPC || err == EDQUOT)
+    return absl::ResourceExhaustedError(
+        absl::StrCat("disk full while writing the result: ", detail));
+  return absl::InternalError(detail);
+}
 
 absl::StatusOr<StoredResult> ResultStore::CopyResult(const std::string& from_key,
                                                      const std::string& from_id,

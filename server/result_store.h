@@ -78,6 +78,11 @@ class ResultStore {
                                                std::string buffer = {}) = 0;
 };
 
+/// A failed write of a result: RESOURCE_EXHAUSTED "disk full while writing
+/// the result: WHAT: reason" for a full disk or quota (ENOSPC, EDQUOT),
+/// INTERNAL "WHAT: reason" otherwise.
+absl::Status DiskError(const std::string& what, int err);
+
 /// Results as files in `dir` (created if needed). CheckFreeSpace refuses
 /// work while the file system holding `dir` has less than
 /// `min_free_bytes` available (0: never).
