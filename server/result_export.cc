@@ -19,9 +19,10 @@ namespace nimbus::server {
 
 namespace {
 
-// Big enough that per-call costs vanish, small enough to stay in L2-ish
-// caches between the read, the hash and the write.
-constexpr uint64_t kExportChunk = uint64_t{1} << 20;
+// Big enough that per-call costs vanish, small enough to stay in L2
+// between the read, the hash and the write (a quarter of this machine
+// kind's 1 MiB), and few fresh pages to fault in: 64 of 4 KiB.
+constexpr uint64_t kExportChunk = uint64_t{256} << 10;
 
 absl::Status WriteAll(int fd, std::string_view data, const std::filesystem::path& path) {
   while (!data.empty()) {

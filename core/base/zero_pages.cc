@@ -16,9 +16,15 @@ size_t WholePages(size_t bytes) {
 }
 }  // namespace
 
+size_t ZeroPages::MappedBytes(size_t bytes, bool huge) {
+  // Below half a huge page, rounding up would more than double the memory.
+  if (!huge || bytes < kHugePage / 2) return WholePages(bytes);
+  return (bytes + kHugePage - 1) / kHugePage * kHugePage;
+}
+
 void* ZeroPages::Map(size_t bytes, bool huge) {
   // Whole pages, so that the tail trimmed off below starts on a page.
-  bytes = WholePages(bytes);
+  bytes = MappedBytes(bytes, huge);
   // Map a huge page more than needed and keep an aligned range of it.
   void* p = mmap(nullptr, bytes + kHugePage, PROT_READ | PROT_WRITE,
                  MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
@@ -33,12 +39,12 @@ void* ZeroPages::Map(size_t bytes, bool huge) {
   return data;
 }
 
-void ZeroPages::Unmap(void* data, size_t bytes) {
-  if (data) munmap(data, WholePages(bytes));
+void ZeroPages::Unmap(void* data, size_t bytes, bool huge) {
+  if (data) munmap(data, MappedBytes(bytes, huge));
 }
 
 ZeroPages::ZeroPages(size_t bytes, bool huge)
-    : data_(Map(bytes, huge)), bytes_(WholePages(bytes)) {}
+    : data_(Map(bytes, huge)), bytes_(MappedBytes(bytes, huge)) {}
 
 ZeroPages::ZeroPages(ZeroPages&& other) noexcept
     : data_(std::exchange(other.data_, nullptr)), bytes_(std::exchange(other.bytes_, 0)) {}
@@ -49,6 +55,6 @@ ZeroPages& ZeroPages::operator=(ZeroPages&& other) noexcept {
   return *this;
 }
 
-ZeroPages::~ZeroPages() { Unmap(data_, bytes_); }
+ZeroPages::~ZeroPages() { Unmap(data_, bytes_, /*huge=*/false); }  // bytes_ is whole already
 
 }  // namespace nimbus

@@ -30,14 +30,19 @@ class ZeroPages {
   T* as() const {
     return static_cast<T*>(data_);
   }
-  /// The bytes mapped: the size asked for, rounded up to whole pages.
+  /// The bytes mapped: the size asked for, rounded up to whole pages
+  /// (whole huge pages where huge ones were asked for, from 1 MiB on).
   size_t bytes() const { return bytes_; }
   explicit operator bool() const { return data_ != nullptr; }
 
-  /// The mapping behind the class, for owners of their own: `bytes`
-  /// rounded up to whole pages, 2 MiB aligned; Unmap takes the same size.
+  /// The mapping behind the class, for owners of their own: 2 MiB aligned,
+  /// MappedBytes(bytes, huge) long; Unmap takes the same `bytes` and `huge`.
+  /// A huge mapping of 1 MiB or more ends on a huge page too: the kernel
+  /// backs only whole 2 MiB ranges of a mapping with huge pages, so a
+  /// 1.5 MiB one would otherwise fault in 4 KiB at a time.
   static void* Map(size_t bytes, bool huge);
-  static void Unmap(void* data, size_t bytes);
+  static void Unmap(void* data, size_t bytes, bool huge);
+  static size_t MappedBytes(size_t bytes, bool huge);
 
  private:
   void* data_ = nullptr;
@@ -66,7 +71,7 @@ struct ZeroPageAllocator {
   }
   void deallocate(T* p, size_t n) {
     if (n * sizeof(T) < kMinBytes) return std::allocator<T>().deallocate(p, n);
-    ZeroPages::Unmap(p, n * sizeof(T));
+    ZeroPages::Unmap(p, n * sizeof(T), /*huge=*/true);
   }
   /// Default initialisation: no value written (see above).
   template <class U>

@@ -52,6 +52,9 @@ KeyBins::KeyBins(CountGrid& grid, size_t capacity, bool weighted, std::mutex* fo
     const size_t bytes = size_t(tiles) * CountGrid::kTileVoxels * sizeof(uint64_t);
     // Huge pages: a few faults instead of one per 4 KiB.
     packed_ = ZeroPages(bytes, /*huge=*/true);
+    // Folds write every tile the words touched, usually most of the grid's
+    // few: its first 2 MiB in 4 KiB pages would cost a thousand faults.
+    grid.PreferHugePages();
     return;
   }
   shift_ = 15 + Pool::TileShift(tiles);

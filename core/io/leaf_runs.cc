@@ -3,6 +3,7 @@
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstdlib>
 #include <cstring>
@@ -43,19 +44,18 @@ const SpillScope* SpillScope::Current() { return g_spill; }
 
 LeafRuns::LeafRuns() = default;
 LeafRuns::LeafRuns(LeafRuns&& other) noexcept
-    : memory_(std::move(other.memory_)), fd_(std::exchange(other.fd_, -1)),
-      bytes_(other.bytes_), kept_(other.kept_) {}
+    : blocks_(std::move(other.blocks_)), last_used_(other.last_used_),
+      fd_(std::exchange(other.fd_, -1)), bytes_(other.bytes_), kept_(other.kept_) {}
 LeafRuns::~LeafRuns() {
   if (fd_ >= 0) ::close(fd_);
 }
 
-void LeafRuns::Append(std::string&& run) {
+void LeafRuns::Append(std::string_view run) {
   bytes_ += run.size();
   const SpillScope* spill = SpillScope::Current();
   if (fd_ < 0 && (spill == nullptr || kept_ + run.size() <= spill->keep_bytes())) {
     kept_ += run.size();
-    memory_.push_back(std::move(run));
-    return;
+    return Keep(run);
   }
   if (fd_ < 0) fd_ = OpenSpill(spill->dir());
   for (size_t done = 0; done < run.size();) {
@@ -66,15 +66,35 @@ void LeafRuns::Append(std::string&& run) {
   }
 }
 
+void LeafRuns::Keep(std::string_view run) {
+  // A small first block keeps small grids small; later ones are 4 MiB
+  // (two huge pages).
+  constexpr size_t kFirst = size_t{256} << 10, kLater = size_t{4} << 20;
+  while (!run.empty()) {
+    if (blocks_.empty() || last_used_ == blocks_.back().bytes()) {
+      blocks_.emplace_back(blocks_.empty() ? kFirst : kLater, /*huge=*/!blocks_.empty());
+      last_used_ = 0;
+    }
+    const size_t n = std::min(run.size(), blocks_.back().bytes() - last_used_);
+    std::memcpy(blocks_.back().as<char>() + last_used_, run.data(), n);
+    last_used_ += n;
+    run.remove_prefix(n);
+  }
+}
+
 void LeafRuns::WriteTo(std::ostream& os) const {
-  for (const std::string& run : memory_) os.write(run.data(), std::streamsize(run.size()));
+  for (size_t i = 0; i < blocks_.size(); ++i) {
+    const size_t n = i + 1 < blocks_.size() ? blocks_[i].bytes() : last_used_;
+    os.write(blocks_[i].as<char>(), std::streamsize(n));
+  }
   if (fd_ < 0) return;
-  std::string buf(size_t{1} << 20, '\0');
+  // One huge page, faulted in once (a zero-filled string: 512 faults).
+  const ZeroPages buf(ZeroPages::kHugePage, /*huge=*/true);
   for (uint64_t at = 0; at < bytes_ - kept_;) {
-    const ssize_t n = ::pread(fd_, buf.data(), buf.size(), off_t(at));
+    const ssize_t n = ::pread(fd_, buf.as<char>(), buf.bytes(), off_t(at));
     if (n < 0 && errno == EINTR) continue;
     if (n <= 0) throw std::runtime_error("leaf spill file: read failed");
-    os.write(buf.data(), n);
+    os.write(buf.as<char>(), n);
     at += uint64_t(n);
   }
 }

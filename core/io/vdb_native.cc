@@ -14,6 +14,8 @@
 #include <stdexcept>
 #include <utility>
 
+#include "core/base/zero_pages.h"
+
 namespace nimbus::vdb_native {
 
 namespace {
@@ -357,9 +359,17 @@ void PutTopology(std::string& out, const Grid& g, uint64_t& nodes5, uint64_t& no
   Put(out, int32_t(1));
   out.append(ValueBytes(g.kind), '\0');  // the zero background (as a half too)
   std::vector<size_t> roots;  // first leaf of each root child
-  for (size_t i = 0; i < (*g.leaves).size(); ++i)
-    if (i == 0 || RootKey((*g.leaves)[i].origin) != RootKey((*g.leaves)[i - 1].origin))
-      roots.push_back(i);
+  size_t internal4 = 0;
+  for (size_t i = 0; i < (*g.leaves).size(); ++i) {
+    const auto& o = (*g.leaves)[i].origin;
+    const auto& before = (*g.leaves)[i == 0 ? 0 : i - 1].origin;
+    if (i == 0 || RootKey(o) != RootKey(before)) roots.push_back(i);
+    if (i == 0 || RootKey(o) != RootKey(before) || Index5(o) != Index5(before)) ++internal4;
+  }
+  // Sized once (masks plus a generous allowance for keys and empty tiles):
+  // doubling would fault in twice the pages.
+  out.reserve(out.size() + roots.size() * (2 * 4096 + 128) + internal4 * (2 * 512 + 128) +
+              (*g.leaves).size() * 64);
   Put(out, uint32_t(0));
   Put(out, uint32_t(roots.size()));
   nodes5 = roots.size(), nodes4 = 0;
@@ -465,14 +475,14 @@ void WriteGrid(std::ostream& os, const std::string& unique, const Grid& g) {
   Put(body, kCompression);
   meta.Write(body);
   body += g.transform.Bytes();
-  body += topology;
   int64_t pos[3];
   pos[0] = int64_t(os.tellp()) + int64_t(head.size() + sizeof(pos));
-  pos[1] = pos[0] + int64_t(body.size());
+  pos[1] = pos[0] + int64_t(body.size() + topology.size());
   pos[2] = pos[1] + int64_t(g.buffers.bytes());
   os.write(head.data(), std::streamsize(head.size()));
   os.write(reinterpret_cast<const char*>(pos), sizeof(pos));
   os.write(body.data(), std::streamsize(body.size()));
+  os.write(topology.data(), std::streamsize(topology.size()));
   g.buffers.WriteTo(os);
   if (!os) throw std::runtime_error("stream failure writing grid " + g.name);
   if (int64_t(os.tellp()) != pos[2])
@@ -481,7 +491,7 @@ void WriteGrid(std::ostream& os, const std::string& unique, const Grid& g) {
 
 }  // namespace
 
-void SortTreeOrder(std::vector<Leaf>& leaves) {
+void SortTreeOrder(LeafList& leaves) {
   std::sort(leaves.begin(), leaves.end(), [](const Leaf& a, const Leaf& b) {
     const auto ra = RootKey(a.origin), rb = RootKey(b.origin);
     if (ra != rb) return ra < rb;
@@ -497,8 +507,10 @@ void EncodeLeaves(Grid& g, const std::function<void(const Leaf&, void*)>& fill,
   // Runs of leaves bound the scratch; enough leaves per task to amortise it.
   constexpr size_t kChunk = 256;
   std::vector<std::string> bytes(std::min(n, kChunk));
-  std::vector<char> packed(std::min(n, kChunk) * 512 * vb);
+  // Written before read; from the kernel in huge pages (see ZeroPageAllocator).
+  std::vector<char, ZeroPageAllocator<char>> packed(std::min(n, kChunk) * 512 * vb);
   std::vector<size_t> counts(bytes.size());
+  std::string run;  // one chunk's encodings; its capacity is kept for the next
   for (size_t first = 0; first < n; first += kChunk) {
     const size_t count = std::min(kChunk, n - first);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 32), [&](const auto& r) {
@@ -517,13 +529,13 @@ void EncodeLeaves(Grid& g, const std::function<void(const Leaf&, void*)>& fill,
         g.delayed_size[first + j] = EncodeLeaf(g.kind, g.half, leaf.mask, out, k, bytes[j]);
       }
     });
-    std::string run;
+    run.clear();
     for (size_t j = 0; j < count; ++j) {
       run += bytes[j];
       g.active_voxels += counts[j];
       visit((*g.leaves)[first + j], packed.data() + j * 512 * vb, counts[j]);
     }
-    g.buffers.Append(std::move(run));
+    g.buffers.Append(run);
   }
 }
 

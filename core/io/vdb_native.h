@@ -18,6 +18,7 @@
 #include <utility>
 #include <vector>
 
+#include "core/base/zero_pages.h"
 #include "core/io/leaf_runs.h"
 
 namespace nimbus::vdb_native {
@@ -85,9 +86,14 @@ struct Leaf {
   LeafMask mask;
 };
 
+/// A grid's leaves. From 1 MiB on they come from the kernel in huge pages
+/// (ZeroPageAllocator): a 2D picture's 16 384 leaves are 1.3 MB, some 320
+/// page faults on a fresh heap.
+using LeafList = std::vector<Leaf, ZeroPageAllocator<Leaf>>;
+
 /// Orders leaves as OpenVDB's tree iterates them (root children by origin,
 /// then internal-node child index at each level): the file's leaf order.
-void SortTreeOrder(std::vector<Leaf>& leaves);
+void SortTreeOrder(LeafList& leaves);
 
 /// @brief One grid to write: what its header, metadata and topology need
 /// plus its encoded leaf buffers (`leaves` in tree order, shared by the
@@ -99,7 +105,7 @@ struct Grid {
   bool half = false;
   MetaMap meta;  // the grid's own metadata; the writer adds the file_* entries
   LinearTransform transform{};
-  std::shared_ptr<const std::vector<Leaf>> leaves = std::make_shared<std::vector<Leaf>>();
+  std::shared_ptr<const LeafList> leaves = std::make_shared<LeafList>();
   vdb_internal::LeafRuns buffers;
   std::vector<int8_t> delayed_mask;
   std::vector<int64_t> delayed_size;

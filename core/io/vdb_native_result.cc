@@ -50,12 +50,15 @@ void AddMeta(MetaMap& meta, const std::string& key, const MetaValue& v) {
 
 // The counts' leaves in tree order, each active where counted. Tiles are
 // scanned in parallel, each range into its own list, joined in tile order.
-std::shared_ptr<const std::vector<Leaf>> CountLeaves(const CountGrid& counts) {
+std::shared_ptr<const LeafList> CountLeaves(const CountGrid& counts) {
   constexpr size_t kTilesPerRange = 16;
   const size_t ranges = (counts.TileCount() + kTilesPerRange - 1) / kTilesPerRange;
   std::vector<std::vector<Leaf>> parts(ranges);
   tbb::parallel_for(size_t{0}, ranges, [&](size_t r) {
     const size_t end = std::min(counts.TileCount(), (r + 1) * kTilesPerRange);
+    // Room for every leaf the tiles can hold: growing by doubling would
+    // copy, and fault in fresh pages, twice over.
+    parts[r].reserve((end - r * kTilesPerRange) * size_t(CountGrid::kTileVoxels / 512));
     counts.ForEachLeafInTiles(r * kTilesPerRange, end,
                               [&](Int3 o, const uint32_t* v, const uint64_t*) {
                                 Leaf leaf{{o.x, o.y, o.z}, {}};
@@ -64,7 +67,7 @@ std::shared_ptr<const std::vector<Leaf>> CountLeaves(const CountGrid& counts) {
                                 parts[r].push_back(leaf);
                               });
   });
-  auto leaves = std::make_shared<std::vector<Leaf>>();
+  auto leaves = std::make_shared<LeafList>();
   size_t total = 0;
   for (const auto& p : parts) total += p.size();
   leaves->reserve(total);
@@ -87,7 +90,7 @@ struct Result {
   const DensityOptions& options;
   const Metadata& metadata;
   Normaliser norm;
-  std::shared_ptr<const std::vector<Leaf>> leaves;  // shared by every grid
+  std::shared_ptr<const LeafList> leaves;  // shared by every grid
   bool color;
 
   Result(const CountGrid& c, const GridFrame& f, const DensityOptions& o, const Metadata& m)
@@ -231,7 +234,7 @@ Grid FieldGrid(const Vec3Field& field, const GridFrame& frame, const OutputConve
     values[size_t(i)] = z_up ? std::array<float, 3>{float(v.x), float(-v.z), float(v.y)}
                              : std::array<float, 3>{float(v.x), float(v.y), float(v.z)};
   }
-  auto leaves = std::make_shared<std::vector<Leaf>>();
+  auto leaves = std::make_shared<LeafList>();
   for (const auto& [origin, entry] : by_leaf) leaves->push_back({origin, entry.first});
   SortTreeOrder(*leaves);
   g.leaves = std::move(leaves);
