@@ -12,9 +12,11 @@
 #include <functional>
 #include <map>
 #include <mutex>
+#include <optional>
 #include <sstream>
 
 #include "absl/strings/str_cat.h"
+#include "core/base/file_digests.h"
 #include "core/base/sha256.h"
 
 namespace nimbus::server {
@@ -108,7 +110,10 @@ class LocalResultStore : public ResultStore {
 
   absl::StatusOr<StoredResult> Commit(const std::string& key,
                                       const std::filesystem::path& scratch) override {
-    auto sha = Sha256File(scratch);
+    // The VDB writer hashed the file while it synced it; others are read.
+    std::optional<std::string> known = RecallFileSha256(scratch);
+    absl::StatusOr<std::string> sha =
+        known ? absl::StatusOr<std::string>(*std::move(known)) : Sha256File(scratch);
     if (!sha.ok()) return sha.status();
     std::error_code ec;
     const uint64_t size = std::filesystem::file_size(scratch, ec);

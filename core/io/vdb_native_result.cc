@@ -56,9 +56,10 @@ std::shared_ptr<const LeafList> CountLeaves(const CountGrid& counts) {
   std::vector<std::vector<Leaf>> parts(ranges);
   tbb::parallel_for(size_t{0}, ranges, [&](size_t r) {
     const size_t end = std::min(counts.TileCount(), (r + 1) * kTilesPerRange);
-    // Room for every leaf the tiles can hold: growing by doubling would
-    // copy, and fault in fresh pages, twice over.
-    parts[r].reserve((end - r * kTilesPerRange) * size_t(CountGrid::kTileVoxels / 512));
+    // Room for every leaf the tiles can hold (64 stored leaves per tile,
+    // each eight voxel leaves when folded): growing by doubling would copy,
+    // and fault in fresh pages, twice over.
+    parts[r].reserve((end - r * kTilesPerRange) * (counts.folded() ? 512 : 64));
     counts.ForEachLeafInTiles(r * kTilesPerRange, end,
                               [&](Int3 o, const uint32_t* v, const uint64_t*) {
                                 Leaf leaf{{o.x, o.y, o.z}, {}};
