@@ -5,12 +5,14 @@
 
 #include <cerrno>
 #include <cstring>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <utility>
 
 #include "absl/strings/str_cat.h"
 #include "absl/time/time.h"
+#include "core/base/file_digests.h"
 #include "core/base/sha256.h"
 #include "core/base/status_macros.h"
 #include "server/job_view.h"
@@ -54,6 +56,51 @@ absl::StatusOr<std::string> CopyHashed(ResultStore& results, const JobRecord& re
   return hash.HexDigest();
 }
 
+// A result this process wrote and hashed moments ago, unchanged since
+// (same inode, size and modification time: RecallFileSha256), is copied by
+// the kernel (copy_file_range) instead of read, hashed and written again.
+// Returns the remembered digest, or nothing when the fast copy does not
+// apply (another writer's file, a file system without it): the caller
+// then copies and hashes. A failed write is an error either way.
+absl::StatusOr<std::optional<std::string>> CopyKnown(ResultStore& results, const JobRecord& rec,
+                                                     int fd, const std::filesystem::path& part) {
+  const std::optional<std::filesystem::path> from = results.LocalFile(rec.result_key);
+  if (!from) return std::nullopt;
+  std::optional<std::string> sha = RecallFileSha256(*from);
+  if (!sha) return std::nullopt;
+  const int in = ::open(from->c_str(), O_RDONLY | O_CLOEXEC);
+  if (in < 0) return std::nullopt;
+  uint64_t done = 0;
+  int err = 0;
+  while (done < rec.result_size) {
+    const ssize_t n = ::copy_file_range(in, nullptr, fd, nullptr, rec.result_size - done, 0);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) {
+      err = n < 0 ? errno : 0;
+      break;
+    }
+    done += uint64_t(n);
+  }
+  ::close(in);
+  if (done == rec.result_size) return sha;
+  // Nothing copied and no room to: the file system lacks the call.
+  if (done == 0 && (err == EXDEV || err == ENOSYS || err == EOPNOTSUPP || err == EINVAL))
+    return std::nullopt;
+  if (err == ENOSPC || err == EDQUOT || err == EIO)
+    return DiskError(absl::StrCat("cannot write ", part.string()), err);
+  return absl::DataLossError(absl::StrCat("the result of job ", rec.id, " ends at ", done, " of ",
+                                          rec.result_size, " bytes"));
+}
+
+// The result copied into `fd`, by the kernel where it may be; the digest
+// of what was written.
+absl::StatusOr<std::string> Copy(ResultStore& results, const JobRecord& rec, int fd,
+                                 const std::filesystem::path& part) {
+  NIMBUS_ASSIGN_OR_RETURN(std::optional<std::string> known, CopyKnown(results, rec, fd, part));
+  if (known) return *std::move(known);
+  return CopyHashed(results, rec, fd, part);
+}
+
 }  // namespace
 
 absl::Status ResultExpiredError(const JobRecord& rec, int64_t retention_ms) {
@@ -83,7 +130,7 @@ absl::Status ExportResult(JobStore& store, ResultStore& results, const std::stri
   if (fd < 0)
     return absl::PermissionDeniedError(
         absl::StrCat("cannot write ", part.string(), ": ", std::strerror(errno)));
-  absl::StatusOr<std::string> sha = CopyHashed(results, rec, fd, part);
+  absl::StatusOr<std::string> sha = Copy(results, rec, fd, part);
   if (::close(fd) != 0 && sha.ok())
     sha = absl::ResourceExhaustedError(
         absl::StrCat("cannot write ", part.string(), ": ", std::strerror(errno)));

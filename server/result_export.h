@@ -26,7 +26,10 @@ absl::Status ResultNotReadyError(const JobRecord& rec);
 /// Copies job `job_id`'s committed result to `path`, hashing the bytes as
 /// they pass. The copy is written beside `path` and renamed over it only
 /// when its size and SHA-256 match the job's record; otherwise DATA_LOSS
-/// and `path` is untouched. NOT_FOUND for an unknown job,
+/// and `path` is untouched. A result this process wrote moments ago and
+/// that is unchanged since (RecallFileSha256: same inode, size and
+/// modification time as when its writer hashed it) is copied by the kernel
+/// instead, checked against the record by that digest and by its size. NOT_FOUND for an unknown job,
 /// FAILED_PRECONDITION for one that has not succeeded or whose result
 /// expired. Blocking I/O: never call it on a gRPC thread.
 absl::Status ExportResult(JobStore& store, ResultStore& results, const std::string& job_id,

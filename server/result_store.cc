@@ -189,6 +189,11 @@ class LocalResultStore : public ResultStore {
                      std::move(buffer));
   }
 
+  std::optional<std::filesystem::path> LocalFile(const std::string& key) override {
+    if (!IsPlainName(key)) return std::nullopt;
+    return Path(key);
+  }
+
   absl::StatusOr<uint64_t> Size(const std::string& key) override {
     std::error_code ec;
     const uint64_t size = std::filesystem::file_size(Path(key), ec);

@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -52,6 +53,13 @@ class ResultStore {
   virtual absl::StatusOr<std::string> Read(const std::string& key, uint64_t offset,
                                            uint64_t max_bytes, std::string buffer = {}) = 0;
   virtual absl::StatusOr<uint64_t> Size(const std::string& key) = 0;
+  /// The committed result's own file where the store keeps it on this
+  /// machine's file system (an exporter may then copy it in the kernel);
+  /// nothing for stores elsewhere.
+  virtual std::optional<std::filesystem::path> LocalFile(const std::string& key) {
+    (void)key;
+    return std::nullopt;
+  }
   /// Removes a committed result and its further files (retention, or a
   /// deleted job); returns the bytes freed. A missing result frees 0.
   virtual absl::StatusOr<uint64_t> Delete(const std::string& key) = 0;
