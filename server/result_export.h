@@ -29,9 +29,10 @@ absl::Status ResultNotReadyError(const JobRecord& rec);
 /// and `path` is untouched. A result this process wrote moments ago and
 /// that is unchanged since (RecallFileSha256: same inode, size and
 /// modification time as when its writer hashed it) is copied by the kernel
-/// instead, checked against the record by that digest and by its size. NOT_FOUND for an unknown job,
-/// FAILED_PRECONDITION for one that has not succeeded or whose result
-/// expired. Blocking I/O: never call it on a gRPC thread.
+/// instead, checked against the record by that digest and by its size.
+/// NOT_FOUND for an unknown job, FAILED_PRECONDITION for one that has not
+/// succeeded or whose result expired. Blocking I/O: never call it on a
+/// gRPC thread.
 absl::Status ExportResult(JobStore& store, ResultStore& results, const std::string& job_id,
                           const std::filesystem::path& path, int64_t retention_ms = 0);
 
