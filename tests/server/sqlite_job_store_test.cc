@@ -787,6 +787,20 @@ TEST_F(SqliteJobStoreTest, SchemaIsVersionedWalAndIndexed) {
             2);
 }
 
+// Closing does not checkpoint (no fsync at exit): the WAL stays beside the
+// file, and whatever opens the file next reads it.
+TEST_F(SqliteJobStoreTest, ClosingLeavesTheWalForTheNextOpen) {
+  ASSERT_TRUE(store_->Create(MakeJob("j-wal"), 1000).ok());
+  store_.reset();
+  const std::filesystem::path wal = db_path().string() + "-wal";
+  ASSERT_TRUE(std::filesystem::exists(wal));
+  EXPECT_GT(std::filesystem::file_size(wal), 0u);
+  EXPECT_EQ(QueryInt(db_path().string(), "SELECT count(*) FROM jobs WHERE id = 'j-wal'"), 1);
+  store_ = OpenOrDie(db_path());
+  ASSERT_NE(store_, nullptr);
+  EXPECT_TRUE(store_->Get("j-wal").ok());
+}
+
 TEST(SqliteJobStoreOpenTest, RefusesNewerSchema) {
   TempDir dir;
   const std::string path = (dir / "jobs.db").string();
