@@ -99,9 +99,11 @@ absl::Status JobDriver::RunRounds(const Rounds& r) {
       next_check += r.checkpoint_every;
       if (r.at_checkpoint && r.at_checkpoint(done)) break;
     }
+    // Partial counts may cost a pass (ChaosGame::partial_counts): gathered
+    // only for a preview someone wants.
     if (r.preview)
       r.preview(r.offset + done);
-    else if (r.parts)
+    else if (r.parts && ctx_.WantsPreview())
       Preview(r.parts(), r.offset + done);
   }
   return absl::OkStatus();

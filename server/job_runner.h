@@ -49,6 +49,9 @@ class JobContext {
   /// Publishes progress to watchers and keeps the job's lease alive. Call
   /// every ~0.2 s. Returns AbortedError if the claim was lost.
   virtual absl::Status ReportProgress(const JobProgress& progress) = 0;
+  /// Whether a watcher (or a parent job) wants this job's previews at all:
+  /// engines gather partial counts for MaybePublishPreview only then.
+  virtual bool WantsPreview() { return true; }
   /// Builds and publishes previews if a watcher is due one. `parts` are
   /// summed (per-thread partial counts).
   virtual void MaybePublishPreview(const std::vector<const CountGrid*>& parts,

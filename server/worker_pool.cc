@@ -111,6 +111,8 @@ class WorkerPool::Context : public JobContext {
     return absl::OkStatus();
   }
 
+  bool WantsPreview() override { return !record_.parent_id.empty() || !Wanted().empty(); }
+
   void MaybePublishPreview(const std::vector<const CountGrid*>& parts, const GridFrame& frame,
                            const DensityOptions& density, uint64_t done) override {
     for (const PreviewTarget& want : Wanted()) {

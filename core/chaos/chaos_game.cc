@@ -53,6 +53,8 @@ struct ChaosGame::Worker {
     if (bins) bins->Flush();
     if (keys) keys->Flush();
   }
+  // Packed words may stay unfolded between rounds (ChaosGame::partial_counts).
+  bool DefersFlush() const { return keys && keys->packed(); }
   // Through the bins: a shared grid's own flag is written under its
   // allocation lock, and the bins read SharedTiles' atomic copy instead.
   bool overflowed() const {
@@ -969,6 +971,7 @@ absl::Status ChaosGame::RunUntil(uint64_t iterations, Interrupter* interrupter) 
   std::atomic<bool> stop{false}, over_budget{false};
   poll_intr_ = interrupter;
   poll_stop_ = &stop;
+  const bool last_round = target == end_chunk_;
   auto body = [&](int t) {
     Worker& w = *workers_[t];
     while (!stop.load(std::memory_order_relaxed)) {
@@ -979,7 +982,7 @@ absl::Status ChaosGame::RunUntil(uint64_t iterations, Interrupter* interrupter) 
       if (intr.WasInterrupted((c - begin_chunk_) * kChunkIterations, range_iterations()))
         stop = true;
     }
-    w.Flush();
+    if (last_round || !w.DefersFlush()) w.Flush();
     if (w.overflowed()) over_budget = stop = true;
   };
   const int n = int(std::min<uint64_t>(threads_, target - next_chunk_));
@@ -989,6 +992,7 @@ absl::Status ChaosGame::RunUntil(uint64_t iterations, Interrupter* interrupter) 
   for (int t = 1; t < n; ++t) group.run([&body, t] { body(t); });
   body(0);
   group.wait();
+  unfolded_ = !last_round;
   poll_intr_ = nullptr;
   poll_stop_ = nullptr;
   if (over_budget)
@@ -998,6 +1002,19 @@ absl::Status ChaosGame::RunUntil(uint64_t iterations, Interrupter* interrupter) 
   if (stop) return absl::CancelledError("interrupted");
   next_chunk_ = target;
   return absl::OkStatus();
+}
+
+void ChaosGame::FoldPending() {
+  if (!unfolded_) return;
+  // Between rounds, on the caller's thread; an outgrown budget shows in
+  // the next round (Worker::overflowed).
+  for (auto& w : workers_) w->Flush();
+  unfolded_ = false;
+}
+
+const std::vector<CountGrid>& ChaosGame::partial_counts() {
+  FoldPending();
+  return counts_;
 }
 
 std::vector<uint64_t> CoarseCounts(const std::vector<const CountGrid*>& parts, int max_resolution) {
@@ -1048,6 +1065,7 @@ uint64_t ChaosGame::range_iterations() const {
 }
 
 CountGrid ChaosGame::TakeCounts() {
+  FoldPending();     // a run stopped before its last round
   workers_.clear();  // the key buffers first: lowers the merge's peak
   shared_tiles_.reset();
   for (CountGrid& g : counts_) g.SetTileLimit(0);

@@ -215,7 +215,11 @@ class ChaosGame {
   ChaosGameStats stats() const;
 
   /// Per-thread partial counts, for previews between rounds (no merge).
-  const std::vector<CountGrid>& partial_counts() const { return counts_; }
+  /// Folds first what the threads still hold in packed words: rounds that
+  /// end before the run does leave them there, since a fold scans every
+  /// word however few the round added (8 MiB per thread for a 1024²
+  /// picture), and a run nobody previews needs only its last.
+  const std::vector<CountGrid>& partial_counts();
   /// Merges all threads' counts into one grid and returns it; the game is
   /// spent afterwards.
   CountGrid TakeCounts();
@@ -275,6 +279,8 @@ class ChaosGame {
   uint64_t num_chunks_ = 0;
   uint64_t begin_chunk_ = 0, end_chunk_ = 0;  // the range run (chunk_begin/end)
   uint64_t next_chunk_ = 0;
+  bool unfolded_ = false;  // a round left packed words unfolded (partial_counts)
+  void FoldPending();
   std::vector<CountGrid> counts_;  // one per thread, or one shared
   std::unique_ptr<SharedTiles> shared_tiles_;  // when the threads share counts_[0]
   std::mutex fold_lock_;  // packed keys folding into a shared counts_[0] (KeyBins)

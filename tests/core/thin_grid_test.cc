@@ -187,6 +187,38 @@ TEST(ThinGrid, PackedKeysCountAsBinnedAtEverySimdLevel) {
   }
 }
 
+// Packed words stay unfolded between rounds until the partial counts are
+// read: read mid-run they hold every step so far (as a game stopped there
+// does), and rounds, read or not, leave the final counts as one run's.
+TEST(ThinGrid, PackedRoundsFoldWhenReadAndAtTheEnd) {
+  const uint64_t n = 12 * ChaosGame::kChunkIterations;
+  const ChaosGameParams p = Flame2d(200, 200, n);
+  ASSERT_TRUE(KeyBins::Packs(p.CountResolution(), true));
+  ChaosGameParams half = p;
+  half.iterations = n / 2;
+  const CountGrid at_half = RunGame(half, 2);
+  auto game = ChaosGame::Create(p, 2);
+  ASSERT_TRUE(game.ok()) << game.status();
+  ASSERT_TRUE((*game)->RunUntil(ChaosGame::kChunkIterations, nullptr).ok());
+  ASSERT_TRUE((*game)->RunUntil(n / 4, nullptr).ok());  // left unfolded: nobody reads
+  ASSERT_TRUE((*game)->RunUntil(n / 2, nullptr).ok());
+  const std::vector<CountGrid>& parts = (*game)->partial_counts();
+  ASSERT_EQ(parts.size(), 1u);  // the threads share one grid
+  EXPECT_EQ(parts[0].Total(), at_half.Total());
+  EXPECT_EQ(parts[0].Max(), at_half.Max());
+  ASSERT_TRUE((*game)->RunUntil(3 * n / 4, nullptr).ok());
+  ASSERT_TRUE((*game)->Run(nullptr).ok());
+  ExpectSameCounts((*game)->TakeCounts(), RunGame(Unfolded(p), 1));
+  // Stopped before the last round and taken at once: nothing is lost.
+  auto stopped = ChaosGame::Create(half, 2);
+  ASSERT_TRUE(stopped.ok());
+  ASSERT_TRUE((*stopped)->RunUntil(n / 4, nullptr).ok());
+  ASSERT_FALSE((*stopped)->done());
+  const ChaosGameStats s = (*stopped)->stats();
+  EXPECT_GT(s.iterations_done, 0u);
+  EXPECT_EQ((*stopped)->TakeCounts().Total(), s.iterations_done - s.outside - s.reseeded);
+}
+
 TEST(ThinGrid, SplatCountsAsUnfolded) {
   ChaosGameParams p = Flame2d(96, 70, 1'000'000);
   p.splat = true;
