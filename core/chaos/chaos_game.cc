@@ -34,6 +34,9 @@ uint64_t ReachableTiles(const ChaosGameParams& p);
 size_t BufferEntries(const ChaosGameParams& p, uint64_t reachable_tiles);
 uint64_t PoolTiles(const ChaosGameParams& p, bool fast);
 bool DirectIncrements(const ChaosGameParams& p, uint64_t pool_tiles);
+uint64_t* AlignedTo64(uint64_t* p) {
+  return reinterpret_cast<uint64_t*>((reinterpret_cast<uintptr_t>(p) + 63) & ~uintptr_t(63));
+}
 // The general path's threads share one grid when their keys are packed.
 bool SharesPackedGrid(const ChaosGameParams& p, int threads) {
   return !ChaosGame::UsesFastPath(p) && threads > 1 && p.shared_grid.value_or(true) &&
@@ -853,9 +856,12 @@ void ChaosGame::RunChunkBatch(uint64_t chunk, Worker& w) {
   flame::Walkers& solo = blocks[1];
   const size_t words = size_t(prog.words) * flame::kMaxWalkers;
   const size_t groups = size_t(prog.maps.num_maps) + 1;
-  std::vector<uint64_t> word_buffer(2 * words);
+  // Cache-line aligned: the kernels store and load whole 64-byte registers
+  // of words, and malloc's 16-byte alignment would split most of them
+  // across two lines.
+  std::vector<uint64_t> word_buffer(2 * words + 7);
   std::vector<uint32_t> group_buffer(2 * groups);
-  s.words = word_buffer.data(), solo.words = s.words + words;
+  s.words = AlignedTo64(word_buffer.data()), solo.words = s.words + words;
   s.group = group_buffer.data(), solo.group = s.group + groups;
   auto rng_of = [](const flame::Walkers& b, int k) {
     return Rng::FromState(b.s0[k], b.s1[k], b.s2[k], b.s3[k]);
