@@ -998,7 +998,12 @@ absl::Status ChaosGame::RunUntil(uint64_t iterations, Interrupter* interrupter) 
   for (int t = 1; t < n; ++t) group.run([&body, t] { body(t); });
   body(0);
   group.wait();
-  unfolded_ = !last_round;
+  unfolded_ = unfolded_ || !last_round;
+  // A last round of fewer chunks than threads leaves out workers that may
+  // still hold words from earlier rounds.
+  if (last_round) FoldPending();
+  for (const auto& w : workers_)
+    if (w->overflowed()) over_budget = stop = true;
   poll_intr_ = nullptr;
   poll_stop_ = nullptr;
   if (over_budget)

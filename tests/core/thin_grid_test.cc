@@ -207,6 +207,8 @@ TEST(ThinGrid, PackedRoundsFoldWhenReadAndAtTheEnd) {
   EXPECT_EQ(parts[0].Total(), at_half.Total());
   EXPECT_EQ(parts[0].Max(), at_half.Max());
   ASSERT_TRUE((*game)->RunUntil(3 * n / 4, nullptr).ok());
+  // A last round of one chunk: the other thread sits it out, holding words.
+  ASSERT_TRUE((*game)->RunUntil(n - ChaosGame::kChunkIterations, nullptr).ok());
   ASSERT_TRUE((*game)->Run(nullptr).ok());
   ExpectSameCounts((*game)->TakeCounts(), RunGame(Unfolded(p), 1));
   // Stopped before the last round and taken at once: nothing is lost.
