@@ -9,8 +9,10 @@
 #include <cerrno>
 #include <cstring>
 #include <fstream>
+#include <new>
 #include <optional>
 #include <string_view>
+#include <system_error>
 #include <thread>
 #include <vector>
 
@@ -170,17 +172,21 @@ absl::Status SyncFile(int fd, const std::filesystem::path& path) {
 
 // The SHA-256 of the whole file behind `fd`, read from the page cache in
 // pieces that stay in L2 while they are hashed; nothing on a read error.
-std::optional<std::string> HashFd(int fd) {
+std::optional<std::string> HashFd(int fd) noexcept {
   constexpr size_t kPiece = size_t{256} << 10;
-  const ZeroPages buf(kPiece, /*huge=*/false);
-  Sha256 h;
-  for (off_t at = 0;;) {
-    const ssize_t n = ::pread(fd, buf.as<char>(), kPiece, at);
-    if (n < 0 && errno == EINTR) continue;
-    if (n < 0) return std::nullopt;
-    if (n == 0) return h.HexDigest();
-    h.Update(std::string_view(buf.as<char>(), size_t(n)));
-    at += n;
+  try {
+    const ZeroPages buf(kPiece, /*huge=*/false);
+    Sha256 h;
+    for (off_t at = 0;;) {
+      const ssize_t n = ::pread(fd, buf.as<char>(), kPiece, at);
+      if (n < 0 && errno == EINTR) continue;
+      if (n < 0) return std::nullopt;
+      if (n == 0) return h.HexDigest();
+      h.Update(std::string_view(buf.as<char>(), size_t(n)));
+      at += n;
+    }
+  } catch (const std::bad_alloc&) {
+    return std::nullopt;  // the commit hashes it instead
   }
 }
 
@@ -189,9 +195,14 @@ std::optional<std::string> HashFd(int fd) {
 // reading the file again (RecallFileSha256).
 absl::Status SyncWhileHashing(int fd, const std::filesystem::path& path) {
   int sync_errno = 0;
-  std::thread sync([&] {
-    if (::fsync(fd) != 0) sync_errno = errno;
-  });
+  std::thread sync;
+  try {
+    sync = std::thread([&] {
+      if (::fsync(fd) != 0) sync_errno = errno;
+    });
+  } catch (const std::system_error&) {
+    return SyncFile(fd, path);  // no thread to spare: sync and let the commit hash
+  }
   const std::optional<std::string> sha = HashFd(fd);
   sync.join();
   if (sync_errno != 0) return WriteError(path, sync_errno, "fsync failed");
