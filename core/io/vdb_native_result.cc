@@ -56,10 +56,11 @@ std::shared_ptr<const LeafList> CountLeaves(const CountGrid& counts) {
   std::vector<std::vector<Leaf>> parts(ranges);
   tbb::parallel_for(size_t{0}, ranges, [&](size_t r) {
     const size_t end = std::min(counts.TileCount(), (r + 1) * kTilesPerRange);
-    // Room for every leaf the tiles can hold (64 stored leaves per tile,
-    // each eight voxel leaves when folded): growing by doubling would copy,
-    // and fault in fresh pages, twice over.
-    parts[r].reserve((end - r * kTilesPerRange) * (counts.folded() ? 512 : 64));
+    // A thin (folded) grid's tiles are few and mostly full: room for every
+    // leaf they can hold (eight voxel leaves per stored leaf), since growing
+    // by doubling would copy, and fault in fresh pages, twice over. A 3D
+    // grid's table counts every tile, allocated or not, so it grows.
+    if (counts.folded()) parts[r].reserve((end - r * kTilesPerRange) * 512);
     counts.ForEachLeafInTiles(r * kTilesPerRange, end,
                               [&](Int3 o, const uint32_t* v, const uint64_t*) {
                                 Leaf leaf{{o.x, o.y, o.z}, {}};
