@@ -280,7 +280,9 @@ class ChaosGame {
   uint64_t begin_chunk_ = 0, end_chunk_ = 0;  // the range run (chunk_begin/end)
   uint64_t next_chunk_ = 0;
   bool unfolded_ = false;  // a round left packed words unfolded (partial_counts)
+  bool shared_keys_ = false;  // the threads' packed words fold into counts_[0]
   void FoldPending();
+  bool FoldSharedByTile();
   std::vector<CountGrid> counts_;  // one per thread, or one shared
   std::unique_ptr<SharedTiles> shared_tiles_;  // when the threads share counts_[0]
   std::mutex fold_lock_;  // packed keys folding into a shared counts_[0] (KeyBins)

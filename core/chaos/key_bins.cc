@@ -114,6 +114,16 @@ void KeyBins::AddPacked(uint64_t key) {
   pending_ += add;
 }
 
+uint64_t KeyBins::BeginFold() {
+  ApplyHeld();
+  return touched_;
+}
+
+void KeyBins::EndFold() {
+  overflowed_ = grid_.overflowed();
+  touched_ = pending_ = 0;
+}
+
 void KeyBins::Fold() {
   ApplyHeld();
   if (touched_) {

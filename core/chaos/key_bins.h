@@ -59,6 +59,16 @@ class KeyBins {
   uint64_t AddLanes(const uint64_t* key, uint64_t lanes);
   /// Applies every buffered key to the grid.
   void Flush();
+  /// A packed Flush spread over threads by tile, for threads sharing one
+  /// grid: BeginFold() adds the held keys and returns the tiles with words
+  /// to fold (bit t: tile t); the caller allocates those tiles in the grid,
+  /// then calls FoldTileOf(t) with each tile on one thread at a time (no
+  /// lock is taken), then EndFold().
+  uint64_t BeginFold();
+  void FoldTileOf(uint64_t tile) {
+    if (touched_ >> tile & 1) FoldTile(tile);
+  }
+  void EndFold();
 
   /// Bytes held: the pool and the bookkeeping, or the packed words.
   uint64_t MemoryBytes() const;
