@@ -37,6 +37,12 @@ absl::Status WriteAll(int fd, std::string_view data, const std::filesystem::path
   return absl::OkStatus();
 }
 
+// A store file shorter than the job's record says.
+absl::Status ShortResultError(const JobRecord& rec, uint64_t at) {
+  return absl::DataLossError(absl::StrCat("the result of job ", rec.id, " ends at ", at, " of ",
+                                          rec.result_size, " bytes"));
+}
+
 // Streams the result into `fd`, hashing it; the hex digest of what was written.
 absl::StatusOr<std::string> CopyHashed(ResultStore& results, const JobRecord& rec, int fd,
                                        const std::filesystem::path& part) {
@@ -46,9 +52,7 @@ absl::StatusOr<std::string> CopyHashed(ResultStore& results, const JobRecord& re
   while (offset < rec.result_size) {
     NIMBUS_ASSIGN_OR_RETURN(buffer,
                             results.Read(rec.result_key, offset, kExportChunk, std::move(buffer)));
-    if (buffer.empty())
-      return absl::DataLossError(absl::StrCat("the result of job ", rec.id, " ends at ", offset,
-                                              " of ", rec.result_size, " bytes"));
+    if (buffer.empty()) return ShortResultError(rec, offset);
     hash.Update(buffer);
     NIMBUS_RETURN_IF_ERROR(WriteAll(fd, buffer, part));
     offset += buffer.size();
@@ -83,13 +87,11 @@ absl::StatusOr<std::optional<std::string>> CopyKnown(ResultStore& results, const
   }
   ::close(in);
   if (done == rec.result_size) return sha;
-  // Nothing copied and no room to: the file system lacks the call.
+  // Nothing copied: the file systems may lack the call.
   if (done == 0 && (err == EXDEV || err == ENOSYS || err == EOPNOTSUPP || err == EINVAL))
     return std::nullopt;
-  if (err == ENOSPC || err == EDQUOT || err == EIO)
-    return DiskError(absl::StrCat("cannot write ", part.string()), err);
-  return absl::DataLossError(absl::StrCat("the result of job ", rec.id, " ends at ", done, " of ",
-                                          rec.result_size, " bytes"));
+  if (err != 0) return DiskError(absl::StrCat("cannot write ", part.string()), err);
+  return ShortResultError(rec, done);
 }
 
 // The result copied into `fd`, by the kernel where it may be; the digest
@@ -132,8 +134,7 @@ absl::Status ExportResult(JobStore& store, ResultStore& results, const std::stri
         absl::StrCat("cannot write ", part.string(), ": ", std::strerror(errno)));
   absl::StatusOr<std::string> sha = Copy(results, rec, fd, part);
   if (::close(fd) != 0 && sha.ok())
-    sha = absl::ResourceExhaustedError(
-        absl::StrCat("cannot write ", part.string(), ": ", std::strerror(errno)));
+    sha = DiskError(absl::StrCat("cannot write ", part.string()), errno);
   std::error_code ec;
   if (sha.ok() && *sha != rec.result_sha256)
     sha = absl::DataLossError(absl::StrCat("sha256 mismatch for ", path.string(), ": got ", *sha,

@@ -44,7 +44,8 @@ std::string Sha256Hex(std::string_view data) {
 absl::Status HashFileInto(const std::filesystem::path& path, Sha256& h) {
   std::ifstream in(path, std::ios::binary);
   if (!in) return absl::NotFoundError(absl::StrCat("cannot open ", path.string()));
-  std::string buf(1 << 20, '\0');
+  // Pieces that stay in L2 between the read and the hash.
+  std::string buf(size_t{256} << 10, '\0');
   while (in) {
     in.read(buf.data(), std::streamsize(buf.size()));
     h.Update(std::string_view(buf.data(), size_t(in.gcount())));

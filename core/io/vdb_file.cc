@@ -10,7 +10,6 @@
 #include <cstring>
 #include <fstream>
 #include <new>
-#include <optional>
 #include <string_view>
 #include <system_error>
 #include <thread>
@@ -19,7 +18,6 @@
 #include "absl/strings/str_cat.h"
 #include "core/base/file_digests.h"
 #include "core/base/sha256.h"
-#include "core/base/zero_pages.h"
 
 namespace nimbus::vdb_internal {
 
@@ -170,30 +168,11 @@ absl::Status SyncFile(int fd, const std::filesystem::path& path) {
   return absl::OkStatus();
 }
 
-// The SHA-256 of the whole file behind `fd`, read from the page cache in
-// pieces that stay in L2 while they are hashed; nothing on a read error.
-std::optional<std::string> HashFd(int fd) noexcept {
-  constexpr size_t kPiece = size_t{256} << 10;
-  try {
-    const ZeroPages buf(kPiece, /*huge=*/false);
-    Sha256 h;
-    for (off_t at = 0;;) {
-      const ssize_t n = ::pread(fd, buf.as<char>(), kPiece, at);
-      if (n < 0 && errno == EINTR) continue;
-      if (n < 0) return std::nullopt;
-      if (n == 0) return h.HexDigest();
-      h.Update(std::string_view(buf.as<char>(), size_t(n)));
-      at += n;
-    }
-  } catch (const std::bad_alloc&) {
-    return std::nullopt;  // the commit hashes it instead
-  }
-}
-
 // fsyncs the finished file while this thread hashes it: the disk wait costs
 // no CPU, and the result store's commit then recalls the digest instead of
 // reading the file again (RecallFileSha256).
-absl::Status SyncWhileHashing(int fd, const std::filesystem::path& path) {
+absl::Status SyncWhileHashing(int fd, const std::filesystem::path& tmp,
+                              const std::filesystem::path& path) {
   int sync_errno = 0;
   std::thread sync;
   try {
@@ -203,10 +182,15 @@ absl::Status SyncWhileHashing(int fd, const std::filesystem::path& path) {
   } catch (const std::system_error&) {
     return SyncFile(fd, path);  // no thread to spare: sync and let the commit hash
   }
-  const std::optional<std::string> sha = HashFd(fd);
+  absl::StatusOr<std::string> sha = absl::UnavailableError("not hashed");
+  try {
+    sha = Sha256File(tmp);
+  } catch (const std::bad_alloc&) {
+    // The commit hashes it instead.
+  }
   sync.join();
   if (sync_errno != 0) return WriteError(path, sync_errno, "fsync failed");
-  if (sha) RememberFileSha256(fd, *sha);
+  if (sha.ok()) RememberFileSha256(fd, *sha);
   return absl::OkStatus();
 }
 
@@ -214,8 +198,7 @@ absl::Status SyncWhileHashing(int fd, const std::filesystem::path& path) {
 // content on the way (`stamped`), fsyncs it and checks its size on disk.
 absl::Status WriteChecked(const std::filesystem::path& path, const std::filesystem::path& tmp,
                           const ArchiveFn& write_archive, bool& stamped) {
-  // Read and write: the finished file is hashed through the same descriptor.
-  const int fd = ::open(tmp.c_str(), O_RDWR | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   if (fd < 0) return WriteError(path, errno, "cannot create " + tmp.filename().string());
   CheckedFileBuf buf(fd);
   std::ostream os(&buf);
@@ -234,7 +217,7 @@ absl::Status WriteChecked(const std::filesystem::path& path, const std::filesyst
     stamped = ::pwrite(fd, uuid.data(), uuid.size(), off_t(kUuidOffset)) == ssize_t(uuid.size());
     if (!stamped) st = WriteError(path, errno, "cannot stamp the UUID");
   }
-  if (st.ok()) st = stamped ? SyncWhileHashing(fd, path) : SyncFile(fd, path);
+  if (st.ok()) st = stamped ? SyncWhileHashing(fd, tmp, path) : SyncFile(fd, path);
   struct stat sb {};
   if (st.ok() && (::fstat(fd, &sb) != 0 || uint64_t(sb.st_size) != buf.end()))
     st = absl::InternalError(absl::StrCat("writing ", path.string(), ": ", buf.end(),
