@@ -6,6 +6,7 @@
 #include <chrono>
 #include <fstream>
 #include <condition_variable>
+#include <deque>
 #include <mutex>
 #include <map>
 #include <thread>
@@ -231,9 +232,11 @@ namespace {
 
 // Hashes a download's chunks on a second thread while this one receives,
 // parses and writes the next: SHA-256 (about 1.7 GB/s here) is the longest
-// part of a download, so it gets a thread to itself. Two buffers take turns
-// (the one handed back keeps its capacity), and the thread lives as long as
-// the download, so nothing is allocated per chunk.
+// part of a download, so it gets a thread to itself, and a queue of a few
+// chunks keeps it from waiting for this thread to wake between chunks.
+// Hashed buffers come back (keeping their capacity) for the next chunks,
+// and the thread lives as long as the download, so nothing is allocated
+// per chunk once the queue is full.
 class ChunkHasher {
  public:
   explicit ChunkHasher(Sha256& hash) : hash_(hash) {
@@ -247,38 +250,49 @@ class ChunkHasher {
     cv_.notify_all();
     thread_.join();
   }
-  // Takes `data`'s bytes; leaves it holding the previous chunk's buffer.
+  // Takes `data`'s bytes; leaves it holding a hashed chunk's buffer.
   void Hash(std::string& data) {
-    Wait();
-    held_.swap(data);
-    {
-      std::lock_guard<std::mutex> lock(mu_);
-      busy_ = true;
+    std::unique_lock<std::mutex> lock(mu_);
+    cv_.wait(lock, [this] { return queued_.size() < kDepth; });
+    queued_.push_back(std::move(data));
+    data.clear();
+    if (!spare_.empty()) {
+      data.swap(spare_.back());
+      spare_.pop_back();
     }
+    lock.unlock();
     cv_.notify_all();
   }
-  // Returns once the last chunk is hashed.
+  // Returns once every chunk is hashed.
   void Wait() {
     std::unique_lock<std::mutex> lock(mu_);
-    cv_.wait(lock, [this] { return !busy_; });
+    cv_.wait(lock, [this] { return queued_.empty() && !busy_; });
   }
 
  private:
+  static constexpr size_t kDepth = 8;  // 8 MiB with the server's 1 MiB chunks
+
   void Run() {
     std::unique_lock<std::mutex> lock(mu_);
     while (true) {
-      cv_.wait(lock, [this] { return busy_ || stop_; });
-      if (!busy_) return;
+      cv_.wait(lock, [this] { return !queued_.empty() || stop_; });
+      if (queued_.empty()) return;
+      std::string chunk = std::move(queued_.front());
+      queued_.pop_front();
+      busy_ = true;
       lock.unlock();
-      hash_.Update(held_);
+      cv_.notify_all();  // room in the queue
+      hash_.Update(chunk);
       lock.lock();
       busy_ = false;
+      spare_.push_back(std::move(chunk));
       cv_.notify_all();
     }
   }
 
   Sha256& hash_;
-  std::string held_;
+  std::deque<std::string> queued_;
+  std::vector<std::string> spare_;
   std::mutex mu_;
   std::condition_variable cv_;
   bool busy_ = false, stop_ = false;

@@ -22,6 +22,7 @@
 #include "proto/spec_io.h"
 #include "server/data_dir_lock.h"
 #include "tests/support/nimbusd_process.h"
+#include "tests/support/server_fixture.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus {
@@ -140,6 +141,46 @@ TEST_F(ServiceE2E, SubmitWatchAndFetch) {
   // A corrupt partial download is detected and discarded.
   std::ofstream(dir_.path().string() + "/bad.vdb.part", std::ios::binary) << "garbage!";
   EXPECT_EQ(client().Fetch(job->id(), dir_ / "bad.vdb").code(), absl::StatusCode::kDataLoss);
+}
+
+// A download of many chunks (the server sends 1 MiB at a time and the
+// client queues up to eight for its hashing thread): every byte arrives in
+// order, a resume from a partial file past the queue's depth gives the
+// same file, and a partial file corrupted near its end is caught.
+TEST_F(ServiceE2E, ManyChunkDownloadsHashEveryByteInOrder) {
+  v1::JobSpec spec = testing::LoadExample("cumulus.json");
+  spec.mutable_fractal_field()->clear_shape();  // every voxel active: a dense file
+  spec.mutable_grid()->clear_resolution();
+  spec.mutable_grid()->add_resolution(224);
+  auto job = client().Submit(spec);
+  ASSERT_TRUE(job.ok()) << job.status();
+  auto done = client().Watch(job->id(), {}, [](const v1::WatchJobResponse&) {});
+  ASSERT_TRUE(done.ok()) << done.status();
+  ASSERT_EQ(done->state(), v1::JOB_STATE_SUCCEEDED) << done->error();
+  ASSERT_GT(done->result().size_bytes(), 12u << 20) << "too small to fill the queue";
+
+  const auto out = dir_ / "cloud.vdb";
+  ASSERT_TRUE(client().Fetch(job->id(), out).ok());
+  EXPECT_EQ(*Sha256File(out), done->result().sha256());
+  std::string bytes;
+  {
+    std::ifstream in(out, std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  ASSERT_EQ(bytes.size(), done->result().size_bytes());
+
+  const auto resumed = dir_ / "resumed.vdb";
+  std::ofstream(resumed.string() + ".part", std::ios::binary) << bytes.substr(0, 9u << 20);
+  ASSERT_TRUE(client().Fetch(job->id(), resumed).ok());
+  EXPECT_EQ(*Sha256File(resumed), done->result().sha256());
+
+  std::string corrupt = bytes.substr(0, bytes.size() - 1000);
+  corrupt[corrupt.size() - 3] ^= 1;
+  const auto bad = dir_ / "bad.vdb";
+  std::ofstream(bad.string() + ".part", std::ios::binary) << corrupt;
+  EXPECT_EQ(client().Fetch(job->id(), bad).code(), absl::StatusCode::kDataLoss);
+  EXPECT_FALSE(std::filesystem::exists(bad));
+  EXPECT_FALSE(std::filesystem::exists(bad.string() + ".part"));
 }
 
 // The lease outlives the test, so only start-up recovery can run the job
