@@ -10,36 +10,50 @@
 # built for executables (initial-exec TLS), so the shared modules
 # (libnimbus_vdb.so, libnimbus_postgres.so) keep the shared libraries.
 #
-# A library is swapped only where its archive sits beside it; the archives
-# go in one link group, so their order does not matter.
+# All or nothing: if any of these libraries has no archive beside it, the
+# command runs unchanged, since a static Abseil beside a shared gRPC (which
+# loads the shared Abseil) would put two copies behind the same calls. The
+# archives go in one link group, so their order does not matter.
 set -eu
 
-first=1
-for arg in "$@"; do
-  if [ "$first" = 1 ]; then set --; first=0; fi
-  case "$arg" in
+# The archive that replaces link argument $1, or nothing.
+archive_for() {
+  case "$1" in
     */libabsl_*.so* | */libgrpc*.so* | */libgpr.so* | */libupb.so* | \
     */libaddress_sorting.so* | */libcares.so* | */libprotobuf.so* | \
     */libre2.so* | */libssl.so* | */libcrypto.so*)
-      archive="${arg%%.so*}.a"
-      if [ -f "$archive" ]; then
-        [ "${grouped:-}" ] || set -- "$@" -Wl,--start-group
-        grouped=1
-        arg="$archive"
-      fi
+      echo "${1%%.so*}.a"
       ;;
     -lre2)
       for dir in /usr/lib/x86_64-linux-gnu /usr/lib /usr/local/lib; do
         if [ -f "$dir/libre2.a" ]; then
-          [ "${grouped:-}" ] || set -- "$@" -Wl,--start-group
-          grouped=1
-          arg="$dir/libre2.a"
-          break
+          echo "$dir/libre2.a"
+          return
         fi
       done
+      echo "/nonexistent/libre2.a"
       ;;
   esac
+}
+
+for arg in "$@"; do
+  archive=$(archive_for "$arg")
+  if [ -n "$archive" ] && [ ! -f "$archive" ]; then
+    exec "$@"  # one is missing: link against the shared libraries
+  fi
+done
+
+first=1
+grouped=
+for arg in "$@"; do
+  if [ "$first" = 1 ]; then set --; first=0; fi
+  archive=$(archive_for "$arg")
+  if [ -n "$archive" ]; then
+    [ -n "$grouped" ] || set -- "$@" -Wl,--start-group
+    grouped=1
+    arg="$archive"
+  fi
   set -- "$@" "$arg"
 done
-[ -z "${grouped:-}" ] || set -- "$@" -Wl,--end-group
+[ -z "$grouped" ] || set -- "$@" -Wl,--end-group
 exec "$@"
