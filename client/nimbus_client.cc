@@ -250,7 +250,8 @@ class ChunkHasher {
     cv_.notify_all();
     thread_.join();
   }
-  // Takes `data`'s bytes; leaves it holding a hashed chunk's buffer.
+  // Takes `data`'s bytes; leaves it holding a hashed chunk's buffer (empty,
+  // with its capacity), or an empty string while none has come back.
   void Hash(std::string& data) {
     std::unique_lock<std::mutex> lock(mu_);
     cv_.wait(lock, [this] { return queued_.size() < kDepth; });

@@ -16,7 +16,8 @@
 # archives go in one link group, so their order does not matter.
 set -eu
 
-# The archive that replaces link argument $1, or nothing.
+# The archive that replaces link argument $1 (a path that may not exist:
+# the first pass checks), or nothing when $1 is not one of these libraries.
 archive_for() {
   case "$1" in
     */libabsl_*.so* | */libgrpc*.so* | */libgpr.so* | */libupb.so* | \
@@ -31,7 +32,7 @@ archive_for() {
           return
         fi
       done
-      echo "/nonexistent/libre2.a"
+      echo "/nonexistent/libre2.a"  # none: the first pass sees it missing
       ;;
   esac
 }
