@@ -459,6 +459,50 @@ TEST(CliE2E, CtrlCCancelsTheRendersJob) {
       << testing::ReadFileBytes(dir / "job.json");
 }
 
+// `nimbus render` ends without stopping its embedded server once the
+// result is written (ExitWithoutTeardown): what it leaves in the data dir
+// is whole. The next render of the same spec is answered from the result
+// cache with the same bytes, `nimbus jobs` lists both jobs as succeeded,
+// and nimbusd serves the data dir afterwards.
+TEST(CliE2E, RenderLeavesItsDataDirWholeForTheNextCommand) {
+  testing::TempDir dir;
+  auto spec = spec::LoadSpecFile(testing::SourcePath("examples/sierpinski_tetrahedron.json"));
+  ASSERT_TRUE(spec.ok()) << spec.status();
+  spec->mutable_grid()->set_resolution(0, 48);
+  spec->mutable_chaos_game()->set_iterations(2000000);
+  std::ofstream(dir / "small.json") << spec::SpecToJson(*spec);
+  const std::string nimbus =
+      std::string(NIMBUS_BIN_DIR) + "/nimbus --data-dir " + (dir / "data").string() + " ";
+  auto render = [&](const char* out) {
+    const std::string cmd = nimbus + "render " + (dir / "small.json").string() + " -o " +
+                            (dir / out).string() + " 2>>" + (dir / "cli.log").string();
+    return WEXITSTATUS(std::system(cmd.c_str()));
+  };
+  ASSERT_EQ(render("first.vdb"), 0) << testing::ReadFileBytes(dir / "cli.log");
+  ASSERT_EQ(render("second.vdb"), 0) << testing::ReadFileBytes(dir / "cli.log");
+  EXPECT_EQ(testing::ReadFileBytes(dir / "first.vdb"), testing::ReadFileBytes(dir / "second.vdb"));
+  const std::string jobs = nimbus + "jobs --state succeeded >" + (dir / "jobs.txt").string();
+  ASSERT_EQ(WEXITSTATUS(std::system(jobs.c_str())), 0);
+  const std::string listed = testing::ReadFileBytes(dir / "jobs.txt");
+  size_t succeeded = 0;
+  for (size_t at = listed.find(" succeeded "); at != std::string::npos;
+       at = listed.find(" succeeded ", at + 1))
+    ++succeeded;
+  EXPECT_EQ(succeeded, 2u) << listed;
+  // nimbusd opens the same data dir and serves the first job's result.
+  const size_t at = listed.rfind("j-");
+  ASSERT_NE(at, std::string::npos) << listed;
+  const std::string id = listed.substr(at, listed.find(' ', at) - at);
+  testing::NimbusdProcess server(dir / "data", {"--workers", "1", "--log-level", "warn"});
+  ASSERT_TRUE(server.Start().ok());
+  const std::string fetch = std::string(NIMBUS_BIN_DIR) + "/nimbus --server " + server.target() +
+                            " fetch " + id + " -o " + (dir / "served.vdb").string() +
+                            " 2>>" + (dir / "cli.log").string();
+  ASSERT_EQ(WEXITSTATUS(std::system(fetch.c_str())), 0) << testing::ReadFileBytes(dir / "cli.log");
+  EXPECT_EQ(testing::ReadFileBytes(dir / "served.vdb"), testing::ReadFileBytes(dir / "first.vdb"));
+  EXPECT_EQ(server.Stop(), 0);
+}
+
 // Issue 3, item 7: the same spec and seed give a bitwise-identical .vdb
 // with 1 or 2 engine threads, through the whole service (fast affine path,
 // and nonlinear maps with colour, an address grid and raw counts).
