@@ -142,6 +142,33 @@ struct Result {
         visit);
   }
 
+  // Cd on the counts' leaves: each leaf's colour coordinates through the
+  // palette in one batch.
+  void EncodeColors(Grid& g) const {
+    g.leaves = leaves;
+    const double inv_scale = 1.0 / CountGrid::kColorScale;
+    EncodeLeaves(
+        g,
+        [&](const Leaf& leaf, void* dense) {
+          uint32_t v[512];
+          uint64_t cs[512];
+          GatherCountLeaf(counts, {leaf.origin[0], leaf.origin[1], leaf.origin[2]}, v, cs,
+                          leaf.mask.data());
+          int at[512];
+          double t[512];
+          size_t n = 0;
+          ForEachActive(leaf, [&](int i) {
+            at[n] = i;
+            t[n++] = double(cs[i]) * inv_scale / double(v[i]);
+          });
+          std::array<float, 3> rgb[512];
+          options.palette.EvalFloats(t, n, rgb);
+          auto* out = static_cast<std::array<float, 3>*>(dense);
+          for (size_t k = 0; k < n; ++k) out[at[k]] = rgb[k];
+        },
+        [](const Leaf&, const void*, size_t) {});
+  }
+
   float Density(const Leaf& leaf, int i, uint32_t c) const {
     const float d = norm(c);
     if (!options.modulation) return d;
@@ -196,12 +223,9 @@ std::vector<GridSource> Result::Sources(bool int64_counts) const {
   }
   out.push_back({options.grid_name, [this] { return DensityGrid(); }});
   if (color)
-    out.push_back({"Cd", [this, coord] {
+    out.push_back({"Cd", [this] {
       Grid g = Base("Cd", "unknown", ValueKind::kVec3f);
-      Encode<std::array<float, 3>>(g, true, [&](const Leaf&, int, uint32_t c, uint64_t cs) {
-        const Vec3 rgb = options.palette.Eval(coord(c, cs));
-        return std::array<float, 3>{float(rgb.x), float(rgb.y), float(rgb.z)};
-      });
+      EncodeColors(g);
       return g;
     }});
   if (options.address_grid && counts.has_color())

@@ -2,8 +2,11 @@
 // game (issue 3).
 #include <gtest/gtest.h>
 
+#include <array>
+#include <bit>
 #include <cmath>
 #include <cstring>
+#include <vector>
 
 #include "tests/support/attractors.h"
 #include "core/chaos/chaos_game.h"
@@ -12,6 +15,7 @@
 #include "core/base/cpu_dispatch.h"
 #include "core/base/random.h"
 #include "core/grid/palette.h"
+#include "core/grid/sine_batch.h"
 #include "core/base/sha256.h"
 #include "core/io/vdb_io.h"
 #include "tests/support/test_util.h"
@@ -67,6 +71,92 @@ TEST(ChaosGameColor, SinePaletteMatchesTheSeedFormula) {
     EXPECT_DOUBLE_EQ(c.x, 0.4 + 0.25 * std::sin(0.5 + a));
     EXPECT_DOUBLE_EQ(c.y, 0.6 + 0.25 * std::sin(0.9 + a));
     EXPECT_DOUBLE_EQ(c.z, 0.7 + 0.25 * std::sin(1.3 + a));
+  }
+}
+
+// SinMany's vector sines stay within 2 ulp of the C library's (each is
+// within 1 ulp of the truth), the bound Palette::EvalFloats relies on.
+TEST(ChaosGameColor, VectorSinesStayWithinTwoUlpOfTheCLibrary) {
+  Rng rng(7, 0);
+  std::vector<double> x(100003);
+  for (double& v : x) v = 0.5 + 2 * M_PI * rng.Uniform() + rng.Uniform();
+  x[0] = 0, x[1] = M_PI, x[2] = 1e-300;
+  for (SimdLevel level : {SimdLevel::kScalar, SimdLevel::kAvx2, SimdLevel::kAvx512}) {
+    if (level > DetectSimd()) continue;
+    SCOPED_TRACE(SimdName(level));
+    std::vector<double> s(x.size());
+    SinManyAt(level, x.data(), s.data(), x.size());
+    for (size_t k = 0; k < x.size(); ++k) {
+      const double want = std::sin(x[k]);
+      ASSERT_LE(std::fabs(s[k] - want), 2 * (std::nextafter(std::fabs(want), 2.0) - std::fabs(want)))
+          << "x = " << x[k];
+    }
+  }
+}
+
+// t values whose sine-palette channel `c` lies within a few ulp of a
+// float rounding boundary, where the batched palette must fall back to
+// the C library's sine: the boundary's sine solved for t.
+std::vector<double> NearRoundingBoundaries(int c) {
+  constexpr double kBase[3] = {0.4, 0.6, 0.7}, kPhase[3] = {0.5, 0.9, 1.3};
+  std::vector<double> ts;
+  for (float f = float(kBase[c] - 0.2); f < float(kBase[c] + 0.2); f += 0.01f) {
+    const double mid = (double(f) + double(std::nextafter(f, 2.0f))) / 2;
+    const double a = std::asin((mid - kBase[c]) / 0.25) - kPhase[c];
+    for (double t : {a / (2 * M_PI), a / (2 * M_PI) + 1})
+      if (t >= 0 && t <= 1) ts.push_back(t);
+  }
+  return ts;
+}
+
+// EvalFloats is float(Eval) bit for bit: on random coordinates, on the
+// quantised ones a voxel's colour sum gives, out of range, and near the
+// float rounding boundaries where the vector sine is not trusted.
+TEST(ChaosGameColor, BatchedPaletteRoundsExactlyAsEval) {
+  std::vector<double> t;
+  Rng rng(11, 0);
+  for (int i = 0; i < 300000; ++i) t.push_back(rng.Uniform());
+  for (uint64_t n = 1; n < 50; ++n)
+    for (uint64_t sum = 0; sum <= 65535 * n; sum += 997) t.push_back(double(sum) / 65535.0 / double(n));
+  for (double v : {0.0, 1.0, -0.5, 1.5, std::nan("")}) t.push_back(v);
+  int near = 0;
+  for (int c = 0; c < 3; ++c)
+    for (double v : NearRoundingBoundaries(c)) t.push_back(v), ++near;
+  ASSERT_GT(near, 50);
+  for (const Palette& p :
+       {Palette(), Palette({{0.2, {1, 0, 0}}, {0.6, {0, 1, 0}}, {1.0, {0, 0, 1}}})}) {
+    std::vector<std::array<float, 3>> got(t.size());
+    p.EvalFloats(t.data(), t.size(), got.data());
+    for (size_t k = 0; k < t.size(); ++k) {
+      const Vec3 want = p.Eval(t[k]);
+      for (int c = 0; c < 3; ++c)
+        ASSERT_EQ(std::bit_cast<uint32_t>(got[k][size_t(c)]), std::bit_cast<uint32_t>(float(want[c])))
+            << "t = " << t[k] << ", channel " << c;
+    }
+  }
+}
+
+// The batched palette's guard: a value it trusts rounds to the same float
+// anywhere within 2^-50 of it; a value at a rounding boundary, or within
+// a few ulp of one, is not trusted.
+TEST(ChaosGameColor, RoundingGuardTrustsOnlyValuesFarFromABoundary) {
+  using palette_internal::RoundsSafely;
+  Rng rng(13, 0);
+  int trusted = 0;
+  for (int i = 0; i < 200000; ++i) {
+    const double v = 0.1 + 0.85 * rng.Uniform();
+    if (!RoundsSafely(v)) continue;
+    ++trusted;
+    ASSERT_EQ(float(v + 0x1.0p-50), float(v)) << v;
+    ASSERT_EQ(float(v - 0x1.0p-50), float(v)) << v;
+  }
+  EXPECT_GT(trusted, 199990);
+  for (float f : {0.15f, 0.3f, 0.5f, 0.77f, 0.94f}) {
+    const double mid = (double(f) + double(std::nextafter(f, 2.0f))) / 2;
+    EXPECT_FALSE(RoundsSafely(mid)) << f;
+    EXPECT_FALSE(RoundsSafely(std::nextafter(mid, 0.0))) << f;
+    EXPECT_FALSE(RoundsSafely(mid + 0x1.0p-51)) << f;
+    EXPECT_TRUE(RoundsSafely(double(f))) << f;
   }
 }
 
