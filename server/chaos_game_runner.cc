@@ -58,6 +58,7 @@ JobDriver::Rounds ChaosRounds(ChaosGame& game, JobDriver& driver, uint64_t offse
   r.total = game.range_iterations();
   r.min_step = ChaosGame::kChunkIterations;
   r.first_step = ChaosGame::kChunkIterations * uint64_t(driver.ctx().threads());
+  r.step_multiple = r.first_step;
   r.advance = [&game, &driver, peak_bytes](uint64_t target) -> absl::StatusOr<uint64_t> {
     NIMBUS_RETURN_IF_ERROR(game.RunUntil(target, driver.interrupter()));
     if (peak_bytes) *peak_bytes = std::max(*peak_bytes, game.MemoryBytes());

@@ -94,6 +94,7 @@ absl::Status JobDriver::RunRounds(const Rounds& r) {
         std::max(1e-4, std::chrono::duration<double>(Clock::now() - round_start).count());
     step = std::clamp<uint64_t>(uint64_t(double(done - before) * kRoundSeconds / round_s),
                                 std::max<uint64_t>(r.min_step, 1), std::max<uint64_t>(r.total, 1));
+    if (r.step_multiple > 1) step = (step + r.step_multiple - 1) / r.step_multiple * r.step_multiple;
     NIMBUS_RETURN_IF_ERROR(Progress(r.offset + done, true));
     if (r.checkpoint_every > 0 && done >= next_check && !r.finished()) {
       next_check += r.checkpoint_every;

@@ -73,6 +73,9 @@ class JobDriver {
     uint64_t total = 0;   // units of these rounds
     uint64_t min_step = 1;
     uint64_t first_step = 0;  // 0: min_step
+    /// Steps are rounded up to a multiple of this (0: not rounded): whole
+    /// chunks for every thread, so no thread waits out a round's last chunk.
+    uint64_t step_multiple = 0;
     uint64_t checkpoint_every = 0;
     std::function<absl::StatusOr<uint64_t>(uint64_t target)> advance;
     std::function<bool()> finished;

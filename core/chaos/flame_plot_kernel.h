@@ -104,7 +104,9 @@ struct PlotKernel {
       const M walker = S::And(S::And(Finite(S::Load(w.x + k)), Finite(S::Load(w.y + k))),
                               Finite(S::Load(w.z + k)));
       const D x = S::Load(px + k), y = S::Load(py + k), z = S::Load(pz + k);
-      const M point = S::And(walker, S::And(S::And(Finite(x), Finite(y)), Finite(z)));
+      // Without a final transform the point is the walker's own.
+      const M point = final_map ? S::And(walker, S::And(S::And(Finite(x), Finite(y)), Finite(z)))
+                                : walker;
       D f[3];
       const M in = S::And(point, Project(t, x, y, z, f));
       I key = Key(t, f);
