@@ -1,6 +1,8 @@
 #include "core/grid/palette.h"
 
 #include <algorithm>
+#include <bit>
+#include <cstdint>
 #include <cmath>
 #include <numbers>
 
@@ -52,8 +54,12 @@ void SineFloats(const double* t, size_t n, std::array<float, 3>* out) {
 namespace palette_internal {
 bool RoundsSafely(double v) {
   const float f = float(v);
-  const double lo = (double(f) + double(std::nextafter(f, 0.0f))) / 2;
-  const double hi = (double(f) + double(std::nextafter(f, 2.0f))) / 2;
+  // The neighbouring floats by their bits (f is positive and finite for v
+  // in (0, 1); a zero f wraps to NaN and fails the test): nextafter's
+  // library calls were half the guard's cost.
+  const uint32_t bits = std::bit_cast<uint32_t>(f);
+  const double lo = (double(f) + double(std::bit_cast<float>(bits - 1))) / 2;
+  const double hi = (double(f) + double(std::bit_cast<float>(bits + 1))) / 2;
   constexpr double kMargin = 0x1.0p-50;
   return v - lo > kMargin && hi - v > kMargin;
 }
