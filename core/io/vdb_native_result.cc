@@ -122,12 +122,19 @@ struct Result {
     return g;
   }
 
-  // Encodes `g` on the counts' leaves with value(count, colour sum) at
-  // each counted voxel; visit sees each leaf's values in tree order.
-  template <typename T, typename Value>
-  void Encode(Grid& g, bool colors, const Value& value,
-              const std::function<void(const Leaf&, const void*, size_t)>& visit =
-                  [](const Leaf&, const void*, size_t) {}) const {
+  // A voxel's mean colour coordinate from its count and colour sum.
+  static double ColorCoord(uint32_t c, uint64_t cs) {
+    return double(cs) * (1.0 / CountGrid::kColorScale) / double(c);
+  }
+
+  using Visit = std::function<void(const Leaf&, const void*, size_t)>;
+
+  // Encodes `g` on the counts' leaves, a leaf at a time: fill(leaf, counts,
+  // colour sums or null, out) writes the leaf's active values into its
+  // dense block of 512; visit sees each leaf's values in tree order.
+  template <typename T, typename Fill>
+  void EncodeLeafwise(Grid& g, bool colors, const Fill& fill,
+                      const Visit& visit = [](const Leaf&, const void*, size_t) {}) const {
     g.leaves = leaves;
     EncodeLeaves(
         g,
@@ -136,37 +143,39 @@ struct Result {
           uint64_t cs[512];
           GatherCountLeaf(counts, {leaf.origin[0], leaf.origin[1], leaf.origin[2]}, v,
                           colors ? cs : nullptr, leaf.mask.data());
-          T* out = static_cast<T*>(dense);
-          ForEachActive(leaf, [&](int i) { out[i] = value(leaf, i, v[i], colors ? cs[i] : 0); });
+          fill(leaf, v, colors ? cs : nullptr, static_cast<T*>(dense));
         },
         visit);
   }
 
-  // Cd on the counts' leaves: each leaf's colour coordinates through the
-  // palette in one batch.
-  void EncodeColors(Grid& g) const {
-    g.leaves = leaves;
-    const double inv_scale = 1.0 / CountGrid::kColorScale;
-    EncodeLeaves(
-        g,
-        [&](const Leaf& leaf, void* dense) {
-          uint32_t v[512];
-          uint64_t cs[512];
-          GatherCountLeaf(counts, {leaf.origin[0], leaf.origin[1], leaf.origin[2]}, v, cs,
-                          leaf.mask.data());
-          int at[512];
-          double t[512];
-          size_t n = 0;
-          ForEachActive(leaf, [&](int i) {
-            at[n] = i;
-            t[n++] = double(cs[i]) * inv_scale / double(v[i]);
-          });
-          std::array<float, 3> rgb[512];
-          options.palette.EvalFloats(t, n, rgb);
-          auto* out = static_cast<std::array<float, 3>*>(dense);
-          for (size_t k = 0; k < n; ++k) out[at[k]] = rgb[k];
+  // The same with value(leaf, index, count, colour sum) at each counted voxel.
+  template <typename T, typename Value>
+  void Encode(Grid& g, bool colors, const Value& value,
+              const Visit& visit = [](const Leaf&, const void*, size_t) {}) const {
+    EncodeLeafwise<T>(
+        g, colors,
+        [&](const Leaf& leaf, const uint32_t* v, const uint64_t* cs, T* out) {
+          ForEachActive(leaf, [&](int i) { out[i] = value(leaf, i, v[i], cs ? cs[i] : 0); });
         },
-        [](const Leaf&, const void*, size_t) {});
+        visit);
+  }
+
+  // Cd: each leaf's colour coordinates through the palette in one batch.
+  void EncodeColors(Grid& g) const {
+    using Rgb = std::array<float, 3>;
+    EncodeLeafwise<Rgb>(g, true, [&](const Leaf& leaf, const uint32_t* v, const uint64_t* cs,
+                                     Rgb* out) {
+      int at[512];
+      double t[512];
+      size_t n = 0;
+      ForEachActive(leaf, [&](int i) {
+        at[n] = i;
+        t[n++] = ColorCoord(v[i], cs[i]);
+      });
+      Rgb rgb[512];
+      options.palette.EvalFloats(t, n, rgb);
+      for (size_t k = 0; k < n; ++k) out[at[k]] = rgb[k];
+    });
   }
 
   float Density(const Leaf& leaf, int i, uint32_t c) const {
@@ -208,8 +217,6 @@ Grid Result::DensityGrid() const {
 
 std::vector<GridSource> Result::Sources(bool int64_counts) const {
   std::vector<GridSource> out;
-  const double inv_scale = 1.0 / CountGrid::kColorScale;
-  auto coord = [inv_scale](uint32_t c, uint64_t cs) { return double(cs) * inv_scale / double(c); };
   if (int64_counts) {
     out.push_back({"counts", [this] {
       Grid g = Base("counts", "unknown", ValueKind::kInt64);
@@ -229,10 +236,10 @@ std::vector<GridSource> Result::Sources(bool int64_counts) const {
       return g;
     }});
   if (options.address_grid && counts.has_color())
-    out.push_back({"address", [this, coord] {
+    out.push_back({"address", [this] {
       Grid g = Base("address", "unknown", ValueKind::kFloat);
       Encode<float>(g, true, [&](const Leaf&, int, uint32_t c, uint64_t cs) {
-        return float(coord(c, cs));
+        return float(ColorCoord(c, cs));
       });
       return g;
     }});
