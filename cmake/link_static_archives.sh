@@ -16,29 +16,32 @@
 # archives go in one link group, so their order does not matter.
 set -eu
 
-# The archive that replaces link argument $1 (a path that may not exist:
-# the first pass checks), or nothing when $1 is not one of these libraries.
+# Sets $archive to the archive that replaces link argument $1 (a path that
+# may not exist: the first pass checks), or to nothing when $1 is not one of
+# these libraries. A variable, not output: a command substitution forks a
+# subshell per argument, two passes over ~90 arguments took about a second.
 archive_for() {
+  archive=
   case "$1" in
     */libabsl_*.so* | */libgrpc*.so* | */libgpr.so* | */libupb.so* | \
     */libaddress_sorting.so* | */libcares.so* | */libprotobuf.so* | \
     */libre2.so* | */libssl.so* | */libcrypto.so*)
-      echo "${1%%.so*}.a"
+      archive="${1%%.so*}.a"
       ;;
     -lre2)
+      archive=/nonexistent/libre2.a  # none found: the first pass sees it missing
       for dir in /usr/lib/x86_64-linux-gnu /usr/lib /usr/local/lib; do
         if [ -f "$dir/libre2.a" ]; then
-          echo "$dir/libre2.a"
+          archive="$dir/libre2.a"
           return
         fi
       done
-      echo "/nonexistent/libre2.a"  # none: the first pass sees it missing
       ;;
   esac
 }
 
 for arg in "$@"; do
-  archive=$(archive_for "$arg")
+  archive_for "$arg"
   if [ -n "$archive" ] && [ ! -f "$archive" ]; then
     exec "$@"  # one is missing: link against the shared libraries
   fi
@@ -48,7 +51,7 @@ first=1
 grouped=
 for arg in "$@"; do
   if [ "$first" = 1 ]; then set --; first=0; fi
-  archive=$(archive_for "$arg")
+  archive_for "$arg"
   if [ -n "$archive" ]; then
     [ -n "$grouped" ] || set -- "$@" -Wl,--start-group
     grouped=1
