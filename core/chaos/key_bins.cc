@@ -52,6 +52,7 @@ KeyBins::KeyBins(CountGrid& grid, size_t capacity, bool weighted, std::mutex* fo
     const size_t bytes = size_t(tiles) * CountGrid::kTileVoxels * sizeof(uint64_t);
     // Huge pages: a few faults instead of one per 4 KiB.
     packed_ = ZeroPages(bytes, /*huge=*/true);
+    loops_ = &packed::LoopsFor(ActiveSimd());
     // Folds write every tile the words touched, usually most of the grid's
     // few: its first 2 MiB in 4 KiB pages would cost a thousand faults.
     grid.PreferHugePages();
@@ -71,37 +72,26 @@ uint64_t KeyBins::AddLanes(const uint64_t* key, uint64_t lanes) {
 
 uint64_t KeyBins::AddLanesPacked(const uint64_t* key, uint64_t lanes) {
   if (pending_ > kFoldAfter - kMaxCallAdds) Fold();
-  const uint64_t* words = packed_.as<uint64_t>();
   // This round's keys are only requested now and held; the previous
   // round's, requested a whole kernel round ago, are added: their words
   // are in L1 by then, where adding right after the request waited on
   // every miss.
   uint64_t* hold = held_[flip_ ^ 1];
-  uint64_t added = 0, adds = 0;
-  for (; lanes; lanes &= lanes - 1, ++added) {
-    const uint64_t k = key[std::countr_zero(lanes)];
-    __builtin_prefetch(words + (k & CountGrid::kVoxelMask), 1);
-    hold[added] = k;
-    adds += weighted_ ? CountGrid::WeightOf(k) : 1;
+  const uint32_t added = loops_->hold(packed_.as<uint64_t>(), key, lanes, hold);
+  uint64_t adds = added;
+  if (weighted_) {
+    adds = 0;
+    for (uint32_t i = 0; i < added; ++i) adds += CountGrid::WeightOf(hold[i]);
   }
   ApplyHeld();
   flip_ ^= 1;
-  held_count_ = uint32_t(added);
+  held_count_ = added;
   pending_ += adds;  // counted when held: Fold applies the held keys first
   return added;
 }
 
 void KeyBins::ApplyHeld() {
-  uint64_t* words = packed_.as<uint64_t>();
-  const uint64_t* held = held_[flip_];
-  uint64_t touched = 0;
-  for (uint32_t i = 0; i < held_count_; ++i) {
-    const uint64_t k = held[i];
-    const uint64_t add = weighted_ ? CountGrid::WeightOf(k) : 1;
-    words[k & CountGrid::kVoxelMask] += (add << kCountShift) + add * (k >> CountGrid::kColorShift);
-    touched |= uint64_t{1} << ((k & CountGrid::kVoxelMask) >> 15);
-  }
-  touched_ |= touched;
+  touched_ |= loops_->apply(packed_.as<uint64_t>(), held_[flip_], held_count_, weighted_);
   held_count_ = 0;
 }
 

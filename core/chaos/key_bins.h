@@ -8,6 +8,7 @@
 
 #include "core/base/zero_pages.h"
 #include "core/chaos/bin_pool.h"
+#include "core/chaos/packed_adds.h"
 #include "core/grid/count_grid.h"
 
 namespace nimbus {
@@ -122,7 +123,8 @@ class KeyBins {
   uint64_t pending_ = 0;  // adds since the last fold
   uint64_t touched_ = 0;  // bit t: tile t has words to fold (Packs: <= 64 tiles)
   // The last AddLanes call's keys, prefetched but not yet added (held_[flip_]).
-  alignas(64) uint64_t held_[2][64];
+  alignas(64) uint64_t held_[2][packed::kHoldRoom];
+  const packed::Loops* loops_ = &packed::LoopsFor(SimdLevel::kScalar);
   uint32_t flip_ = 0, held_count_ = 0;
 };
 
