@@ -1,6 +1,7 @@
 #include "core/chaos/flame_program.h"
 
 #include <algorithm>
+#include <bit>
 
 #include "core/chaos/variation_formulas.h"
 
@@ -10,6 +11,20 @@ uint32_t FlameProgram::MapWords(const PointMap& map) {
   uint32_t n = 0;
   for (const VariationTerm& v : map.variations) n += uint32_t(formulas::VariationDraws(v.kind));
   return n;
+}
+
+bool FlameProgram::Planar(const PointMap& map) {
+  const auto& a = map.pre.m;
+  auto minus_zero = [](double v) {
+    return std::bit_cast<uint64_t>(v) == std::bit_cast<uint64_t>(-0.0);
+  };
+  if (map.post || a[0][2] != 0 || a[1][2] != 0 || minus_zero(a[0][3]) || minus_zero(a[1][3]))
+    return false;
+  if (a[2][0] != 0 || a[2][1] != 0 || a[2][2] != 0 || std::bit_cast<uint64_t>(a[2][3]) != 0)
+    return false;
+  for (const VariationTerm& v : map.variations)
+    if (v.kind == VariationKind::kBlur || v.kind == VariationKind::kNoise) return false;
+  return true;
 }
 
 void FlameProgram::Tables::Add(const PointMap& map) {
@@ -38,9 +53,11 @@ FlameProgram::FlameProgram(const std::vector<PointMap>& maps,
                            const std::optional<PointMap>& final_map, const AliasTable& table,
                            int color_mode, double blend) {
   uint32_t map_words = 0;
+  bool planar = !final_map;
   for (const PointMap& m : maps) {
     maps_.Add(m);
     map_words = std::max(map_words, MapWords(m));
+    planar = planar && Planar(m);
   }
   if (final_map) final_.Add(*final_map);
   view_.maps = maps_.View();
@@ -52,6 +69,7 @@ FlameProgram::FlameProgram(const std::vector<PointMap>& maps,
   view_.color_mode = color_mode;
   view_.blend = blend;
   view_.inv_maps = 1.0 / double(maps.size());
+  view_.planar = planar;
 }
 
 flame::RoundFn FlameKernel(SimdLevel level) {

@@ -31,6 +31,14 @@ class FlameProgram {
   /// Random words one application of `map` reads (formulas::VariationDraws
   /// summed over its terms).
   static uint32_t MapWords(const PointMap& map);
+  /// Whether `map` keeps a flame planar: from any finite point it gives
+  /// x and y that do not depend on z (no z in its x and y rows, whose
+  /// constants are not -0, so adding a zero from z cannot flip a zero's
+  /// sign), and z = +0 exactly (a zero z row with the constant +0, no
+  /// post-affine, and only variations that return the pre-transformed z
+  /// scaled or through sin, or add its square to x^2 + y^2: every kind
+  /// but blur and noise). docs/chaos_game.md gives the argument.
+  static bool Planar(const PointMap& map);
 
  private:
   struct Tables {

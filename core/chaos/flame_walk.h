@@ -57,7 +57,7 @@ struct MapTables {
 /// map's random terms, words final_word.. the final transform's.
 struct Program {
   MapTables maps;
-  MapTables final_map;  // num_maps 0: none
+  MapTables final_map;                  // num_maps 0: none
   const uint32_t* threshold = nullptr;  // the alias table
   const uint32_t* alias = nullptr;
   uint32_t words = 1;
@@ -65,6 +65,9 @@ struct Program {
   int color_mode = 0;  // 0 none, 1 by map, 2 by address (ColorMode)
   double blend = 0;
   double inv_maps = 1;
+  // Every step leaves z = +0 and x, y do not depend on z (FlameProgram::
+  // Planar): a kernel may skip moving z and store +0 (AVX-512 staging).
+  bool planar = false;
 };
 
 /// @brief The walkers of a chunk in structure-of-arrays form, with the

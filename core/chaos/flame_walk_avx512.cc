@@ -130,7 +130,7 @@ struct Avx512Isa {
   // compress straight to memory is slow on some CPUs), each run starting on
   // a register boundary and padded with its last walker, as MapsByIndex
   // pads.
-  static void Stage(const MapTables& t, Walkers& w, int n) {
+  static void Stage(const MapTables& t, Walkers& w, int n, bool planar) {
     uint32_t at = 0;
     for (uint32_t m = 0; m < t.num_maps; ++m) {
       w.stage_begin[m] = at;
@@ -141,7 +141,8 @@ struct Avx512Isa {
         if (is == 0) continue;
         _mm512_storeu_pd(w.sx + at, _mm512_maskz_compress_pd(is, _mm512_load_pd(w.x + k)));
         _mm512_storeu_pd(w.sy + at, _mm512_maskz_compress_pd(is, _mm512_load_pd(w.y + k)));
-        _mm512_storeu_pd(w.sz + at, _mm512_maskz_compress_pd(is, _mm512_load_pd(w.z + k)));
+        if (!planar)
+          _mm512_storeu_pd(w.sz + at, _mm512_maskz_compress_pd(is, _mm512_load_pd(w.z + k)));
         for (uint32_t c = 0; c < words; ++c) {
           const __m512i word = _mm512_loadu_si512(w.words + size_t(c + 1) * kMaxWalkers + k);
           _mm512_storeu_si512(w.sw[c] + at, _mm512_maskz_compress_epi64(is, word));
@@ -150,14 +151,14 @@ struct Avx512Isa {
         tail = k;
       }
       w.stage_end[m] = at;
-      if (at % kWidth != 0) Pad(w, tail, m, words);
+      if (at % kWidth != 0) Pad(w, tail, m, words, planar);
       at = (at + kWidth - 1) / kWidth * kWidth;
     }
   }
   // Fills the lanes of a run's last register past its end with its last
   // walker, taken from walker register `k` (reading back the staging
   // arrays just stored would wait for the stores).
-  static void Pad(Walkers& w, int k, uint32_t m, uint32_t words) {
+  static void Pad(Walkers& w, int k, uint32_t m, uint32_t words, bool planar) {
     const __mmask8 is = OfMap(w, k, m);
     const uint32_t end = w.stage_end[m];
     const __mmask8 pad = __mmask8(0xff << (end % kWidth));
@@ -166,7 +167,8 @@ struct Avx512Isa {
       _mm512_mask_storeu_pd(run + end / kWidth * kWidth, pad,
                             _mm512_permutexvar_pd(last, _mm512_load_pd(from + k)));
     };
-    fill(w.sx, w.x), fill(w.sy, w.y), fill(w.sz, w.z);
+    fill(w.sx, w.x), fill(w.sy, w.y);
+    if (!planar) fill(w.sz, w.z);
     for (uint32_t c = 0; c < words; ++c) {
       const __m512i word = _mm512_loadu_si512(w.words + size_t(c + 1) * kMaxWalkers + k);
       _mm512_mask_storeu_epi64(w.sw[c] + end / kWidth * kWidth, pad,
@@ -174,7 +176,8 @@ struct Avx512Isa {
     }
   }
   // Stage's inverse: each register of walkers expanded from the runs.
-  static void Unstage(uint32_t maps, Walkers& w, int n) {
+  // A planar program's z is +0 for every walker.
+  static void Unstage(uint32_t maps, Walkers& w, int n, bool planar) {
     uint32_t at[kStageMaps];
     for (uint32_t m = 0; m < maps; ++m) at[m] = w.stage_begin[m];
     for (int k = 0; k < n; k += kWidth) {
@@ -183,7 +186,7 @@ struct Avx512Isa {
         const __mmask8 is = OfMap(w, k, m);
         x = _mm512_mask_expand_pd(x, is, _mm512_loadu_pd(w.sx + at[m]));
         y = _mm512_mask_expand_pd(y, is, _mm512_loadu_pd(w.sy + at[m]));
-        z = _mm512_mask_expand_pd(z, is, _mm512_loadu_pd(w.sz + at[m]));
+        if (!planar) z = _mm512_mask_expand_pd(z, is, _mm512_loadu_pd(w.sz + at[m]));
         at[m] += uint32_t(__builtin_popcount(is));
       }
       _mm512_store_pd(w.x + k, x), _mm512_store_pd(w.y + k, y), _mm512_store_pd(w.z + k, z);

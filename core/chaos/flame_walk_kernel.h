@@ -41,16 +41,20 @@ struct ByIndex {
 };
 
 // Whole registers: lanes read at x, y, z and written at ox, oy, oz; word
-// column c at words + c * stride.
-template <class Isa>
+// column c at words + c * stride. kPlanar (Program::planar): z is neither
+// read (+0 stands in: its coefficients are zeros) nor written (it is +0).
+template <class Isa, bool kPlanar = false>
 struct Contiguous {
   const double *x, *y, *z;
   double *ox, *oy, *oz;
   const uint64_t* words;
   size_t stride;
-  formulas::P3<typename Isa::T> In() const { return {Isa::Load(x), Isa::Load(y), Isa::Load(z)}; }
+  formulas::P3<typename Isa::T> In() const {
+    return {Isa::Load(x), Isa::Load(y), kPlanar ? Isa::Zero() : Isa::Load(z)};
+  }
   void Out(const formulas::P3<typename Isa::T>& q) const {
-    Isa::Store(ox, q.x), Isa::Store(oy, q.y), Isa::Store(oz, q.z);
+    Isa::Store(ox, q.x), Isa::Store(oy, q.y);
+    if constexpr (!kPlanar) Isa::Store(oz, q.z);
   }
   auto Word(uint32_t c) const { return Isa::LoadWord(words + c * stride); }
 };
@@ -160,18 +164,19 @@ void MapsByIndex(const Program& p, Walkers& w, int n) {
 // into a run of Walkers::sx..., whose registers hold exactly the lanes
 // MapsByIndex's would (the last walker repeated), so every lane computes
 // the same bits; Isa::Unstage puts the results back.
-template <class Isa>
+// A planar program's runs leave z out: Unstage stores +0.
+template <class Isa, bool kPlanar>
 void MapsStaged(const Program& p, Walkers& w, int n) {
   constexpr int kW = Isa::kWidth;
-  Isa::Stage(p.maps, w, n);
+  Isa::Stage(p.maps, w, n, kPlanar);
   for (uint32_t m = 0; m < p.maps.num_maps; ++m) {
     for (uint32_t k = w.stage_begin[m]; k < w.stage_end[m]; k += kW) {
       double *x = w.sx + k, *y = w.sy + k, *z = w.sz + k;
-      const Contiguous<Isa> at{x, y, z, x, y, z, &w.sw[0][k], kStage};
+      const Contiguous<Isa, kPlanar> at{x, y, z, x, y, z, &w.sw[0][k], kStage};
       ApplyMap<Isa>(p.maps, m, at);
     }
   }
-  Isa::Unstage(p.maps.num_maps, w, n);
+  Isa::Unstage(p.maps.num_maps, w, n, kPlanar);
 }
 
 // Whether a program fits the staging room.
@@ -186,8 +191,10 @@ void RoundWith(const Program& p, Walkers& w, int n) {
   Isa::PickMaps(p, w, n);
   if (p.color_mode != 0) Recolor<Isa>(p, w, n);
   if constexpr (Isa::kStaged) {
-    if (Stageable(p))
-      MapsStaged<Isa>(p, w, n);
+    if (Stageable(p) && p.planar)
+      MapsStaged<Isa, true>(p, w, n);
+    else if (Stageable(p))
+      MapsStaged<Isa, false>(p, w, n);
     else
       MapsByIndex<Isa>(p, w, n);
   } else {

@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstring>
 #include <memory>
@@ -88,8 +89,7 @@ KernelRun RunKernel(const std::vector<PointMap>& maps, const std::vector<Vec3>& 
 
 // What the engine's contract says walker i's step computes: map from word
 // 0 of its stream, then pre, the terms on words 1.., post.
-Vec3 ExpectedStep(const std::vector<PointMap>& maps, Vec3 p, uint64_t stream,
-                  uint32_t* map_out) {
+Vec3 ExpectedStep(const std::vector<PointMap>& maps, Vec3 p, uint64_t stream, uint32_t* map_out) {
   const AliasTable table(std::vector<double>(maps.size(), 1.0));
   Rng rng(9, stream);
   std::vector<uint64_t> words(16);
@@ -241,6 +241,86 @@ TEST(FlameKernel, Avx512StagedRunsAgreeWithTheIndexedKernelBitForBit) {
   const KernelRun a = RunKernel(maps, pts, SimdLevel::kAvx2);
   const KernelRun b = RunKernel(maps, pts, SimdLevel::kAvx512);
   EXPECT_EQ(std::memcmp(a.points.data(), b.points.data(), pts.size() * sizeof(Vec3)), 0);
+}
+
+// A 2D flame's map: rows x and y without z, z's row zero, no post.
+PointMap FlatMap(VariationKind kind, double weight, double tx) {
+  PointMap m;
+  m.pre.m = {{{0.7, 0.25, 0, tx}, {-0.3, 0.6, 0, 0.2}, {0, 0, 0, 0}}};
+  m.variations = {{kind, weight, {}}, {VariationKind::kJulia, -0.3, {}}};
+  return m;
+}
+
+// Which programs are planar: any z dependence, z row, post-affine, random
+// direction or final transform, or a -0 constant in x or y, rules it out.
+TEST(FlameKernel, PlanarProgramsAreThoseThatKeepZAtPlusZero) {
+  const AliasTable one(std::vector<double>{1.0});
+  auto planar = [&](const PointMap& m, bool with_final = false) {
+    const std::optional<PointMap> final_map =
+        with_final ? std::optional<PointMap>(FlatMap(VariationKind::kLinear, 1, 0)) : std::nullopt;
+    return FlameProgram({m}, final_map, one, 0, 0.5).program().planar;
+  };
+  for (VariationKind kind : AllVariations()) {
+    SCOPED_TRACE(std::string(VariationName(kind)));
+    const bool random_z = kind == VariationKind::kBlur || kind == VariationKind::kNoise;
+    EXPECT_EQ(planar(FlatMap(kind, 1, 0.1)), !random_z);
+  }
+  const PointMap flat = FlatMap(VariationKind::kSwirl, 1, 0.1);
+  EXPECT_FALSE(planar(flat, /*with_final=*/true));
+  PointMap m = flat;
+  m.pre.m[0][2] = 0.1;  // x depends on z
+  EXPECT_FALSE(planar(m));
+  m = flat, m.pre.m[2][3] = 0.5;  // the plane z = 0.5
+  EXPECT_FALSE(planar(m));
+  m = flat, m.pre.m[2][3] = -0.0;  // z = -0 when x and y are -0
+  EXPECT_FALSE(planar(m));
+  m = flat, m.pre.m[1][3] = -0.0;  // y's zero sign could follow z's
+  EXPECT_FALSE(planar(m));
+  m = flat, m.pre.m[0][2] = -0.0;  // a zero coefficient of either sign is fine
+  EXPECT_TRUE(planar(m));
+  m = flat, m.post = Affine3::Identity();
+  EXPECT_FALSE(planar(m));
+}
+
+// Planar programs' staged runs leave z out (AVX-512); AVX2 moves and
+// computes it. From any finite start (z too: a restarted walker starts
+// anywhere in the bounds), on the axis, far out and on signed zeros, both
+// give the same x and y bit for bit and z = +0, for every variation that
+// keeps a flame planar; non-finite walkers stay non-finite (they restart).
+TEST(FlameKernel, Avx512PlanarRunsAgreeWithTheIndexedKernelBitForBit) {
+  if (DetectSimd() < SimdLevel::kAvx512) GTEST_SKIP() << "no AVX-512 on this CPU";
+  std::vector<Vec3> pts = TestPoints(3000);
+  const double big = 1e200, inf = INFINITY;
+  pts.insert(pts.end(), {{0, 0, 0},
+                         {-0.0, -0.0, -0.0},
+                         {0, 0, -0.3},
+                         {big, -big, 0.2},
+                         {-0.1 / 0.7 * 0.2, 0.2, 0},
+                         {inf, 0, 0},
+                         {NAN, 1, 0},
+                         {0.5, 1e-300, -0.0}});
+  for (VariationKind kind : AllVariations()) {
+    if (kind == VariationKind::kBlur || kind == VariationKind::kNoise) continue;
+    SCOPED_TRACE(std::string(VariationName(kind)));
+    const std::vector<PointMap> maps = {FlatMap(kind, 0.8, 0.1), FlatMap(kind, -0.5, 0),
+                                        FlatMap(VariationKind::kSpherical, 1, -0.2)};
+    const AliasTable table(std::vector<double>(maps.size(), 1.0));
+    ASSERT_TRUE(FlameProgram(maps, std::nullopt, table, 0, 0.5).program().planar);
+    const KernelRun a = RunKernel(maps, pts, SimdLevel::kAvx2);
+    const KernelRun b = RunKernel(maps, pts, SimdLevel::kAvx512);
+    EXPECT_EQ(a.maps, b.maps);
+    for (size_t i = 0; i < pts.size(); ++i) {
+      const Vec3 &p = a.points[i], &q = b.points[i];
+      if (!std::isfinite(p.x) || !std::isfinite(p.y)) {
+        EXPECT_FALSE(std::isfinite(q.x) && std::isfinite(q.y)) << i;
+        continue;
+      }
+      EXPECT_EQ(std::memcmp(&p.x, &q.x, sizeof(double)), 0) << i;
+      EXPECT_EQ(std::memcmp(&p.y, &q.y, sizeof(double)), 0) << i;
+      EXPECT_EQ(std::bit_cast<uint64_t>(p.z), 0u) << i;  // computed: +0
+      EXPECT_EQ(std::bit_cast<uint64_t>(q.z), 0u) << i;  // stored: +0
+    }
+  }
 }
 
 // A planar map (no z row) keeps z = +0, and sinusoidal then skips sin z:
