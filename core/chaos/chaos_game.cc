@@ -163,6 +163,7 @@ absl::StatusOr<std::unique_ptr<ChaosGame>> ChaosGame::Create(ChaosGameParams par
   if (game->flame_round_ && !p.ifs.arcs && !p.splat) {
     game->flame_plot_ = FlamePlotter(game->simd_);
     game->plot_target_ = MakePlotTarget(p, game->counts_[0]);
+    game->plot_target_.planar = game->program_.program().planar;
   }
   if (p.memory_budget > 0) {
     // Each grid gets an equal share of what the budget leaves after the

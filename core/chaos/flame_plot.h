@@ -39,6 +39,10 @@ struct PlotTarget {
   uint32_t tiles_y = 1, tiles_z = 1;
   /// Attach the walker's colour (CountGrid::WithColor of its rounded col).
   bool color = false;
+  /// Every walker's z is +0 wherever its x and y are finite (a planar
+  /// flame::Program without a final transform): the vector kernels take
+  /// z as +0 instead of reading and testing it, with the same keys.
+  bool planar = false;
 };
 
 /// @brief One round's plot of walkers [0, n). Bit k of a mask is walker k.

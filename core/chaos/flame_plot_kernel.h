@@ -94,6 +94,17 @@ struct PlotKernel {
   }
 
   static void Plot(const PlotTarget& t, const Walkers& w, bool final_map, int n, Plotted* out) {
+    if (t.planar && !final_map)
+      PlotAs<true>(t, w, false, n, out);
+    else
+      PlotAs<false>(t, w, final_map, n, out);
+  }
+
+  // kPlanar: z is +0 where x and y are finite (PlotTarget::planar), so a
+  // walker is finite exactly when x and y are, and z's projection and
+  // bounds are the same every time (the compiler lifts them).
+  template <bool kPlanar>
+  static void PlotAs(const PlotTarget& t, const Walkers& w, bool final_map, int n, Plotted* out) {
     using S = Isa;
     constexpr uint64_t kAll = (uint64_t{1} << S::kWidth) - 1;
     const double* px = final_map ? w.fx : w.x;
@@ -101,9 +112,10 @@ struct PlotKernel {
     const double* pz = final_map ? w.fz : w.z;
     uint64_t inside = 0, bad_walker = 0, bad_final = 0;
     for (int k = 0; k < n; k += S::kWidth) {
-      const M walker = S::And(S::And(Finite(S::Load(w.x + k)), Finite(S::Load(w.y + k))),
-                              Finite(S::Load(w.z + k)));
-      const D x = S::Load(px + k), y = S::Load(py + k), z = S::Load(pz + k);
+      const M flat = S::And(Finite(S::Load(w.x + k)), Finite(S::Load(w.y + k)));
+      const M walker = kPlanar ? flat : S::And(flat, Finite(S::Load(w.z + k)));
+      const D x = S::Load(px + k), y = S::Load(py + k);
+      const D z = kPlanar ? S::Zero() : S::Load(pz + k);
       // Without a final transform the point is the walker's own.
       const M point = final_map ? S::And(walker, S::And(S::And(Finite(x), Finite(y)), Finite(z)))
                                 : walker;

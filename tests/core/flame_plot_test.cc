@@ -170,5 +170,41 @@ TEST(FlamePlot, VectorKernelsGiveTheScalarKernelsKeysBitForBit) {
   }
 }
 
+// A planar program's walkers have z = +0 wherever x and y are finite
+// (flame::Program::planar): told so, the vector kernels skip reading and
+// testing z and must still give the scalar kernel's keys and masks.
+TEST(FlamePlot, PlanarTargetsGiveTheSameKeys) {
+  if (VectorLevels().empty()) GTEST_SKIP() << "no AVX2 on this CPU";
+  for (const Case& c : Cases()) {
+    SCOPED_TRACE(c.name);
+    const CountGrid grid(c.params.CountResolution(), c.params.color.mode != ColorMode::kNone);
+    flame::PlotTarget target = MakePlotTarget(c.params, grid);
+    auto w = std::make_unique<flame::Walkers>();
+    auto want = std::make_unique<flame::Plotted>();
+    auto got = std::make_unique<flame::Plotted>();
+    Rng rng(6, 0);
+    for (int round = 0; round < 200; ++round) {
+      Fill(*w, c.params.frame.bounds, rng);
+      for (int k = 0; k < kN; ++k)
+        if (std::isfinite(w->x[k]) && std::isfinite(w->y[k])) w->z[k] = 0.0;
+      target.planar = false;
+      flame::PlotScalar(target, *w, false, kN, want.get());
+      target.planar = true;
+      for (SimdLevel level : VectorLevels()) {
+        SCOPED_TRACE(std::string(SimdName(level)));
+        FlamePlotter(level)(target, *w, false, kN, got.get());
+        ASSERT_EQ(got->inside, want->inside);
+        ASSERT_EQ(got->bad_walker, want->bad_walker);
+        ASSERT_EQ(got->bad_final, want->bad_final);
+        for (int k = 0; k < kN; ++k) {
+          if ((want->inside >> k) & 1) {
+            EXPECT_EQ(got->key[k], want->key[k]) << k;
+          }
+        }
+      }
+    }
+  }
+}
+
 }  // namespace
 }  // namespace nimbus
