@@ -104,8 +104,13 @@ struct PlotKernel {
   // walker is finite exactly when x and y are, and z's projection and
   // bounds are the same every time (the compiler lifts them).
   template <bool kPlanar>
-  static void PlotAs(const PlotTarget& t, const Walkers& w, bool final_map, int n, Plotted* out) {
+  static void PlotAs(const PlotTarget& target, const Walkers& w, bool final_map, int n,
+                     Plotted* out) {
     using S = Isa;
+    // A copy the key stores cannot alias: stored through a vector type
+    // that may alias anything, they made every round reload and convert
+    // the target's numbers.
+    const PlotTarget t = target;
     constexpr uint64_t kAll = (uint64_t{1} << S::kWidth) - 1;
     const double* px = final_map ? w.fx : w.x;
     const double* py = final_map ? w.fy : w.y;
