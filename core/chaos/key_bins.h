@@ -98,7 +98,7 @@ class KeyBins {
   }
 
   // The packed words' fields: count above kCountShift, colour sum below.
-  static constexpr int kCountShift = 40;
+  static constexpr int kCountShift = packed::kCountShift;
   // Adds allowed between folds: no count reaches 2^24, so no colour sum
   // (at most 65535 per add) reaches 2^40 and carries into the count.
   static constexpr uint64_t kFoldAfter = (uint64_t{1} << 24) - 1;

@@ -8,8 +8,6 @@ namespace nimbus::packed {
 
 namespace {
 
-constexpr int kCountShift = 40;
-
 uint32_t HoldScalar(const uint64_t* words, const uint64_t* key, uint64_t lanes, uint64_t* hold) {
   uint32_t n = 0;
   // Bits walked one by one: the x86-64 baseline has no popcnt.

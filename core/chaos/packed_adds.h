@@ -6,7 +6,7 @@
 //   ...                                                 // a kernel round later
 //   touched |= loops.apply(words, hold, n, weighted);
 //
-// A word is one voxel's visit count (bits 40 and up) and colour sum (below).
+// A word is one voxel's visit count (from bit kCountShift) and colour sum.
 // Every level adds the same integers, so the words end up the same.
 #pragma once
 
@@ -15,6 +15,9 @@
 #include "core/base/cpu_dispatch.h"
 
 namespace nimbus::packed {
+
+/// A word's count starts at this bit; its colour sum lies below.
+inline constexpr int kCountShift = 40;
 
 /// Room `hold` needs: a round's keys. (The vector loops store whole
 /// registers, but register r of the lanes lands at r or lower, so no store
@@ -32,8 +35,7 @@ struct Loops {
   uint64_t (*apply)(uint64_t* words, const uint64_t* held, uint32_t n, bool weighted);
 };
 
-/// The loops for `level` (AVX2 uses the scalar ones: its gathers and
-/// missing compress gain nothing here).
+/// The loops for `level` (AVX2 takes the scalar ones: it has no compress).
 const Loops& LoopsFor(SimdLevel level);
 
 // The AVX-512 loops (packed_adds_avx512.cc); call only where the CPU has them.

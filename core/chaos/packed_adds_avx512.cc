@@ -21,8 +21,6 @@ namespace nimbus::packed {
 
 namespace {
 
-constexpr int kCountShift = 40;
-
 uint32_t HoldAvx512(const uint64_t* words, const uint64_t* key, uint64_t lanes, uint64_t* hold) {
   uint32_t n = 0;
   // A compress into a register and a whole store: compressing straight to
