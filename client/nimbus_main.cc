@@ -142,12 +142,9 @@ absl::StatusOr<Connection> Connect(const GlobalOptions& g, bool private_if_busy 
 // as a crash) and the result renamed into place. Stopping it anyway
 // (threads joined, gRPC and the store closed, destructors, libraries
 // unloaded) took some 25 ms, an eighth of a small render. A private
-// data dir is removed first, as its owner's destructor would.
+// data dir is removed first: dropping the one reference runs its deleter.
 [[noreturn]] void ExitWithoutTeardown(Connection& c, int rc) {
-  if (c.scratch) {
-    std::error_code ec;
-    std::filesystem::remove_all(*c.scratch, ec);
-  }
+  c.scratch.reset();
   spdlog::default_logger()->flush();
   std::cout.flush();
   std::cerr.flush();

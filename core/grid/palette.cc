@@ -15,6 +15,10 @@ constexpr double kBase[3] = {0.4, 0.6, 0.7};
 constexpr double kPhase[3] = {0.5, 0.9, 1.3};
 constexpr double kAmplitude = 0.25;
 
+// Channel c of the sine palette from its sine: one expression for the
+// per-value and the batched path, whose floats must agree bit for bit.
+double SineChannel(int c, double sine) { return kBase[c] + kAmplitude * sine; }
+
 double Clamped(double t) {
   if (!(t >= 0)) return 0;  // also catches NaN
   return t > 1 ? 1 : t;
@@ -40,9 +44,9 @@ void SineFloats(const double* t, size_t n, std::array<float, 3>* out) {
     SinMany(x, s, 3 * m);
     for (size_t k = 0; k < m; ++k) {
       for (int c = 0; c < 3; ++c) {
-        double v = kBase[c] + kAmplitude * s[3 * k + size_t(c)];
+        double v = SineChannel(c, s[3 * k + size_t(c)]);
         if (!palette_internal::RoundsSafely(v)) [[unlikely]]
-          v = kBase[c] + kAmplitude * std::sin(x[3 * k + size_t(c)]);
+          v = SineChannel(c, std::sin(x[3 * k + size_t(c)]));
         out[begin + k][size_t(c)] = float(v);
       }
     }
@@ -77,9 +81,8 @@ Vec3 Palette::Eval(double t) const {
   t = Clamped(t);
   if (stops_.empty()) {
     const double a = 2 * std::numbers::pi * t;
-    return {kBase[0] + kAmplitude * std::sin(kPhase[0] + a),
-            kBase[1] + kAmplitude * std::sin(kPhase[1] + a),
-            kBase[2] + kAmplitude * std::sin(kPhase[2] + a)};
+    return {SineChannel(0, std::sin(kPhase[0] + a)), SineChannel(1, std::sin(kPhase[1] + a)),
+            SineChannel(2, std::sin(kPhase[2] + a))};
   }
   if (t <= stops_.front().position) return stops_.front().rgb;
   if (t >= stops_.back().position) return stops_.back().rgb;
