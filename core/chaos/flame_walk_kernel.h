@@ -9,7 +9,8 @@
 // Rng reads a word; Zero(); DrawWords(walkers, n, words), which advances
 // walkers [0, n) of their streams by `words` words each; PickMaps and
 // SortByMap, as PickMapsScalar and SortByMapScalar below do them; kStaged,
-// and where it is true Stage and Unstage (see MapsStaged).
+// and where it is true Stage, Unstage and Pair, an Isa of two registers
+// for runs of more than one register (see MapsStaged).
 #pragma once
 
 #include <algorithm>
@@ -163,17 +164,28 @@ void MapsByIndex(const Program& p, Walkers& w, int n) {
 // The maps staged: Isa::Stage copies each map's walkers, in walker order,
 // into a run of Walkers::sx..., whose registers hold exactly the lanes
 // MapsByIndex's would (the last walker repeated), so every lane computes
-// the same bits; Isa::Unstage puts the results back.
+// the same bits; Isa::Unstage puts the results back. Two registers of a
+// run go through the map together (Isa::Pair): each lane's operations are
+// the same, and the halves' long-latency chains overlap.
 // A planar program's runs leave z out: Unstage stores +0.
 template <class Isa, bool kPlanar>
 void MapsStaged(const Program& p, Walkers& w, int n) {
   constexpr int kW = Isa::kWidth;
   Isa::Stage(p.maps, w, n, kPlanar);
+  using Pair = typename Isa::Pair;
   for (uint32_t m = 0; m < p.maps.num_maps; ++m) {
-    for (uint32_t k = w.stage_begin[m]; k < w.stage_end[m]; k += kW) {
+    const uint32_t end = w.stage_end[m];
+    for (uint32_t k = w.stage_begin[m]; k < end;) {
       double *x = w.sx + k, *y = w.sy + k, *z = w.sz + k;
-      const Contiguous<Isa, kPlanar> at{x, y, z, x, y, z, &w.sw[0][k], kStage};
-      ApplyMap<Isa>(p.maps, m, at);
+      if (k + kW < end) {  // two registers of the run in one pass
+        const Contiguous<Pair, kPlanar> at{x, y, z, x, y, z, &w.sw[0][k], kStage};
+        ApplyMap<Pair>(p.maps, m, at);
+        k += 2 * kW;
+      } else {
+        const Contiguous<Isa, kPlanar> at{x, y, z, x, y, z, &w.sw[0][k], kStage};
+        ApplyMap<Isa>(p.maps, m, at);
+        k += kW;
+      }
     }
   }
   Isa::Unstage(p.maps.num_maps, w, n, kPlanar);
