@@ -277,6 +277,49 @@ struct Avx512Isa {
   }
   static __mmask8 Bit(__m512i w) { return _mm512_movepi64_mask(w); }
   static __m512d Zero() { return _mm512_setzero_pd(); }
+  // DrawWords, PickMaps and Recolor in one pass over the walkers, each
+  // register's words, maps and colours staying in registers between them;
+  // with at most eight maps the tables are loaded once. The same
+  // operations as the three passes, so the same bits.
+  static void DrawPickRecolor(const Program& p, Walkers& w, int n) {
+    const uint32_t maps = p.maps.num_maps;
+    if (maps > 8) {
+      DrawWords(w, n, p.words);
+      PickMaps(p, w, n);
+      if (p.color_mode != 0) Recolor<Avx512Isa>(p, w, n);
+      return;
+    }
+    const __mmask16 in = __mmask16((1u << maps) - 1);
+    const __m512i threshold = _mm512_cvtepu32_epi64(
+        _mm512_castsi512_si256(_mm512_maskz_loadu_epi32(in, p.threshold)));
+    const __m512i alias =
+        _mm512_cvtepu32_epi64(_mm512_castsi512_si256(_mm512_maskz_loadu_epi32(in, p.alias)));
+    const __m512d color = _mm512_maskz_loadu_pd(__mmask8(in), p.maps.color);
+    const __m512i num = _mm512_set1_epi64(maps), low = _mm512_set1_epi64(0xffffffff);
+    const __m512d inv_maps = _mm512_set1_pd(p.inv_maps);
+    for (int k = 0; k < n; k += kWidth) {
+      __m512i s0 = _mm512_load_si512(w.s0 + k), s1 = _mm512_load_si512(w.s1 + k);
+      __m512i s2 = _mm512_load_si512(w.s2 + k), s3 = _mm512_load_si512(w.s3 + k);
+      const __m512i r = simd::XoshiroNext(s0, s1, s2, s3);
+      _mm512_storeu_si512(w.words + k, r);
+      for (uint32_t c = 1; c < p.words; ++c)
+        _mm512_storeu_si512(w.words + size_t(c) * kMaxWalkers + k,
+                            simd::XoshiroNext(s0, s1, s2, s3));
+      _mm512_store_si512(w.s0 + k, s0), _mm512_store_si512(w.s1 + k, s1);
+      _mm512_store_si512(w.s2 + k, s2), _mm512_store_si512(w.s3 + k, s3);
+      const __m512i i = _mm512_srli_epi64(_mm512_mul_epu32(_mm512_srli_epi64(r, 32), num), 32);
+      const __mmask8 keep = _mm512_cmplt_epu64_mask(_mm512_and_si512(r, low),
+                                                    _mm512_permutexvar_epi64(i, threshold));
+      const __m512i m = _mm512_mask_blend_epi64(keep, _mm512_permutexvar_epi64(i, alias), i);
+      _mm256_storeu_si256(reinterpret_cast<__m256i*>(w.map + k), _mm512_cvtepi64_epi32(m));
+      if (p.color_mode == 0) continue;
+      const __m512d addr = (_mm512_cvtepi64_pd(m) + _mm512_load_pd(w.addr + k)) * inv_maps;
+      _mm512_store_pd(w.addr + k, addr);
+      const __m512d target = p.color_mode == 2 ? addr : _mm512_permutexvar_pd(m, color);
+      const __m512d col = _mm512_load_pd(w.col + k);
+      _mm512_store_pd(w.col + k, col + p.blend * (target - col));
+    }
+  }
   // Rng::Next for eight walkers per register.
   static void DrawWords(Walkers& w, int n, uint32_t words) {
     for (int k = 0; k < n; k += kWidth) {

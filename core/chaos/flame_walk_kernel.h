@@ -199,9 +199,13 @@ inline bool Stageable(const Program& p) {
 template <class Isa>
 void RoundWith(const Program& p, Walkers& w, int n) {
   constexpr int kW = Isa::kWidth;
-  Isa::DrawWords(w, n, p.words);
-  Isa::PickMaps(p, w, n);
-  if (p.color_mode != 0) Recolor<Isa>(p, w, n);
+  if constexpr (Isa::kStaged) {
+    Isa::DrawPickRecolor(p, w, n);
+  } else {
+    Isa::DrawWords(w, n, p.words);
+    Isa::PickMaps(p, w, n);
+    if (p.color_mode != 0) Recolor<Isa>(p, w, n);
+  }
   if constexpr (Isa::kStaged) {
     if (Stageable(p) && p.planar)
       MapsStaged<Isa, true>(p, w, n);
