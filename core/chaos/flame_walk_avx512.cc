@@ -78,7 +78,7 @@ inline D16 operator+(const D16& a, double b) { return a + Wide(b); }
 inline D16 operator-(const D16& a, double b) { return a - Wide(b); }
 inline D16 operator*(const D16& a, double b) { return a * Wide(b); }
 inline D16 operator/(const D16& a, double b) { return a / Wide(b); }
-inline D16 operator+(double a, const D16& b) { return Wide(a) + b; }
+[[maybe_unused]] inline D16 operator+(double a, const D16& b) { return Wide(a) + b; }
 inline D16 operator-(double a, const D16& b) { return Wide(a) - b; }
 inline D16 operator*(double a, const D16& b) { return Wide(a) * b; }
 inline D16 operator/(double a, const D16& b) { return Wide(a) / b; }

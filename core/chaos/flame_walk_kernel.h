@@ -180,7 +180,7 @@ void MapsStaged(const Program& p, Walkers& w, int n) {
       if (k + kW < end) {  // two registers of the run in one pass
         const Contiguous<Pair, kPlanar> at{x, y, z, x, y, z, &w.sw[0][k], kStage};
         ApplyMap<Pair>(p.maps, m, at);
-        k += 2 * kW;
+        k += Pair::kWidth;
       } else {
         const Contiguous<Isa, kPlanar> at{x, y, z, x, y, z, &w.sw[0][k], kStage};
         ApplyMap<Isa>(p.maps, m, at);
