@@ -139,37 +139,6 @@ struct Avx512Isa {
   static __m256i Index(const int32_t* lanes) {
     return _mm256_loadu_si256(reinterpret_cast<const __m256i*>(lanes));
   }
-  static __m512d ToDouble(__m256i i) { return _mm512_cvtepi32_pd(i); }
-  // Entry i of a per-map table for eight walkers: with at most eight maps
-  // the table sits in one register and a permute looks it up (gathers
-  // cost far more), else a gather.
-  static __m512i Lookup(const uint32_t* table, uint32_t maps, __m512i i) {
-    if (maps > 8) return _mm512_cvtepu32_epi64(_mm512_i64gather_epi32(i, table, 4));
-    const __m512i row = _mm512_cvtepu32_epi64(
-        _mm512_castsi512_si256(_mm512_maskz_loadu_epi32(__mmask16((1u << maps) - 1), table)));
-    return _mm512_permutexvar_epi64(i, row);
-  }
-  static __m512d LookupMaps(const double* table, uint32_t maps, __m256i i) {
-    if (maps > 8) return Gather(table, i);
-    const __m512d row = _mm512_maskz_loadu_pd(__mmask8((1u << maps) - 1), table);
-    return _mm512_permutexvar_pd(_mm512_cvtepu32_epi64(i), row);
-  }
-  // AliasTable::Sample, eight words at a time: the 32 x 32-bit product picks
-  // the column, the low half of the word decides between it and its alias.
-  static void PickMaps(const Program& p, Walkers& w, int n) {
-    const uint32_t maps = p.maps.num_maps;
-    const __m512i num = _mm512_set1_epi64(maps);
-    const __m512i low = _mm512_set1_epi64(0xffffffff);
-    for (int k = 0; k < n; k += kWidth) {
-      const __m512i r = _mm512_loadu_si512(w.words + k);
-      const __m512i i = _mm512_srli_epi64(_mm512_mul_epu32(_mm512_srli_epi64(r, 32), num), 32);
-      const __m512i threshold = Lookup(p.threshold, maps, i);
-      const __m512i alias = Lookup(p.alias, maps, i);
-      const __mmask8 keep = _mm512_cmplt_epu64_mask(_mm512_and_si512(r, low), threshold);
-      _mm256_storeu_si256(reinterpret_cast<__m256i*>(w.map + k),
-                          _mm512_cvtepi64_epi32(_mm512_mask_blend_epi64(keep, alias, i)));
-    }
-  }
   // With few maps, each map's walkers are compressed out of 16-lane
   // registers in walker order; else the counting sort.
   static void SortByMap(uint32_t maps, Walkers& w, int n) {
@@ -277,25 +246,44 @@ struct Avx512Isa {
   }
   static __mmask8 Bit(__m512i w) { return _mm512_movepi64_mask(w); }
   static __m512d Zero() { return _mm512_setzero_pd(); }
-  // DrawWords, PickMaps and Recolor in one pass over the walkers, each
-  // register's words, maps and colours staying in registers between them;
-  // with at most eight maps the tables are loaded once. The same
-  // operations as the three passes, so the same bits.
-  static void DrawPickRecolor(const Program& p, Walkers& w, int n) {
-    const uint32_t maps = p.maps.num_maps;
-    if (maps > 8) {
-      DrawWords(w, n, p.words);
-      PickMaps(p, w, n);
-      if (p.color_mode != 0) Recolor<Avx512Isa>(p, w, n);
-      return;
+  // The per-map tables a round reads, looked up for eight walkers' maps:
+  // with at most eight maps each table sits in one register and a permute
+  // looks it up (gathers cost far more), else a gather.
+  struct Tables {
+    explicit Tables(const Program& prog) : p(prog), small(prog.maps.num_maps <= 8) {
+      if (!small) return;
+      const __mmask16 in = __mmask16((1u << p.maps.num_maps) - 1);
+      threshold =
+          _mm512_cvtepu32_epi64(_mm512_castsi512_si256(_mm512_maskz_loadu_epi32(in, p.threshold)));
+      alias = _mm512_cvtepu32_epi64(_mm512_castsi512_si256(_mm512_maskz_loadu_epi32(in, p.alias)));
+      color = _mm512_maskz_loadu_pd(__mmask8(in), p.maps.color);
     }
-    const __mmask16 in = __mmask16((1u << maps) - 1);
-    const __m512i threshold = _mm512_cvtepu32_epi64(
-        _mm512_castsi512_si256(_mm512_maskz_loadu_epi32(in, p.threshold)));
-    const __m512i alias =
-        _mm512_cvtepu32_epi64(_mm512_castsi512_si256(_mm512_maskz_loadu_epi32(in, p.alias)));
-    const __m512d color = _mm512_maskz_loadu_pd(__mmask8(in), p.maps.color);
-    const __m512i num = _mm512_set1_epi64(maps), low = _mm512_set1_epi64(0xffffffff);
+    __m512i Threshold(__m512i i) const {
+      return small ? _mm512_permutexvar_epi64(i, threshold) : Gather32(p.threshold, i);
+    }
+    __m512i Alias(__m512i i) const {
+      return small ? _mm512_permutexvar_epi64(i, alias) : Gather32(p.alias, i);
+    }
+    __m512d Color(__m512i i) const {
+      return small ? _mm512_permutexvar_pd(i, color) : _mm512_i64gather_pd(i, p.maps.color, 8);
+    }
+    static __m512i Gather32(const uint32_t* table, __m512i i) {
+      return _mm512_cvtepu32_epi64(_mm512_i64gather_epi32(i, table, 4));
+    }
+    const Program& p;
+    const bool small;
+    __m512i threshold = _mm512_setzero_si512(), alias = threshold;
+    __m512d color = _mm512_setzero_pd();
+  };
+  // One pass over the walkers does what the scalar kernel's DrawWords,
+  // PickMapsScalar and Recolor do in three: Rng::Next for each of the
+  // step's words, AliasTable::Sample on word 0 (the 32 x 32-bit product
+  // picks the column, the low half of the word decides between it and its
+  // alias), then the colour. Each register's first word, maps and colours
+  // stay in registers between them, and small tables are loaded once.
+  static void DrawPickRecolor(const Program& p, Walkers& w, int n) {
+    const Tables t(p);
+    const __m512i num = _mm512_set1_epi64(p.maps.num_maps), low = _mm512_set1_epi64(0xffffffff);
     const __m512d inv_maps = _mm512_set1_pd(p.inv_maps);
     for (int k = 0; k < n; k += kWidth) {
       __m512i s0 = _mm512_load_si512(w.s0 + k), s1 = _mm512_load_si512(w.s1 + k);
@@ -308,29 +296,15 @@ struct Avx512Isa {
       _mm512_store_si512(w.s0 + k, s0), _mm512_store_si512(w.s1 + k, s1);
       _mm512_store_si512(w.s2 + k, s2), _mm512_store_si512(w.s3 + k, s3);
       const __m512i i = _mm512_srli_epi64(_mm512_mul_epu32(_mm512_srli_epi64(r, 32), num), 32);
-      const __mmask8 keep = _mm512_cmplt_epu64_mask(_mm512_and_si512(r, low),
-                                                    _mm512_permutexvar_epi64(i, threshold));
-      const __m512i m = _mm512_mask_blend_epi64(keep, _mm512_permutexvar_epi64(i, alias), i);
+      const __mmask8 keep = _mm512_cmplt_epu64_mask(_mm512_and_si512(r, low), t.Threshold(i));
+      const __m512i m = _mm512_mask_blend_epi64(keep, t.Alias(i), i);
       _mm256_storeu_si256(reinterpret_cast<__m256i*>(w.map + k), _mm512_cvtepi64_epi32(m));
       if (p.color_mode == 0) continue;
       const __m512d addr = (_mm512_cvtepi64_pd(m) + _mm512_load_pd(w.addr + k)) * inv_maps;
       _mm512_store_pd(w.addr + k, addr);
-      const __m512d target = p.color_mode == 2 ? addr : _mm512_permutexvar_pd(m, color);
+      const __m512d target = p.color_mode == 2 ? addr : t.Color(m);
       const __m512d col = _mm512_load_pd(w.col + k);
       _mm512_store_pd(w.col + k, col + p.blend * (target - col));
-    }
-  }
-  // Rng::Next for eight walkers per register.
-  static void DrawWords(Walkers& w, int n, uint32_t words) {
-    for (int k = 0; k < n; k += kWidth) {
-      __m512i s0 = _mm512_load_si512(w.s0 + k), s1 = _mm512_load_si512(w.s1 + k);
-      __m512i s2 = _mm512_load_si512(w.s2 + k), s3 = _mm512_load_si512(w.s3 + k);
-      for (uint32_t c = 0; c < words; ++c) {
-        _mm512_storeu_si512(w.words + size_t(c) * kMaxWalkers + k,
-                            simd::XoshiroNext(s0, s1, s2, s3));
-      }
-      _mm512_store_si512(w.s0 + k, s0), _mm512_store_si512(w.s1 + k, s1);
-      _mm512_store_si512(w.s2 + k, s2), _mm512_store_si512(w.s3 + k, s3);
     }
   }
   // Sixteen lanes of a staged run at once (formulas::D16), for MapsStaged.

@@ -2,15 +2,17 @@
 // description `Isa` and included by each kernel's translation unit after it
 // has declared its vector operations (see variation_formulas.h). Isa has:
 // T (doubles), kWidth (lanes per T); Load/Store; Index(const int32_t*)
-// (kWidth walker or map indices) and ToDouble(index), Gather(base, index)
-// and Scatter(base, index, T) of doubles, LookupMaps(table, maps, index)
-// (Gather from a per-map table), GatherWord(base, index) and
-// LoadWord(p) of random words, Uniform(word) and Bit(word) as the scalar
-// Rng reads a word; Zero(); DrawWords(walkers, n, words), which advances
-// walkers [0, n) of their streams by `words` words each; PickMaps and
-// SortByMap, as PickMapsScalar and SortByMapScalar below do them; kStaged,
-// and where it is true Stage, Unstage and Pair, an Isa of two registers
-// for runs of more than one register (see MapsStaged).
+// (kWidth walker or map indices), Gather(base, index) and Scatter(base,
+// index, T) of doubles, GatherWord(base, index) and LoadWord(p) of random
+// words, Uniform(word) and Bit(word) as the scalar Rng reads a word;
+// Zero(); SortByMap, as SortByMapScalar below does it; and kStaged.
+// Where kStaged is false: ToDouble(index), LookupMaps(table, maps, index)
+// (Gather from a per-map table), DrawWords(walkers, n, words), which
+// advances walkers [0, n) of their streams by `words` words each, and
+// PickMaps, as PickMapsScalar below does it. Where it is true:
+// DrawPickRecolor, those steps and Recolor in one pass; Stage, Unstage,
+// and Pair, an Isa of two registers for runs of more than one register
+// (see MapsStaged).
 #pragma once
 
 #include <algorithm>

@@ -249,8 +249,8 @@ TEST(FlameKernel, Avx512StagedRunsAgreeWithTheIndexedKernelBitForBit) {
 
 // The walkers' colours, by map and by address, with the alias table's
 // columns and aliases both taken: every level recolours as the scalar
-// kernel does, bit for bit (AVX-512 draws, picks and recolours in one pass
-// with up to eight maps, in three above).
+// kernel does, bit for bit (AVX-512 draws, picks and recolours in one
+// pass, its tables in registers up to eight maps and gathered above).
 TEST(FlameKernel, VectorKernelsRecolourAsTheScalarKernelBitForBit) {
   const std::vector<Vec3> pts = TestPoints(1000);
   for (int count : {1, 3, 8, 9}) {
