@@ -203,12 +203,6 @@ void RoundWith(const Program& p, Walkers& w, int n) {
   constexpr int kW = Isa::kWidth;
   if constexpr (Isa::kStaged) {
     Isa::DrawPickRecolor(p, w, n);
-  } else {
-    Isa::DrawWords(w, n, p.words);
-    Isa::PickMaps(p, w, n);
-    if (p.color_mode != 0) Recolor<Isa>(p, w, n);
-  }
-  if constexpr (Isa::kStaged) {
     if (Stageable(p) && p.planar)
       MapsStaged<Isa, true>(p, w, n);
     else if (Stageable(p))
@@ -216,6 +210,9 @@ void RoundWith(const Program& p, Walkers& w, int n) {
     else
       MapsByIndex<Isa>(p, w, n);
   } else {
+    Isa::DrawWords(w, n, p.words);
+    Isa::PickMaps(p, w, n);
+    if (p.color_mode != 0) Recolor<Isa>(p, w, n);
     MapsByIndex<Isa>(p, w, n);
   }
   if (p.final_map.num_maps == 0) return;
