@@ -41,6 +41,14 @@ class ZeroPages {
   /// backs only whole 2 MiB ranges of a mapping with huge pages, so a
   /// 1.5 MiB one would otherwise fault in 4 KiB at a time.
   static void* Map(size_t bytes, bool huge);
+  /// Map(bytes, false) with every page mapped at once (MADV_POPULATE_WRITE,
+  /// where the kernel has it): for a buffer about to be written in full,
+  /// one call instead of a page fault per 4 KiB, some 12 us each on a
+  /// virtual machine against under 1 us populated. Unmap with huge false.
+  static void* MapPopulated(size_t bytes);
+  /// Maps the pages of [data, data + bytes) of a mapping at once, as
+  /// MapPopulated does (advice: nothing happens where it is refused).
+  static void Populate(void* data, size_t bytes);
   static void Unmap(void* data, size_t bytes, bool huge);
   static size_t MappedBytes(size_t bytes, bool huge);
 
@@ -56,9 +64,12 @@ class ZeroPages {
 /// a virtual machine), and the elements are left as they are (zero when
 /// mapped, unspecified when smaller) instead of being cleared first:
 /// `resize(n)` on such a vector costs no memset. Write every element.
+/// From kPopulateBytes up to kMinBytes the pages are small but mapped in
+/// one call (ZeroPages::MapPopulated), not faulted in one at a time.
 template <class T>
 struct ZeroPageAllocator {
   using value_type = T;
+  static constexpr size_t kPopulateBytes = size_t{64} << 10;
   static constexpr size_t kMinBytes = size_t{1} << 20;
 
   ZeroPageAllocator() = default;
@@ -66,12 +77,15 @@ struct ZeroPageAllocator {
   ZeroPageAllocator(const ZeroPageAllocator<U>&) {}
 
   T* allocate(size_t n) {
-    if (n * sizeof(T) < kMinBytes) return std::allocator<T>().allocate(n);
-    return static_cast<T*>(ZeroPages::Map(n * sizeof(T), /*huge=*/true));
+    const size_t bytes = n * sizeof(T);
+    if (bytes < kPopulateBytes) return std::allocator<T>().allocate(n);
+    if (bytes < kMinBytes) return static_cast<T*>(ZeroPages::MapPopulated(bytes));
+    return static_cast<T*>(ZeroPages::Map(bytes, /*huge=*/true));
   }
   void deallocate(T* p, size_t n) {
-    if (n * sizeof(T) < kMinBytes) return std::allocator<T>().deallocate(p, n);
-    ZeroPages::Unmap(p, n * sizeof(T), /*huge=*/true);
+    const size_t bytes = n * sizeof(T);
+    if (bytes < kPopulateBytes) return std::allocator<T>().deallocate(p, n);
+    ZeroPages::Unmap(p, bytes, /*huge=*/bytes >= kMinBytes);
   }
   /// Default initialisation: no value written (see above).
   template <class U>

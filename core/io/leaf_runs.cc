@@ -70,12 +70,17 @@ void LeafRuns::Keep(std::string_view run) {
   // A small first block keeps small grids small; later ones are 4 MiB
   // (two huge pages).
   constexpr size_t kFirst = size_t{256} << 10, kLater = size_t{4} << 20;
+  constexpr size_t kPopulateFrom = size_t{16} << 10;
   while (!run.empty()) {
     if (blocks_.empty() || last_used_ == blocks_.back().bytes()) {
       blocks_.emplace_back(blocks_.empty() ? kFirst : kLater, /*huge=*/!blocks_.empty());
       last_used_ = 0;
     }
     const size_t n = std::min(run.size(), blocks_.back().bytes() - last_used_);
+    // The small first block's pages in one call rather than a fault each
+    // (the later ones are huge pages).
+    if (blocks_.size() == 1 && n >= kPopulateFrom)
+      ZeroPages::Populate(blocks_.back().as<char>() + last_used_, n);
     std::memcpy(blocks_.back().as<char>() + last_used_, run.data(), n);
     last_used_ += n;
     run.remove_prefix(n);

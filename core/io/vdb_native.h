@@ -113,9 +113,9 @@ struct Grid {
 };
 
 /// @brief Encodes every leaf of `g` (its `leaves`, in tree order) in
-/// parallel: `fill(leaf, dense)` writes the leaf's 512 values (`ValueBytes`
-/// each, voxel order; inactive ones are ignored), then `visit(leaf, packed,
-/// count)` sees each leaf's active values on the calling thread in tree
+/// parallel: `fill(leaf, packed)` writes the leaf's active values
+/// (`ValueBytes` each, in voxel order, as many as its mask has bits), then
+/// `visit(leaf, packed, count)` sees them on the calling thread in tree
 /// order (for order-dependent sums). `fill` may run on several threads.
 void EncodeLeaves(Grid& g, const std::function<void(const Leaf&, void*)>& fill,
                   const std::function<void(const Leaf&, const void*, size_t)>& visit);

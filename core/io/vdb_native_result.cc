@@ -1,6 +1,7 @@
 #include "core/io/vdb_native_result.h"
 
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
 
 #include <bit>
 #include <cmath>
@@ -48,34 +49,85 @@ void AddMeta(MetaMap& meta, const std::string& key, const MetaValue& v) {
   if (auto* d = std::get_if<double>(&v)) meta.Double(key, *d);
 }
 
+// A folded (2D) grid's leaves: counted per range of tiles first, then
+// written straight into one list at each range's offset. Per-range lists
+// faulted in some 300 fresh heap pages for a 1024^2 picture (about 12 us
+// each in a virtual machine), and were copied again to join them.
+std::shared_ptr<LeafList> FoldedLeaves(const CountGrid& counts, size_t per_range) {
+  const size_t ranges = (counts.TileCount() + per_range - 1) / per_range;
+  auto tiles = [&](size_t r) {
+    return std::pair{r * per_range, std::min(counts.TileCount(), (r + 1) * per_range)};
+  };
+  std::vector<size_t> first(ranges + 1, 0);
+  tbb::parallel_for(size_t{0}, ranges, [&](size_t r) {
+    const auto [begin, end] = tiles(r);
+    counts.ForEachLeafMaskInTiles(begin, end, [&](Int3, const uint64_t*) { ++first[r + 1]; });
+  });
+  for (size_t r = 0; r < ranges; ++r) first[r + 1] += first[r];
+  auto leaves = std::make_shared<LeafList>(first[ranges]);
+  tbb::parallel_for(size_t{0}, ranges, [&](size_t r) {
+    const auto [begin, end] = tiles(r);
+    Leaf* out = leaves->data() + first[r];
+    counts.ForEachLeafMaskInTiles(begin, end, [&](Int3 o, const uint64_t* mask) {
+      *out = Leaf{{o.x, o.y, o.z}, {}};
+      std::copy(mask, mask + 8, out->mask.begin());
+      ++out;
+    });
+  });
+  return leaves;
+}
+
 // The counts' leaves in tree order, each active where counted. Tiles are
-// scanned in parallel, each range into its own list, joined in tile order.
+// scanned in parallel; a 3D grid's ranges each into its own list (its tile
+// table counts every tile, allocated or not), joined in tile order.
 std::shared_ptr<const LeafList> CountLeaves(const CountGrid& counts) {
   constexpr size_t kTilesPerRange = 16;
-  const size_t ranges = (counts.TileCount() + kTilesPerRange - 1) / kTilesPerRange;
-  std::vector<std::vector<Leaf>> parts(ranges);
-  tbb::parallel_for(size_t{0}, ranges, [&](size_t r) {
-    const size_t end = std::min(counts.TileCount(), (r + 1) * kTilesPerRange);
-    // A thin (folded) grid's tiles are few and mostly full: room for every
-    // leaf they can hold (eight voxel leaves per stored leaf), since growing
-    // by doubling would copy, and fault in fresh pages, twice over. A 3D
-    // grid's table counts every tile, allocated or not, so it grows.
-    if (counts.folded()) parts[r].reserve((end - r * kTilesPerRange) * 512);
-    counts.ForEachLeafInTiles(r * kTilesPerRange, end,
-                              [&](Int3 o, const uint32_t* v, const uint64_t*) {
-                                Leaf leaf{{o.x, o.y, o.z}, {}};
-                                for (int i = 0; i < 512; ++i)
-                                  if (v[i]) leaf.mask[size_t(i >> 6)] |= uint64_t{1} << (i & 63);
-                                parts[r].push_back(leaf);
-                              });
-  });
-  auto leaves = std::make_shared<LeafList>();
-  size_t total = 0;
-  for (const auto& p : parts) total += p.size();
-  leaves->reserve(total);
-  for (const auto& p : parts) leaves->insert(leaves->end(), p.begin(), p.end());
+  std::shared_ptr<LeafList> leaves;
+  if (counts.folded()) {
+    leaves = FoldedLeaves(counts, kTilesPerRange);
+  } else {
+    const size_t ranges = (counts.TileCount() + kTilesPerRange - 1) / kTilesPerRange;
+    std::vector<std::vector<Leaf>> parts(ranges);
+    tbb::parallel_for(size_t{0}, ranges, [&](size_t r) {
+      const size_t end = std::min(counts.TileCount(), (r + 1) * kTilesPerRange);
+      counts.ForEachLeafMaskInTiles(r * kTilesPerRange, end, [&](Int3 o, const uint64_t* mask) {
+        Leaf leaf{{o.x, o.y, o.z}, {}};
+        std::copy(mask, mask + 8, leaf.mask.begin());
+        parts[r].push_back(leaf);
+      });
+    });
+    leaves = std::make_shared<LeafList>();
+    size_t total = 0;
+    for (const auto& p : parts) total += p.size();
+    leaves->reserve(total);
+    for (const auto& p : parts) leaves->insert(leaves->end(), p.begin(), p.end());
+  }
   SortTreeOrder(*leaves);
   return leaves;
+}
+
+// The largest and the total count, tiles summed in parallel.
+struct CountSums {
+  uint32_t max = 0;
+  uint64_t total = 0;
+};
+CountSums SumCounts(const CountGrid& counts) {
+  return tbb::parallel_reduce(
+      tbb::blocked_range<size_t>(0, counts.TileCount(), 16), CountSums{},
+      [&](const tbb::blocked_range<size_t>& r, CountSums s) {
+        for (size_t t = r.begin(); t < r.end(); ++t) {
+          const uint32_t* v = counts.TileOrNull(t);
+          if (!v) continue;
+          uint32_t m = 0;
+          uint64_t sum = 0;
+          for (int i = 0; i < CountGrid::kTileVoxels; ++i) m = std::max(m, v[i]), sum += v[i];
+          s.max = std::max(s.max, m), s.total += sum;
+        }
+        return s;
+      },
+      [](CountSums a, CountSums b) {
+        return CountSums{std::max(a.max, b.max), a.total + b.total};
+      });
 }
 
 template <typename F>
@@ -91,12 +143,19 @@ struct Result {
   const GridFrame& frame;
   const DensityOptions& options;
   const Metadata& metadata;
+  CountSums sums;
   Normaliser norm;
   std::shared_ptr<const LeafList> leaves;  // shared by every grid
   bool color;
 
   Result(const CountGrid& c, const GridFrame& f, const DensityOptions& o, const Metadata& m)
-      : counts(c), frame(f), options(o), metadata(m), norm(o, c.Max()), leaves(CountLeaves(c)),
+      : counts(c),
+        frame(f),
+        options(o),
+        metadata(m),
+        sums(SumCounts(c)),
+        norm(o, sums.max),
+        leaves(CountLeaves(c)),
         color(o.color && c.has_color()) {}
 
   // An empty grid of the result: NewGrid's name and class plus FinishGrid's
@@ -129,21 +188,24 @@ struct Result {
 
   using Visit = std::function<void(const Leaf&, const void*, size_t)>;
 
-  // Encodes `g` on the counts' leaves, a leaf at a time: fill(leaf, counts,
-  // colour sums or null, out) writes the leaf's active values into its
-  // dense block of 512; visit sees each leaf's values in tree order.
+  // Encodes `g` on the counts' leaves, a leaf at a time: fill(leaf, n, at,
+  // counts, colour sums or null, out) writes the values of the leaf's n
+  // active voxels (indices `at`, with their counts and sums) packed into
+  // `out`; visit sees each leaf's values in tree order.
   template <typename T, typename Fill>
   void EncodeLeafwise(Grid& g, bool colors, const Fill& fill,
                       const Visit& visit = [](const Leaf&, const void*, size_t) {}) const {
     g.leaves = leaves;
     EncodeLeaves(
         g,
-        [&](const Leaf& leaf, void* dense) {
+        [&](const Leaf& leaf, void* packed) {
+          uint16_t at[512];
           uint32_t v[512];
           uint64_t cs[512];
-          GatherCountLeaf(counts, {leaf.origin[0], leaf.origin[1], leaf.origin[2]}, v,
-                          colors ? cs : nullptr, leaf.mask.data());
-          fill(leaf, v, colors ? cs : nullptr, static_cast<T*>(dense));
+          const size_t n =
+              GatherActiveCounts(counts, {leaf.origin[0], leaf.origin[1], leaf.origin[2]},
+                                 leaf.mask.data(), at, v, colors ? cs : nullptr);
+          fill(leaf, n, at, v, colors ? cs : nullptr, static_cast<T*>(packed));
         },
         visit);
   }
@@ -154,8 +216,9 @@ struct Result {
               const Visit& visit = [](const Leaf&, const void*, size_t) {}) const {
     EncodeLeafwise<T>(
         g, colors,
-        [&](const Leaf& leaf, const uint32_t* v, const uint64_t* cs, T* out) {
-          ForEachActive(leaf, [&](int i) { out[i] = value(leaf, i, v[i], cs ? cs[i] : 0); });
+        [&](const Leaf& leaf, size_t n, const uint16_t* at, const uint32_t* v, const uint64_t* cs,
+            T* out) {
+          for (size_t k = 0; k < n; ++k) out[k] = value(leaf, at[k], v[k], cs ? cs[k] : 0);
         },
         visit);
   }
@@ -163,19 +226,13 @@ struct Result {
   // Cd: each leaf's colour coordinates through the palette in one batch.
   void EncodeColors(Grid& g) const {
     using Rgb = std::array<float, 3>;
-    EncodeLeafwise<Rgb>(g, true, [&](const Leaf& leaf, const uint32_t* v, const uint64_t* cs,
-                                     Rgb* out) {
-      int at[512];
-      double t[512];
-      size_t n = 0;
-      ForEachActive(leaf, [&](int i) {
-        at[n] = i;
-        t[n++] = ColorCoord(v[i], cs[i]);
-      });
-      Rgb rgb[512];
-      options.palette.EvalFloats(t, n, rgb);
-      for (size_t k = 0; k < n; ++k) out[at[k]] = rgb[k];
-    });
+    EncodeLeafwise<Rgb>(g, true,
+                        [&](const Leaf&, size_t n, const uint16_t*, const uint32_t* v,
+                            const uint64_t* cs, Rgb* out) {
+                          double t[512];
+                          for (size_t k = 0; k < n; ++k) t[k] = ColorCoord(v[k], cs[k]);
+                          options.palette.EvalFloats(t, n, out);
+                        });
   }
 
   float Density(const Leaf& leaf, int i, uint32_t c) const {
@@ -201,8 +258,8 @@ Grid Result::DensityGrid() const {
         const float* f = static_cast<const float*>(values);
         for (size_t k = 0; k < n; ++k) sum += f[k];
       });
-  g.meta.Int64("nimbus_max_count", int64_t(counts.Max()));
-  g.meta.Int64("nimbus_total_count", int64_t(counts.Total()));
+  g.meta.Int64("nimbus_max_count", int64_t(sums.max));
+  g.meta.Int64("nimbus_total_count", int64_t(sums.total));
   g.meta.String("nimbus_density_mapping", MappingName(options.mapping));
   if (options.mapping == DensityMapping::kGamma)
     g.meta.Double("nimbus_density_gamma", options.gamma);
@@ -220,8 +277,8 @@ std::vector<GridSource> Result::Sources(bool int64_counts) const {
   if (int64_counts) {
     out.push_back({"counts", [this] {
       Grid g = Base("counts", "unknown", ValueKind::kInt64);
-      g.meta.Int64("nimbus_max_count", int64_t(counts.Max()));
-      g.meta.Int64("nimbus_total_count", int64_t(counts.Total()));
+      g.meta.Int64("nimbus_max_count", int64_t(sums.max));
+      g.meta.Int64("nimbus_total_count", int64_t(sums.total));
       for (const auto& [k, v] : metadata) AddMeta(g.meta, k, v);
       Encode<int64_t>(g, false, [](const Leaf&, int, uint32_t c, uint64_t) { return int64_t(c); });
       return g;
@@ -273,8 +330,10 @@ Grid FieldGrid(const Vec3Field& field, const GridFrame& frame, const OutputConve
   g.leaves = std::move(leaves);
   EncodeLeaves(
       g,
-      [&](const Leaf& leaf, void* dense) {
-        std::memcpy(dense, by_leaf.at(leaf.origin).second.data(), sizeof(Values));
+      [&](const Leaf& leaf, void* packed) {
+        const Values& values = by_leaf.at(leaf.origin).second;
+        auto* out = static_cast<std::array<float, 3>*>(packed);
+        ForEachActive(leaf, [&](int i) { *out++ = values[size_t(i)]; });
       },
       [](const Leaf&, const void*, size_t) {});
   return g;

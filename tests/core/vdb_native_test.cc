@@ -8,12 +8,15 @@
 #include <openvdb/io/Compression.h>
 #include <openvdb/openvdb.h>
 
+#include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <fstream>
 #include <random>
 #include <sstream>
 #include <string>
 
+#include "core/io/result_values.h"
 #include "core/io/vdb_impl.h"
 #include "core/io/vdb_internal.h"
 #include "core/io/vdb_io.h"
@@ -154,6 +157,37 @@ TEST(VdbNative, LinearTransformsMatchOpenVdb) {
   CheckTransform(m);
   m.setTranslation(openvdb::Vec3d(1e-16, 0, 0));
   CheckTransform(m);
+}
+
+// The density mappings with their table of small counts give the floats
+// of the formulas, below the table's end, at it and past it.
+TEST(VdbNative, NormaliserTableGivesTheMappingsFloats) {
+  for (DensityMapping m : {DensityMapping::kLinear, DensityMapping::kSqrt, DensityMapping::kLog,
+                           DensityMapping::kGamma}) {
+    for (uint32_t max : {1u, 7u, 4096u, 100000u}) {
+      DensityOptions o;
+      o.mapping = m;
+      o.gamma = 2.2;
+      const Normaliser norm(o, max);
+      const double mx = std::max<double>(1, max);
+      auto want = [&](uint32_t c) {
+        switch (m) {
+          case DensityMapping::kLinear:
+            return float(c * (1.0 / mx));
+          case DensityMapping::kSqrt:
+            return float(std::sqrt(c * (1.0 / mx)));
+          case DensityMapping::kLog:
+            return float(std::log1p(double(c)) * (1.0 / std::log1p(mx)));
+          case DensityMapping::kGamma:
+            return float(std::pow(c * (1.0 / mx), 1.0 / 2.2));
+        }
+        return 0.f;
+      };
+      for (uint32_t c = 0; c <= std::min<uint32_t>(max, 5000); ++c)
+        ASSERT_EQ(norm(c), want(c)) << MappingName(m) << " max " << max << " count " << c;
+      ASSERT_EQ(norm(max), want(max)) << MappingName(m) << " max " << max;
+    }
+  }
 }
 
 struct Shape {
