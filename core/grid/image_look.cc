@@ -5,7 +5,10 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
+#include <bit>
 #include <cmath>
+#include <cstdint>
+#include <vector>
 
 namespace nimbus {
 
@@ -108,6 +111,19 @@ absl::StatusOr<ImageDensity> BoxFilterImage(const std::vector<const CountGrid*>&
   return out;
 }
 
+namespace image_internal {
+bool RoundsAlike(double y, double margin) {
+  if (y == 0 && margin == 0) return true;
+  const float f = float(y);
+  if (!std::isfinite(f) || f == 0) return false;
+  const double a = std::fabs(y), fa = std::fabs(double(f));
+  const uint32_t bits = std::bit_cast<uint32_t>(float(fa));
+  const double lo = (fa + double(std::bit_cast<float>(bits - 1))) / 2;
+  const double hi = (fa + double(std::bit_cast<float>(bits + 1))) / 2;
+  return a - lo > margin && hi - a > margin;
+}
+}  // namespace image_internal
+
 double ToneMap(const LookParams& look, double d, double dmin, double dmax) {
   if (!(d > 0) || !(dmax > 0)) return 0;
   double v = 0;
@@ -144,21 +160,45 @@ absl::StatusOr<RgbImage> DevelopImage(const ImageDensity& image, const LookParam
   out.height = image.height;
   out.rgb.resize(3 * size_t(image.width) * size_t(image.height));  // every pixel is written
   const double keep = 1 - look.desaturation;
+  // A lit pixel's colour times its brightness, before rounding to float.
+  auto shade = [&](Vec3 c, double v) {
+    // Mix with the colour's own grey (Rec. 709 luma) to desaturate.
+    const double grey = 0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z;
+    c = keep * c + look.desaturation * Vec3{grey, grey, grey};
+    return Vec3{c.x * v, c.y * v, c.z * v};
+  };
+  // The colours are within 2^-50 of Eval's, so the mix within
+  // (|keep| + |desaturation|) 2^-49 and a value within v times that plus
+  // its own rounding: the margin is 16 times as much.
+  const double mix = std::fabs(keep) + std::fabs(look.desaturation);
   absl::Status st = ForRows(image.height, interrupter, [&](int row) {
+    const size_t first = size_t(row) * size_t(image.width);
+    std::vector<int> lit;
+    std::vector<double> t, v;
     for (int x = 0; x < image.width; ++x) {
-      const size_t p = size_t(row) * size_t(image.width) + size_t(x);
-      float* o = out.At(x, row);
-      const double d = image.density[p];
+      const double d = image.density[first + size_t(x)];
       if (!(d > 0)) {
+        float* o = out.At(x, row);
         for (int c = 0; c < 3; ++c) o[c] = float(look.background[c]);
         continue;
       }
-      const double v = look.brightness * ToneMap(look, d, dmin, dmax);
-      Vec3 c = look.colored ? look.palette.Eval(image.color[p]) : Vec3{1, 1, 1};
-      // Mix with the colour's own grey (Rec. 709 luma) to desaturate.
-      const double grey = 0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z;
-      c = keep * c + look.desaturation * Vec3{grey, grey, grey};
-      for (int k = 0; k < 3; ++k) o[k] = float(c[k] * v);
+      lit.push_back(x);
+      v.push_back(look.brightness * ToneMap(look, d, dmin, dmax));
+      t.push_back(look.colored ? image.color[first + size_t(x)] : 0.0);
+    }
+    // The palette's sines a batch at a time; a pixel whose floats could
+    // round otherwise than Eval's colour would make them is redone with it.
+    std::vector<Vec3> near(lit.size(), Vec3{1, 1, 1});
+    if (look.colored) look.palette.EvalNear(t.data(), t.size(), near.data());
+    for (size_t k = 0; k < lit.size(); ++k) {
+      Vec3 y = shade(near[k], v[k]);
+      auto alike = [&](double c) {
+        return image_internal::RoundsAlike(c, (std::fabs(v[k]) * mix + std::fabs(c)) * 0x1.0p-44);
+      };
+      if (look.colored && !(alike(y.x) && alike(y.y) && alike(y.z))) [[unlikely]]
+        y = shade(look.palette.Eval(t[k]), v[k]);
+      float* o = out.At(lit[k], row);
+      for (int c = 0; c < 3; ++c) o[c] = float(y[c]);
     }
   });
   if (!st.ok()) return st;

@@ -24,6 +24,16 @@ double Clamped(double t) {
   return t > 1 ? 1 : t;
 }
 
+// The sine palette's three arguments for each of t[0..m) into x, and
+// their sines (SLEEF) into s.
+void Sines(const double* t, size_t m, double* x, double* s) {
+  for (size_t k = 0; k < m; ++k) {
+    const double a = 2 * std::numbers::pi * Clamped(t[k]);
+    for (int c = 0; c < 3; ++c) x[3 * k + size_t(c)] = kPhase[c] + a;
+  }
+  SinMany(x, s, 3 * m);
+}
+
 // The sine palette in batches. A vector sine (SLEEF, within 1 ulp) and
 // the C library's (within 1 ulp) differ by at most 2 ulp, 2^-52 for
 // |s| <= 1; through 0.25 s and the base's add, with each operation's
@@ -37,11 +47,7 @@ void SineFloats(const double* t, size_t n, std::array<float, 3>* out) {
   double x[3 * kBatch], s[3 * kBatch];
   for (size_t begin = 0; begin < n; begin += kBatch) {
     const size_t m = std::min(kBatch, n - begin);
-    for (size_t k = 0; k < m; ++k) {
-      const double a = 2 * std::numbers::pi * Clamped(t[begin + k]);
-      for (int c = 0; c < 3; ++c) x[3 * k + size_t(c)] = kPhase[c] + a;
-    }
-    SinMany(x, s, 3 * m);
+    Sines(t + begin, m, x, s);
     for (size_t k = 0; k < m; ++k) {
       for (int c = 0; c < 3; ++c) {
         double v = SineChannel(c, s[3 * k + size_t(c)]);
@@ -74,6 +80,23 @@ void Palette::EvalFloats(const double* t, size_t n, std::array<float, 3>* out) c
   for (size_t k = 0; k < n; ++k) {
     const Vec3 c = Eval(t[k]);
     out[k] = {float(c.x), float(c.y), float(c.z)};
+  }
+}
+
+void Palette::EvalNear(const double* t, size_t n, Vec3* out) const {
+  if (!stops_.empty()) {
+    for (size_t k = 0; k < n; ++k) out[k] = Eval(t[k]);
+    return;
+  }
+  // As in SineFloats: each channel within 2^-51 of Eval's.
+  constexpr size_t kBatch = 256;
+  double x[3 * kBatch], s[3 * kBatch];
+  for (size_t begin = 0; begin < n; begin += kBatch) {
+    const size_t m = std::min(kBatch, n - begin);
+    Sines(t + begin, m, x, s);
+    for (size_t k = 0; k < m; ++k)
+      out[begin + k] = {SineChannel(0, s[3 * k]), SineChannel(1, s[3 * k + 1]),
+                        SineChannel(2, s[3 * k + 2])};
   }
 }
 

@@ -34,6 +34,10 @@ class Palette {
   /// bit for bit what the per-value call gives, faster for the sine
   /// palette (its sines computed eight at a time; see the .cc).
   void EvalFloats(const double* t, size_t n, std::array<float, 3>* out) const;
+  /// out[k] near Eval(t[k]) for k < n: each channel within 2^-50 of it (the
+  /// sine palette's sines eight at a time), exactly it with stops. For
+  /// callers that check their own rounding and fall back to Eval.
+  void EvalNear(const double* t, size_t n, Vec3* out) const;
   bool is_sine() const { return stops_.empty(); }
   /// Per-channel bounds of every colour Eval can return.
   Vec3 MinColor() const;

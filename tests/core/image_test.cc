@@ -7,6 +7,7 @@
 #include <cmath>
 #include <limits>
 #include <numbers>
+#include <random>
 #include <vector>
 
 #include "core/chaos/auto_frame.h"
@@ -244,6 +245,79 @@ TEST(ImageLook, GlowAtZeroIsTheIdentityAndAddsLightOtherwise) {
   }
   // The blur keeps the light (edges clamped), so half of it is added.
   EXPECT_NEAR(after / before, 1.5, 0.02);
+}
+
+// The develop's batched palette sines and their rounding guard give the
+// floats of the per-pixel formula (tone map, Eval, grey mix, brightness),
+// on three million channels with tones, mixes and brightnesses of all
+// kinds, and with a palette of stops.
+TEST(ImageLook, DevelopMatchesThePerPixelFormula) {
+  ImageDensity d;
+  d.width = 1000, d.height = 250;
+  d.density.resize(size_t(d.width) * d.height);
+  d.color.resize(d.density.size());
+  std::mt19937 rng(9);
+  for (size_t i = 0; i < d.density.size(); ++i) {
+    d.density[i] = i % 7 == 0 ? 0.0f : float(std::exp2(double(rng() % 20000) / 1000.0 - 4));
+    d.color[i] = float(double(rng()) / 4294967296.0);
+  }
+  float dmin = 0, dmax = 0;
+  for (float x : d.density)
+    if (x > 0) dmin = dmin > 0 ? std::min(dmin, x) : x, dmax = std::max(dmax, x);
+  struct Case {
+    ToneMapping tone;
+    double desaturation, brightness;
+    bool stops;
+  };
+  for (const Case c :
+       {Case{ToneMapping::kSqrt, 0, 1, false}, Case{ToneMapping::kLog, 0.3, 2.5, false},
+        Case{ToneMapping::kGamma, 1, 0.7, false}, Case{ToneMapping::kLinear, 0.5, 1, true}}) {
+    LookParams look;
+    look.tone = c.tone;
+    look.desaturation = c.desaturation;
+    look.brightness = c.brightness;
+    look.background = {0.1, 0.2, 0.3};
+    if (c.stops) look.palette = Palette({{0, {1, 0, 0}}, {0.4, {0, 1, 0.5}}, {1, {0.2, 0.1, 1}}});
+    auto got = DevelopImage(d, look, nullptr);
+    ASSERT_TRUE(got.ok());
+    size_t differing = 0;
+    for (int row = 0; row < d.height; ++row)
+      for (int x = 0; x < d.width; ++x) {
+        const size_t p = size_t(row) * size_t(d.width) + size_t(x);
+        float want[3];
+        if (!(d.density[p] > 0)) {
+          for (int k = 0; k < 3; ++k) want[k] = float(look.background[k]);
+        } else {
+          const double v = look.brightness * ToneMap(look, d.density[p], dmin, dmax);
+          Vec3 col = look.palette.Eval(d.color[p]);
+          const double grey = 0.2126 * col.x + 0.7152 * col.y + 0.0722 * col.z;
+          col = (1 - look.desaturation) * col + look.desaturation * Vec3{grey, grey, grey};
+          for (int k = 0; k < 3; ++k) want[k] = float(col[k] * v);
+        }
+        for (int k = 0; k < 3; ++k) differing += got->At(x, row)[k] != want[k];
+      }
+    EXPECT_EQ(differing, 0u) << "tone " << int(c.tone) << " desaturation " << c.desaturation;
+  }
+}
+
+// The guard: values closer to a float's rounding boundary than the margin
+// are refused, farther ones accepted, on both sides and for negatives.
+TEST(ImageLook, RoundsAlikeRefusesValuesNearARoundingBoundary) {
+  using image_internal::RoundsAlike;
+  for (float f : {1.0f, 0.7f, 3.25e-5f, 1234.5f, -0.3f}) {
+    const float next = std::nextafter(f, f > 0 ? 2 * f : 2 * f);
+    const double mid = (double(f) + double(next)) / 2, gap = std::fabs(double(next) - f);
+    const double margin = gap * 1e-6;
+    EXPECT_FALSE(RoundsAlike(mid, 0)) << f;  // a tie
+    const double inward = mid > 0 ? -1 : 1;  // towards f
+    EXPECT_FALSE(RoundsAlike(mid + inward * margin / 2, margin)) << f;
+    EXPECT_TRUE(RoundsAlike(mid + inward * margin * 2, margin)) << f;
+    EXPECT_TRUE(RoundsAlike(double(f), margin)) << f;
+  }
+  EXPECT_TRUE(RoundsAlike(0.0, 0));
+  EXPECT_FALSE(RoundsAlike(0.0, 1e-30));
+  EXPECT_FALSE(RoundsAlike(1e300, 1));
+  EXPECT_FALSE(RoundsAlike(1e-60, 1e-80));  // rounds to zero
 }
 
 TEST(ImageLook, DesaturationMixesWithGrey) {
