@@ -6,7 +6,7 @@ set -euo pipefail
 PACKAGES=(
   build-essential cmake ninja-build pkg-config
   libgrpc++-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
-  libopenvdb-dev libboost-iostreams-dev libtbb-dev libblosc-dev
+  libopenvdb-dev libboost-iostreams-dev libtbb-dev libblosc-dev liblz4-dev
   libspdlog-dev libcli11-dev libsqlite3-dev libssl-dev libabsl-dev
   # The shared job store of several replicas (libpqxx), and the throwaway
   # server its tests start (initdb, pg_ctl).

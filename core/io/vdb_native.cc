@@ -1,6 +1,5 @@
 #include "core/io/vdb_native.h"
 
-#include <blosc.h>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
@@ -15,6 +14,7 @@
 #include <utility>
 
 #include "core/base/zero_pages.h"
+#include "core/io/blosc_lz4.h"
 
 namespace nimbus::vdb_native {
 
@@ -43,19 +43,12 @@ void PutString(std::string& out, const std::string& s) {
   out += s;
 }
 
-// The Blosc call of OpenVDB's writers (LZ4, level 9, shuffle over 4-byte
-// items, the whole input as one block, one thread); <= 0 when it fails.
-int BloscCompress(const char* data, size_t n, char* dest, size_t dest_size) {
-  return blosc_compress_ctx(9, 1, sizeof(float), n, data, dest, dest_size, BLOSC_LZ4_COMPNAME, n,
-                            1);
-}
-
 // compression::bloscCompress (StreamCompression): the compressed bytes,
 // or empty when too small to try, when Blosc fails or when it saves nothing.
 std::string PaddedBloscCompress(const char* data, size_t n) {
   if (n <= kBloscMinimumBytes) return {};
   size_t room = n < kBloscPadBytes ? n + kBloscPadBytes : n;
-  room += BLOSC_MAX_OVERHEAD;
+  room += kBloscOverhead;
   std::string padded;
   const char* in = data;
   size_t in_bytes = n;
@@ -65,7 +58,7 @@ std::string PaddedBloscCompress(const char* data, size_t n) {
     in = padded.data(), in_bytes = kBloscPadBytes;
   }
   std::string out(room, '\0');
-  const int bytes = BloscCompress(in, in_bytes, out.data(), room);
+  const int bytes = BloscLz4(in, in_bytes, out.data(), room);
   if (bytes <= 0 || size_t(bytes) >= n) return {};
   out.resize(size_t(bytes));
   return out;
@@ -131,10 +124,10 @@ size_t ValueBytes(ValueKind kind) {
 }
 
 void BloscToStream(const char* data, size_t n, std::string& out) {
-  const size_t room = n + BLOSC_MAX_OVERHEAD;
+  const size_t room = n + kBloscOverhead;
   const size_t at = out.size();
   out.resize(at + sizeof(int64_t) + room);
-  const int bytes = BloscCompress(data, n, out.data() + at + sizeof(int64_t), room);
+  const int bytes = BloscLz4(data, n, out.data() + at + sizeof(int64_t), room);
   if (bytes <= 0) {
     out.resize(at);
     Put(out, -int64_t(n));
