@@ -5,7 +5,6 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
-#include <bit>
 #include <cmath>
 #include <cstdint>
 #include <vector>
@@ -111,19 +110,6 @@ absl::StatusOr<ImageDensity> BoxFilterImage(const std::vector<const CountGrid*>&
   return out;
 }
 
-namespace image_internal {
-bool RoundsAlike(double y, double margin) {
-  if (y == 0 && margin == 0) return true;
-  const float f = float(y);
-  if (!std::isfinite(f) || f == 0) return false;
-  const double a = std::fabs(y), fa = std::fabs(double(f));
-  const uint32_t bits = std::bit_cast<uint32_t>(float(fa));
-  const double lo = (fa + double(std::bit_cast<float>(bits - 1))) / 2;
-  const double hi = (fa + double(std::bit_cast<float>(bits + 1))) / 2;
-  return a - lo > margin && hi - a > margin;
-}
-}  // namespace image_internal
-
 double ToneMap(const LookParams& look, double d, double dmin, double dmax) {
   if (!(d > 0) || !(dmax > 0)) return 0;
   double v = 0;
@@ -193,7 +179,7 @@ absl::StatusOr<RgbImage> DevelopImage(const ImageDensity& image, const LookParam
     for (size_t k = 0; k < lit.size(); ++k) {
       Vec3 y = shade(near[k], v[k]);
       auto alike = [&](double c) {
-        return image_internal::RoundsAlike(c, (std::fabs(v[k]) * mix + std::fabs(c)) * 0x1.0p-44);
+        return palette_internal::RoundsAlike(c, (std::fabs(v[k]) * mix + std::fabs(c)) * 0x1.0p-44);
       };
       if (look.colored && !(alike(y.x) && alike(y.y) && alike(y.z))) [[unlikely]]
         y = shade(look.palette.Eval(t[k]), v[k]);

@@ -87,13 +87,6 @@ absl::StatusOr<ImageDensity> BoxFilterImage(const std::vector<const CountGrid*>&
 /// largest density (both > 0): monotone non-decreasing in d.
 double ToneMap(const LookParams& look, double d, double dmin, double dmax);
 
-namespace image_internal {
-/// Whether every double within `margin` of y rounds to the float y rounds
-/// to; ties, infinities and values that round to zero answer false (zero
-/// itself only with no margin). DevelopImage's guard for its batched sines.
-bool RoundsAlike(double y, double margin);
-}  // namespace image_internal
-
 /// Applies tone mapping, palette, desaturation, brightness and glow.
 absl::StatusOr<RgbImage> DevelopImage(const ImageDensity& image, const LookParams& look,
                                       Interrupter* interrupter);

@@ -24,62 +24,52 @@ double Clamped(double t) {
   return t > 1 ? 1 : t;
 }
 
-// The sine palette's three arguments for each of t[0..m) into x, and
-// their sines (SLEEF) into s.
-void Sines(const double* t, size_t m, double* x, double* s) {
-  for (size_t k = 0; k < m; ++k) {
-    const double a = 2 * std::numbers::pi * Clamped(t[k]);
-    for (int c = 0; c < 3; ++c) x[3 * k + size_t(c)] = kPhase[c] + a;
-  }
-  SinMany(x, s, 3 * m);
-}
-
-// The sine palette in batches. A vector sine (SLEEF, within 1 ulp) and
-// the C library's (within 1 ulp) differ by at most 2 ulp, 2^-52 for
-// |s| <= 1; through 0.25 s and the base's add, with each operation's
-// rounding, the channel's double differs by less than 2^-51. So where
-// that double lies farther than 2^-50 from its float's rounding
-// boundaries (all but about one value in four million), the float is the
-// one Eval's value rounds to; elsewhere the channel is recomputed with the
-// C library's sin.
-void SineFloats(const double* t, size_t n, std::array<float, 3>* out) {
-  constexpr size_t kBatch = 256;
-  double x[3 * kBatch], s[3 * kBatch];
-  for (size_t begin = 0; begin < n; begin += kBatch) {
-    const size_t m = std::min(kBatch, n - begin);
-    Sines(t + begin, m, x, s);
-    for (size_t k = 0; k < m; ++k) {
-      for (int c = 0; c < 3; ++c) {
-        double v = SineChannel(c, s[3 * k + size_t(c)]);
-        if (!palette_internal::RoundsSafely(v)) [[unlikely]]
-          v = SineChannel(c, std::sin(x[3 * k + size_t(c)]));
-        out[begin + k][size_t(c)] = float(v);
-      }
-    }
-  }
-}
-
 }  // namespace
 
 namespace palette_internal {
-bool RoundsSafely(double v) {
-  const float f = float(v);
-  // The neighbouring floats by their bits (f is positive and finite for v
-  // in (0, 1); a zero f wraps to NaN and fails the test): nextafter's
-  // library calls were half the guard's cost.
-  const uint32_t bits = std::bit_cast<uint32_t>(f);
-  const double lo = (double(f) + double(std::bit_cast<float>(bits - 1))) / 2;
-  const double hi = (double(f) + double(std::bit_cast<float>(bits + 1))) / 2;
-  constexpr double kMargin = 0x1.0p-50;
-  return v - lo > kMargin && hi - v > kMargin;
+bool RoundsAlike(double y, double margin) {
+  if (y == 0 && margin == 0) return true;
+  const float f = float(y);
+  if (!std::isfinite(f) || f == 0) return false;
+  // The neighbouring floats by their bits: nextafter's library calls were
+  // half the guard's cost in EvalFloats.
+  const double a = std::fabs(y), fa = std::fabs(double(f));
+  const uint32_t bits = std::bit_cast<uint32_t>(float(fa));
+  const double lo = (fa + double(std::bit_cast<float>(bits - 1))) / 2;
+  const double hi = (fa + double(std::bit_cast<float>(bits + 1))) / 2;
+  return a - lo > margin && hi - a > margin;
 }
+
+bool RoundsSafely(double v) { return RoundsAlike(v, 0x1.0p-50); }
 }  // namespace palette_internal
 
+// The sine palette in batches (EvalNear). A vector sine (SLEEF, within 1
+// ulp) and the C library's (within 1 ulp) differ by at most 2 ulp, 2^-52
+// for |s| <= 1; through 0.25 s and the base's add, with each operation's
+// rounding, the channel's double differs by less than 2^-51. So where that
+// double lies farther than 2^-50 from its float's rounding boundaries (all
+// but about one value in four million), the float is the one Eval's value
+// rounds to; elsewhere the channel is Eval's.
 void Palette::EvalFloats(const double* t, size_t n, std::array<float, 3>* out) const {
-  if (stops_.empty()) return SineFloats(t, n, out);
-  for (size_t k = 0; k < n; ++k) {
-    const Vec3 c = Eval(t[k]);
-    out[k] = {float(c.x), float(c.y), float(c.z)};
+  if (!stops_.empty()) {
+    for (size_t k = 0; k < n; ++k) {
+      const Vec3 c = Eval(t[k]);
+      out[k] = {float(c.x), float(c.y), float(c.z)};
+    }
+    return;
+  }
+  constexpr size_t kBatch = 256;
+  Vec3 near[kBatch];
+  for (size_t begin = 0; begin < n; begin += kBatch) {
+    const size_t m = std::min(kBatch, n - begin);
+    EvalNear(t + begin, m, near);
+    for (size_t k = 0; k < m; ++k)
+      for (int c = 0; c < 3; ++c) {
+        double v = near[k][c];
+        if (!palette_internal::RoundsSafely(v)) [[unlikely]]
+          v = Eval(t[begin + k])[c];
+        out[begin + k][size_t(c)] = float(v);
+      }
   }
 }
 
@@ -88,12 +78,16 @@ void Palette::EvalNear(const double* t, size_t n, Vec3* out) const {
     for (size_t k = 0; k < n; ++k) out[k] = Eval(t[k]);
     return;
   }
-  // As in SineFloats: each channel within 2^-51 of Eval's.
+  // Each channel within 2^-51 of Eval's (see EvalFloats).
   constexpr size_t kBatch = 256;
   double x[3 * kBatch], s[3 * kBatch];
   for (size_t begin = 0; begin < n; begin += kBatch) {
     const size_t m = std::min(kBatch, n - begin);
-    Sines(t + begin, m, x, s);
+    for (size_t k = 0; k < m; ++k) {
+      const double a = 2 * std::numbers::pi * Clamped(t[begin + k]);
+      for (int c = 0; c < 3; ++c) x[3 * k + size_t(c)] = kPhase[c] + a;
+    }
+    SinMany(x, s, 3 * m);
     for (size_t k = 0; k < m; ++k)
       out[begin + k] = {SineChannel(0, s[3 * k]), SineChannel(1, s[3 * k + 1]),
                         SineChannel(2, s[3 * k + 2])};

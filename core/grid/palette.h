@@ -48,9 +48,12 @@ class Palette {
 };
 
 namespace palette_internal {
-/// Whether float(w) is float(v) for every w within 2^-50 of v, for v in
-/// (0, 1): v lies farther than that from both rounding boundaries of its
-/// float (the midpoints to the neighbouring floats, exact in double).
+/// Whether every double within `margin` of y rounds to the float y rounds
+/// to; ties, infinities and values that round to zero answer false (zero
+/// itself only with no margin). The guard of callers that compute near
+/// Eval's values and fall back to it.
+bool RoundsAlike(double y, double margin);
+/// RoundsAlike(v, 2^-50): EvalFloats' guard for its batched sines.
 bool RoundsSafely(double v);
 }  // namespace palette_internal
 

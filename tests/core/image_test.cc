@@ -303,7 +303,7 @@ TEST(ImageLook, DevelopMatchesThePerPixelFormula) {
 // The guard: values closer to a float's rounding boundary than the margin
 // are refused, farther ones accepted, on both sides and for negatives.
 TEST(ImageLook, RoundsAlikeRefusesValuesNearARoundingBoundary) {
-  using image_internal::RoundsAlike;
+  using palette_internal::RoundsAlike;
   for (float f : {1.0f, 0.7f, 3.25e-5f, 1234.5f, -0.3f}) {
     const float next = std::nextafter(f, f > 0 ? 2 * f : 2 * f);
     const double mid = (double(f) + double(next)) / 2, gap = std::fabs(double(next) - f);
