@@ -1,5 +1,8 @@
 #include "core/grid/count_grid.h"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_reduce.h>
+
 #include <algorithm>
 #include <cstring>
 #include <limits>
@@ -87,23 +90,24 @@ void CountGrid::AddTile(uint64_t t, const uint32_t* src, const uint64_t* colors)
   }
 }
 
-uint64_t CountGrid::Total() const {
-  uint64_t total = 0;
-  ForEachTile([&](Int3, const uint32_t* t) {
-    for (int i = 0; i < kTileVoxels; ++i) total += t[i];
-  });
-  return total;
-}
-
-uint32_t CountGrid::Max() const {
-  uint32_t m = 0;
-  ForEachTile([&](Int3, const uint32_t* t) {
-    // A plain reduction vectorises; std::max_element's index does not.
-    uint32_t tm = 0;
-    for (int i = 0; i < kTileVoxels; ++i) tm = std::max(tm, t[i]);
-    m = std::max(m, tm);
-  });
-  return m;
+CountGrid::Sums CountGrid::MaxAndTotal() const {
+  return tbb::parallel_reduce(
+      tbb::blocked_range<size_t>(0, table_.size(), 16), Sums{},
+      [&](const tbb::blocked_range<size_t>& r, Sums s) {
+        for (size_t t = r.begin(); t < r.end(); ++t) {
+          const uint32_t* v = table_[t];
+          if (!v) continue;
+          // Plain reductions vectorise; std::max_element's index does not.
+          uint32_t m = 0;
+          uint64_t sum = 0;
+          for (int i = 0; i < kTileVoxels; ++i) m = std::max(m, v[i]), sum += v[i];
+          s.max = std::max(s.max, m), s.total += sum;
+        }
+        return s;
+      },
+      [](Sums a, Sums b) {
+        return Sums{std::max(a.max, b.max), a.total + b.total};
+      });
 }
 
 size_t CountGrid::MemoryBytes() const {

@@ -148,9 +148,16 @@ class CountGrid {
   /// tile `tile` (< TileCount()), saturating as Merge does.
   void AddTile(uint64_t tile, const uint32_t* counts, const uint64_t* colors);
   size_t TileCount() const { return table_.size(); }
+  /// The largest counter and the sum of all, tiles reduced in parallel in
+  /// one pass (a result's writers record both).
+  struct Sums {
+    uint32_t max = 0;
+    uint64_t total = 0;
+  };
+  Sums MaxAndTotal() const;
   /// Sum of all counters and the largest counter.
-  uint64_t Total() const;
-  uint32_t Max() const;
+  uint64_t Total() const { return MaxAndTotal().total; }
+  uint32_t Max() const { return MaxAndTotal().max; }
   size_t AllocatedTiles() const { return allocated_; }
   /// Caps the tiles this grid allocates (0: no cap). Increments to tiles
   /// beyond the cap land in a scratch tile and set overflowed(): the owner

@@ -1,7 +1,6 @@
 #include "core/io/vdb_native_result.h"
 
 #include <tbb/parallel_for.h>
-#include <tbb/parallel_reduce.h>
 
 #include <bit>
 #include <cmath>
@@ -106,30 +105,6 @@ std::shared_ptr<const LeafList> CountLeaves(const CountGrid& counts) {
   return leaves;
 }
 
-// The largest and the total count, tiles summed in parallel.
-struct CountSums {
-  uint32_t max = 0;
-  uint64_t total = 0;
-};
-CountSums SumCounts(const CountGrid& counts) {
-  return tbb::parallel_reduce(
-      tbb::blocked_range<size_t>(0, counts.TileCount(), 16), CountSums{},
-      [&](const tbb::blocked_range<size_t>& r, CountSums s) {
-        for (size_t t = r.begin(); t < r.end(); ++t) {
-          const uint32_t* v = counts.TileOrNull(t);
-          if (!v) continue;
-          uint32_t m = 0;
-          uint64_t sum = 0;
-          for (int i = 0; i < CountGrid::kTileVoxels; ++i) m = std::max(m, v[i]), sum += v[i];
-          s.max = std::max(s.max, m), s.total += sum;
-        }
-        return s;
-      },
-      [](CountSums a, CountSums b) {
-        return CountSums{std::max(a.max, b.max), a.total + b.total};
-      });
-}
-
 template <typename F>
 void ForEachActive(const Leaf& leaf, F&& f) {
   for (size_t w = 0; w < 8; ++w)
@@ -143,7 +118,7 @@ struct Result {
   const GridFrame& frame;
   const DensityOptions& options;
   const Metadata& metadata;
-  CountSums sums;
+  CountGrid::Sums sums;
   Normaliser norm;
   std::shared_ptr<const LeafList> leaves;  // shared by every grid
   bool color;
@@ -153,7 +128,7 @@ struct Result {
         frame(f),
         options(o),
         metadata(m),
-        sums(SumCounts(c)),
+        sums(c.MaxAndTotal()),
         norm(o, sums.max),
         leaves(CountLeaves(c)),
         color(o.color && c.has_color()) {}
