@@ -49,10 +49,10 @@ void ZeroPages::Populate(void* data, size_t bytes) {
 #ifndef MADV_POPULATE_WRITE
   constexpr int MADV_POPULATE_WRITE = 23;  // Linux 5.14; older kernels refuse it
 #endif
+  if (bytes == 0) return;
   const size_t page = size_t(sysconf(_SC_PAGESIZE));
   const uintptr_t start = uintptr_t(data) & ~uintptr_t(page - 1);
   const uintptr_t end = uintptr_t(data) + bytes;
-  if (bytes == 0) return;
   // Advice: where it is refused, the pages fault in as they are written.
   madvise(reinterpret_cast<void*>(start), end - start, MADV_POPULATE_WRITE);
 }

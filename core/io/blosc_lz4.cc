@@ -125,9 +125,10 @@ int BloscLz4(const char* src, size_t n_bytes, char* dest, size_t dest_size) {
   const int32_t n = int32_t(n_bytes);
   const int32_t block = BlockSize(n);
   Output out{dest, 0, int32_t(std::min(dest_size, size_t(INT_MAX)))};
-  uint8_t flags = kShuffleFlag | (Splits(block) ? 0 : kDontSplitFlag) | kLz4Format;
+  const bool split = Splits(block);
+  uint8_t flags = kShuffleFlag | (split ? 0 : kDontSplitFlag) | kLz4Format;
   const bool compressed = n >= kMinBuffer && CompressBlocks(reinterpret_cast<const uint8_t*>(src),
-                                                            n, block, Splits(block), out);
+                                                            n, block, split, out);
   if (!compressed) {
     if (n + int32_t(kBloscOverhead) > out.limit) return 0;
     flags |= kCopiedFlag;
