@@ -223,12 +223,14 @@ BENCHMARK(BM_Flame6Picture1024)
     ->UseRealTime()
     ->Iterations(1);
 
-// The flame kernel alone: one round of 64 walkers of the six-variation
-// flame per call, points kept bounded by the maps themselves; items are
-// walker-steps.
+// The flame kernel alone: one round of the second argument's walkers
+// (one chunk's 64, or the block of four chunks ChaosGame steps together)
+// of the six-variation flame per call, points kept bounded by the maps
+// themselves; items are walker-steps.
 void BM_Flame6KernelRound(benchmark::State& state) {
   const ChaosGameParams p = Flame6Params(1);
   const SimdLevel level = std::min(SimdLevel(state.range(0)), DetectSimd());
+  const int n = int(state.range(1));
   state.SetLabel(std::string(SimdName(level)));
   const AliasTable table(p.ifs.probabilities);
   const FlameProgram program(p.ifs.maps, p.ifs.final_map, table, 1, p.color.blend);
@@ -245,14 +247,15 @@ void BM_Flame6KernelRound(benchmark::State& state) {
     w->x[k] = 0.01 * k, w->y[k] = 0.1, w->z[k] = 0;
   }
   for (auto _ : state) {
-    round(program.program(), *w, flame::kMaxWalkers);
+    round(program.program(), *w, n);
     benchmark::DoNotOptimize(w->x[0]);
   }
-  state.SetItemsProcessed(int64_t(state.iterations()) * flame::kMaxWalkers);
+  state.SetItemsProcessed(int64_t(state.iterations()) * n);
 }
-BENCHMARK(BM_Flame6KernelRound)->Arg(0)->Arg(1)->Arg(2);
+BENCHMARK(BM_Flame6KernelRound)
+    ->ArgsProduct({{0, 1, 2}, {flame::kChunkWalkers, flame::kMaxWalkers}});
 
-// The plot kernel alone (core/chaos/flame_plot.h): one round of 64 walkers
+// The plot kernel alone (core/chaos/flame_plot.h): one round of 256 walkers
 // of points spread over the picture of BM_Flame6Picture1024, projected and
 // packed into keys with colour; items are walker-steps.
 void BM_Flame6PlotRound(benchmark::State& state) {

@@ -129,7 +129,7 @@ absl::StatusOr<std::unique_ptr<ChaosGame>> ChaosGame::Create(ChaosGameParams par
     // the draws of the one-walker loop (docs/chaos_game.md).
     const bool affine = ifs.AllAffine() &&
                         (!ifs.final_map || FlameProgram::MapWords(*ifs.final_map) == 0);
-    game->flame_walkers_ = affine ? kWalkers : flame::kMaxWalkers;
+    game->flame_walkers_ = affine ? kWalkers : flame::kChunkWalkers;
   }
   for (const PointMap& m : ifs.maps) {
     // Walking in pixel space: one affine map per step, no projection.
@@ -805,9 +805,24 @@ struct ChaosGame::General {
   }
 };
 
+void ChaosGame::RunChunks(uint64_t first, uint64_t chunks, Worker& w) {
+  if (!fast_ && !params_.chain) return RunChunkBatch(first, chunks, w);
+  for (uint64_t c = first; c < first + chunks; ++c) RunChunk(c, w);
+}
+
+uint64_t ChaosGame::BatchChunks() const {
+  return fast_ || params_.chain ? 1 : uint64_t(flame::kMaxWalkers / flame_walkers_);
+}
+
+// A whole block while every thread has two more left; then fewer, down to
+// one chunk, so no thread is left with a long block as the others finish.
+uint64_t ChaosGame::ChunksToTake(uint64_t next, uint64_t target) const {
+  const uint64_t left = target - next;
+  return std::clamp<uint64_t>(left / (2 * uint64_t(threads_)), 1, BatchChunks());
+}
+
 void ChaosGame::RunChunk(uint64_t chunk, Worker& w) {
   if (fast_) return RunChunkFast(chunk, w);
-  if (!params_.chain) return RunChunkBatch(chunk, w);
   const uint64_t begin = chunk * kChunkIterations;
   const uint64_t count = std::min(kChunkIterations, params_.iterations - begin);
   General g(*this, w, chunk, count);
@@ -837,19 +852,22 @@ void ChaosGame::RunChunk(uint64_t chunk, Worker& w) {
   }
 }
 
-// The general path without a chain: all walkers of the chunk step
+// The general path without a chain: all walkers of the chunks step
 // together, one round of the flame kernel of the SIMD level per step
 // (core/chaos/flame_walk.h): each walker draws its step's words from its
 // own stream, so any kernel takes it along the path the scalar one does,
-// up to the rounding of the elementary functions.
-void ChaosGame::RunChunkBatch(uint64_t chunk, Worker& w) {
+// up to the rounding of the elementary functions. The chunks' walkers sit
+// side by side in one block; only the run's last chunk can be short, and
+// it comes last, so the walkers that plot in a round are a prefix.
+void ChaosGame::RunChunkBatch(uint64_t first, uint64_t chunks, Worker& w) {
   const ChaosGameParams& p = params_;
-  const uint64_t begin = chunk * kChunkIterations;
-  const uint64_t count = std::min(kChunkIterations, p.iterations - begin);
-  General g(*this, w, chunk, count);
+  const uint64_t begin = first * kChunkIterations;
+  const uint64_t count = std::min(chunks * kChunkIterations, p.iterations - begin);
+  General g(*this, w, first, count);
   const flame::Program& prog = program_.program();
   const flame::RoundFn round = flame_round_;
-  const int n = flame_walkers_;
+  const int per = flame_walkers_;  // walkers per chunk
+  const int n = per * int(chunks);
   const bool color = p.color.mode != ColorMode::kNone;
   // The chunk's walkers, and a block that re-warms one walker alone, copied
   // into every lane: lanes compute independently, so alone or in the batch
@@ -910,8 +928,9 @@ void ChaosGame::RunChunkBatch(uint64_t chunk, Worker& w) {
     copy(solo, 0, s, k);
   };
 
+  // Walker k of chunk c has stream c * per + k: walker k of the block.
   for (int k = 0; k < n; ++k) {
-    set_rng(s, k, Rng(p.seed, chunk * uint64_t(n) + uint64_t(k)));
+    set_rng(s, k, Rng(p.seed, first * uint64_t(per) + uint64_t(k)));
     restart(s, k);
   }
   // A stopped chunk's counts are thrown away with the job.
@@ -931,10 +950,15 @@ void ChaosGame::RunChunkBatch(uint64_t chunk, Worker& w) {
   const double* py = final_map ? s.fy : s.y;
   const double* pz = final_map ? s.fz : s.z;
   auto plotted = std::make_unique<flame::Plotted>();
-  const uint64_t rounds = (count + uint64_t(n) - 1) / uint64_t(n);
+  // The full chunks' rounds; the last chunk's walkers plot count_last
+  // steps, the first count_last % per of them one more.
+  const uint64_t full = chunks - 1, count_last = count - full * kChunkIterations;
+  const uint64_t rounds =
+      full ? kChunkIterations / uint64_t(per) : (count_last + uint64_t(per) - 1) / uint64_t(per);
   for (uint64_t j = 0; j < rounds; ++j) {
-    // In the last round only the first count % n walkers plot.
-    const int active = int(std::min<uint64_t>(uint64_t(n), count - j * uint64_t(n)));
+    const uint64_t last =
+        std::min<uint64_t>(uint64_t(per), count_last - std::min(count_last, j * per));
+    const int active = int(full * uint64_t(per) + last);
     if (g.poll.Tick(uint64_t(active))) [[unlikely]]
       break;
     round(prog, s, n);
@@ -948,7 +972,10 @@ void ChaosGame::RunChunkBatch(uint64_t chunk, Worker& w) {
         rewarm(k);
         continue;
       }
-      g.Plot({px[k], py[k], pz[k]}, s.col[k], begin + j * uint64_t(n) + uint64_t(k));
+      // Walker k % per of chunk first + k / per, at its step j.
+      const uint64_t step =
+          uint64_t(k / per) * kChunkIterations + j * uint64_t(per) + uint64_t(k % per);
+      g.Plot({px[k], py[k], pz[k]}, s.col[k], begin + step);
     }
   }
 }
@@ -961,13 +988,16 @@ template <typename Rewarm>
 void ChaosGame::PlotRound(General& g, const flame::Walkers& s, bool final_map, int n, int active,
                           flame::Plotted& out, Rewarm& rewarm) {
   flame_plot_(plot_target_, s, final_map, n, &out);
-  const uint64_t mask = active == 64 ? ~uint64_t{0} : (uint64_t{1} << active) - 1;
-  // Lanes counted by walking their bits: the x86-64 baseline has no popcnt.
-  const uint64_t landed = g.keys.AddLanes(out.key, out.inside & mask);
-  uint64_t restarted = 0;
-  for (uint64_t m = out.bad_final & mask; m; m &= m - 1) ++g.final_nonfinite;
-  for (uint64_t m = out.bad_walker & mask; m; m &= m - 1, ++restarted)
-    rewarm(std::countr_zero(m));
+  uint64_t landed = 0, restarted = 0;
+  for (int base = 0; base < active; base += 64) {
+    const int word = base / 64, lanes = std::min(64, active - base);
+    const uint64_t mask = lanes == 64 ? ~uint64_t{0} : (uint64_t{1} << lanes) - 1;
+    // Lanes counted by walking their bits: the x86-64 baseline has no popcnt.
+    landed += g.keys.AddLanes(out.key + base, out.inside[word] & mask);
+    for (uint64_t m = out.bad_final[word] & mask; m; m &= m - 1) ++g.final_nonfinite;
+    for (uint64_t m = out.bad_walker[word] & mask; m; m &= m - 1, ++restarted)
+      rewarm(base + std::countr_zero(m));
+  }
   g.reseeded += restarted;
   g.outside += uint64_t(active) - landed - restarted;
 }
@@ -984,11 +1014,16 @@ absl::Status ChaosGame::RunUntil(uint64_t iterations, Interrupter* interrupter) 
   auto body = [&](int t) {
     Worker& w = *workers_[t];
     while (!stop.load(std::memory_order_relaxed)) {
-      const uint64_t c = next.fetch_add(1);
+      uint64_t c = next.load(std::memory_order_relaxed), take = 0;
+      do {
+        if (c >= target) break;
+        take = ChunksToTake(c, target);
+      } while (!next.compare_exchange_weak(c, c + take, std::memory_order_relaxed));
       if (c >= target) break;
-      RunChunk(c, w);
+      RunChunks(c, take, w);
       if (w.overflowed()) over_budget = stop = true;
-      if (intr.WasInterrupted((c - begin_chunk_) * kChunkIterations, range_iterations()))
+      const uint64_t last = c + take - 1;
+      if (intr.WasInterrupted((last - begin_chunk_) * kChunkIterations, range_iterations()))
         stop = true;
     }
     // Threads sharing packed words' grid fold the last round together,

@@ -183,8 +183,10 @@ class ChaosGame {
   /// kWalkers + walker), so SIMD lanes and scalar code walk the same paths.
   /// Walker k plots every kWalkers-th step of the chunk, starting at k.
   /// Flames (maps with variations or post transforms, or a final transform
-  /// that draws) use flame::kMaxWalkers (64) the same way, so the flame
-  /// kernels find whole registers of walkers of one map (docs/chaos_game.md).
+  /// that draws) use flame::kChunkWalkers (64) the same way, so the flame
+  /// kernels find whole registers of walkers of one map (docs/chaos_game.md);
+  /// a thread steps the walkers of up to flame::kMaxWalkers / 64 chunks
+  /// in one block, which changes no walker's path.
   static constexpr int kWalkers = 16;
 
   /// Validates `params` (non-empty IFS, probabilities, chain shape).
@@ -249,12 +251,22 @@ class ChaosGame {
   struct Worker;
   struct FastChunk;
   struct General;
+  // Chunks [first, first + chunks): RunChunkBatch's block, or RunChunk on
+  // each in turn.
+  void RunChunks(uint64_t first, uint64_t chunks, Worker& worker);
   void RunChunk(uint64_t chunk, Worker& worker);
-  // The general path without a chain: the chunk's walkers in one batch,
-  // stepped by the flame kernel of the SIMD level (core/chaos/flame_walk.h).
-  void RunChunkBatch(uint64_t chunk, Worker& worker);
+  // The general path without a chain: the walkers of `chunks` consecutive
+  // chunks (at most BatchChunks()) in one block, stepped together by the
+  // flame kernel of the SIMD level (core/chaos/flame_walk.h).
+  void RunChunkBatch(uint64_t first, uint64_t chunks, Worker& worker);
+  // Chunks a thread takes at once: a block's worth for RunChunkBatch
+  // (flame::kMaxWalkers / flame_walkers_), fewer near the end of a round
+  // so the threads finish together; 1 elsewhere.
+  uint64_t BatchChunks() const;
+  uint64_t ChunksToTake(uint64_t next, uint64_t target) const;
   // RunChunkBatch's plotting of one round with the plot kernel
-  // (core/chaos/flame_plot.h), when there are no arcs and no splatting.
+  // (core/chaos/flame_plot.h), when there are no arcs and no splatting:
+  // walkers [0, active) plot.
   template <typename Rewarm>
   void PlotRound(General& g, const flame::Walkers& s, bool final_map, int n, int active,
                  flame::Plotted& out, Rewarm& rewarm);
@@ -298,7 +310,7 @@ class ChaosGame {
   // (view * map * view^-1) for an orthographic image.
   std::vector<Affine3> fast_maps_;
   // The maps and the final map for RunChunkBatch, its kernel and its
-  // walkers per chunk (kWalkers for affine maps, flame::kMaxWalkers else).
+  // walkers per chunk (kWalkers for affine maps, flame::kChunkWalkers else).
   FlameProgram program_;
   flame::RoundFn flame_round_ = nullptr;
   // The plot kernel and its target; null where Plot's scalar loop runs

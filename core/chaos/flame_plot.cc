@@ -61,20 +61,21 @@ void PlotScalar(const PlotTarget& t, const Walkers& w, bool final_map, int n, Pl
   const double* px = final_map ? w.fx : w.x;
   const double* py = final_map ? w.fy : w.y;
   const double* pz = final_map ? w.fz : w.z;
-  out->inside = out->bad_walker = out->bad_final = 0;
+  *out = {};
   for (int k = 0; k < n; ++k) {
-    const uint64_t bit = uint64_t{1} << k;
+    const int word = k / 64;
+    const uint64_t bit = uint64_t{1} << (k % 64);
     if (!Finite(w.x[k], w.y[k], w.z[k])) {
-      out->bad_walker |= bit;
+      out->bad_walker[word] |= bit;
       continue;
     }
     if (!Finite(px[k], py[k], pz[k])) {
-      out->bad_final |= bit;
+      out->bad_final[word] |= bit;
       continue;
     }
     double f[3];
     if (!Project(t, px[k], py[k], pz[k], f)) continue;
-    out->inside |= bit;
+    out->inside[word] |= bit;
     out->key[k] = KeyOf(t, int(f[0]), int(f[1]), int(f[2])) | (t.color ? ColorBits(w.col[k]) : 0);
   }
 }

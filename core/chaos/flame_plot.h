@@ -45,12 +45,16 @@ struct PlotTarget {
   bool planar = false;
 };
 
-/// @brief One round's plot of walkers [0, n). Bit k of a mask is walker k.
+/// Words of a Plotted mask.
+inline constexpr int kMaskWords = kMaxWalkers / 64;
+
+/// @brief One round's plot of walkers [0, n). Walker k is bit k % 64 of
+/// word k / 64 of a mask; words past walker n - 1's are zero.
 struct Plotted {
   alignas(64) uint64_t key[kMaxWalkers];  // valid where `inside` is set
-  uint64_t inside = 0;      // the point lands on the grid or picture
-  uint64_t bad_walker = 0;  // the walker's own point is not finite: restart it
-  uint64_t bad_final = 0;   // finite walker, non-finite plotted point
+  uint64_t inside[kMaskWords] = {};       // the point lands on the grid or picture
+  uint64_t bad_walker[kMaskWords] = {};   // the walker's own point is not finite: restart it
+  uint64_t bad_final[kMaskWords] = {};    // finite walker, non-finite plotted point
 };
 
 /// Plots walkers [0, n), n a multiple of kAlign; with `final_map` the

@@ -12,6 +12,7 @@
 // the keys are the scalar kernel's bit for bit.
 #pragma once
 
+#include <algorithm>
 #include <cstdint>
 
 #include "core/chaos/flame_plot.h"
@@ -115,25 +116,31 @@ struct PlotKernel {
     const double* px = final_map ? w.fx : w.x;
     const double* py = final_map ? w.fy : w.y;
     const double* pz = final_map ? w.fz : w.z;
-    uint64_t inside = 0, bad_walker = 0, bad_final = 0;
-    for (int k = 0; k < n; k += S::kWidth) {
-      const M flat = S::And(Finite(S::Load(w.x + k)), Finite(S::Load(w.y + k)));
-      const M walker = kPlanar ? flat : S::And(flat, Finite(S::Load(w.z + k)));
-      const D x = S::Load(px + k), y = S::Load(py + k);
-      const D z = kPlanar ? S::Zero() : S::Load(pz + k);
-      // Without a final transform the point is the walker's own.
-      const M point = final_map ? S::And(walker, S::And(S::And(Finite(x), Finite(y)), Finite(z)))
-                                : walker;
-      D f[3];
-      const M in = S::And(point, Project(t, x, y, z, f));
-      I key = Key(t, f);
-      if (t.color) key = S::OrI(key, ColorBits(S::Load(w.col + k)));
-      S::StoreKeys(out->key + k, key);
-      inside |= S::Bits(in) << k;
-      bad_walker |= (S::Bits(walker) ^ kAll) << k;
-      bad_final |= (S::Bits(walker) & ~S::Bits(point)) << k;
+    for (int i = 0; i < kMaskWords; ++i)
+      out->inside[i] = out->bad_walker[i] = out->bad_final[i] = 0;
+    for (int base = 0; base < n; base += 64) {  // mask word base / 64
+      const int end = std::min(n, base + 64);
+      uint64_t inside = 0, bad_walker = 0, bad_final = 0;
+      for (int k = base; k < end; k += S::kWidth) {
+        const M flat = S::And(Finite(S::Load(w.x + k)), Finite(S::Load(w.y + k)));
+        const M walker = kPlanar ? flat : S::And(flat, Finite(S::Load(w.z + k)));
+        const D x = S::Load(px + k), y = S::Load(py + k);
+        const D z = kPlanar ? S::Zero() : S::Load(pz + k);
+        // Without a final transform the point is the walker's own.
+        const M point =
+            final_map ? S::And(walker, S::And(S::And(Finite(x), Finite(y)), Finite(z))) : walker;
+        D f[3];
+        const M in = S::And(point, Project(t, x, y, z, f));
+        I key = Key(t, f);
+        if (t.color) key = S::OrI(key, ColorBits(S::Load(w.col + k)));
+        S::StoreKeys(out->key + k, key);
+        inside |= S::Bits(in) << (k - base);
+        bad_walker |= (S::Bits(walker) ^ kAll) << (k - base);
+        bad_final |= (S::Bits(walker) & ~S::Bits(point)) << (k - base);
+      }
+      out->inside[base / 64] = inside;
+      out->bad_walker[base / 64] = bad_walker, out->bad_final[base / 64] = bad_final;
     }
-    out->inside = inside, out->bad_walker = bad_walker, out->bad_final = bad_final;
   }
 };
 

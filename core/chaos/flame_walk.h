@@ -18,8 +18,15 @@
 namespace nimbus::flame {
 
 /// Walkers a Walkers block holds; a round steps a multiple of kAlign.
-inline constexpr int kMaxWalkers = 64;
+/// ChaosGame fills a block with the walkers of up to four chunks (64
+/// each): lanes are independent, so how many share a round changes no
+/// walker's path, and bigger rounds leave less of each map's run padding
+/// and spread a round's fixed costs over more steps.
+inline constexpr int kMaxWalkers = 256;
 inline constexpr int kAlign = 8;
+/// Walkers of one chunk of a flame (ChaosGame::kChunkIterations steps),
+/// each with its own random stream: fixed, as the paths depend on it.
+inline constexpr int kChunkWalkers = 64;
 /// The staged map pass (Walkers::sx) takes at most this many maps and
 /// random words per map application; other programs go by walker index.
 inline constexpr int kStageMaps = 8;

@@ -244,6 +244,23 @@ TEST(ChaosNonlinear, ReseedingAndNonFiniteFinalPointsMatchTheReference) {
   EXPECT_GT(want->Total(), params.iterations / 4);
 }
 
+TEST(ChaosNonlinear, BlocksOfSeveralChunksMatchTheReferenceLoop) {
+  // One thread takes whole blocks of chunks while it has plenty left
+  // (ChaosGame::ChunksToTake): eight full chunks and a short one go as
+  // blocks of 4, 2, 1, 1 and 1, so walkers of several chunks share each
+  // round and their masks span several words.
+  ChaosGameParams params = MixedFlame(ChaosGame::kChunkIterations * 8 + 4099);
+  params.color.mode = ColorMode::kMap;
+  ExpectSameAsReference(RunEngine(params, 1),
+                        *RunNonlinearReference(params, MapRule::kEngineVariations));
+  // Walkers restarted past the first mask word: a block of two chunks.
+  params = BlowUps(ChaosGame::kChunkIterations * 3 + 77);
+  const auto want = RunNonlinearReference(params, MapRule::kEngineVariations);
+  ASSERT_TRUE(want.ok()) << want.status();
+  ExpectSameAsReference(RunEngine(params, 1), *want);
+  EXPECT_GT(want->reseeded, 1000u);
+}
+
 TEST(ChaosNonlinear, DensityMatchesFormulasFromTheDocs) {
   // The variations re-derived from docs/variations.md may round
   // differently, so compare normalised densities (L1 over voxels) rather
