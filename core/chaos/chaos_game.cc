@@ -988,16 +988,19 @@ template <typename Rewarm>
 void ChaosGame::PlotRound(General& g, const flame::Walkers& s, bool final_map, int n, int active,
                           flame::Plotted& out, Rewarm& rewarm) {
   flame_plot_(plot_target_, s, final_map, n, &out);
-  uint64_t landed = 0, restarted = 0;
-  for (int base = 0; base < active; base += 64) {
-    const int word = base / 64, lanes = std::min(64, active - base);
+  static_assert(flame::kMaskWords <= KeyBins::kMaxLaneWords);
+  const int words = (active + 63) / 64;
+  uint64_t inside[flame::kMaskWords], restarted = 0;
+  for (int word = 0; word < words; ++word) {
+    const int lanes = std::min(64, active - 64 * word);
     const uint64_t mask = lanes == 64 ? ~uint64_t{0} : (uint64_t{1} << lanes) - 1;
+    inside[word] = out.inside[word] & mask;
     // Lanes counted by walking their bits: the x86-64 baseline has no popcnt.
-    landed += g.keys.AddLanes(out.key + base, out.inside[word] & mask);
     for (uint64_t m = out.bad_final[word] & mask; m; m &= m - 1) ++g.final_nonfinite;
     for (uint64_t m = out.bad_walker[word] & mask; m; m &= m - 1, ++restarted)
-      rewarm(base + std::countr_zero(m));
+      rewarm(64 * word + std::countr_zero(m));
   }
+  const uint64_t landed = g.keys.AddLanes(out.key, inside, words);
   g.reseeded += restarted;
   g.outside += uint64_t(active) - landed - restarted;
 }

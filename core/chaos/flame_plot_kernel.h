@@ -4,7 +4,8 @@
 // mask), kWidth; Set(double), Zero(), Abs, Add/Sub/Mul/Div; Load(const
 // double*); Ge/Lt/Gt(D, D) giving masks, And(M, M), All() and Bits(M) (bit
 // k is lane k); Select(M, if_false, if_true); TruncSigned and TruncUnsigned
-// (toward zero to 32 bits, then sign- or zero-extended to 64-bit lanes);
+// (toward zero into 64-bit lanes, exact for values in [0, 2^31), the only
+// ones whose keys are kept);
 // Splat(uint64_t), AndI, OrI, AddI, MulLo32 (the low 32 bits of each lane,
 // multiplied to 64), ShrBy(I, count), Shl<k> and Shr<k>; StoreKeys.
 // Every operation is one correctly rounded add, multiply or divide in the

@@ -62,22 +62,26 @@ KeyBins::KeyBins(CountGrid& grid, size_t capacity, bool weighted, std::mutex* fo
   pool_ = Pool(size_t(Pool::BinCount(tiles)), capacity, /*huge_pages=*/false);
 }
 
-uint64_t KeyBins::AddLanes(const uint64_t* key, uint64_t lanes) {
-  if (packed_) return AddLanesPacked(key, lanes);
+uint64_t KeyBins::AddLanes(const uint64_t* key, const uint64_t* lanes, int words) {
+  if (packed_) return AddLanesPacked(key, lanes, words);
   uint64_t added = 0;
   // Bits walked one by one: the x86-64 baseline has no popcnt.
-  for (; lanes; lanes &= lanes - 1, ++added) Add(key[std::countr_zero(lanes)]);
+  for (int w = 0; w < words; ++w)
+    for (uint64_t m = lanes[w]; m; m &= m - 1, ++added) Add(key[64 * w + std::countr_zero(m)]);
   return added;
 }
 
-uint64_t KeyBins::AddLanesPacked(const uint64_t* key, uint64_t lanes) {
+uint64_t KeyBins::AddLanesPacked(const uint64_t* key, const uint64_t* lanes, int words) {
   if (pending_ > kFoldAfter - kMaxCallAdds) Fold();
   // This round's keys are only requested now and held; the previous
   // round's, requested a whole kernel round ago, are added: their words
   // are in L1 by then, where adding right after the request waited on
-  // every miss.
+  // every miss. (Each word's keys land below 64 (w + 1): the hold loops'
+  // whole-register stores stay inside the room.)
   uint64_t* hold = held_[flip_ ^ 1];
-  const uint32_t added = loops_->hold(packed_.as<uint64_t>(), key, lanes, hold);
+  uint32_t added = 0;
+  for (int w = 0; w < words; ++w)
+    added += loops_->hold(packed_.as<uint64_t>(), key + 64 * w, lanes[w], hold + added);
   uint64_t adds = added;
   if (weighted_) {
     adds = 0;

@@ -26,7 +26,7 @@ namespace nimbus {
 /// not binned: its keys go into a dense per-thread array of one 64-bit
 /// word per voxel that holds the visit count (top 24 bits) and the colour
 /// sum (low 40 bits) together, a round after they were prefetched
-/// (AddLanes holds one call's keys until the next). Binning buys
+/// (AddLanes holds one call's keys, a round's, until the next). Binning buys
 /// nothing there, since the whole grid is touched between flushes anyway,
 /// and one word is one cache line per key where a counter and a separate
 /// colour sum are two. The words are folded into the grid (and zeroed) on
@@ -57,7 +57,13 @@ class KeyBins {
   /// lanes); returns how many. Out of line on purpose: in a small function
   /// the loop's state stays in registers, where inlined into the caller's
   /// round loop it went through the stack on every key.
-  uint64_t AddLanes(const uint64_t* key, uint64_t lanes);
+  uint64_t AddLanes(const uint64_t* key, uint64_t lanes) { return AddLanes(key, &lanes, 1); }
+  /// The same for a round of several words of lanes: key[64 w + i] for
+  /// every set bit i of lanes[w], w < `words` (at most kMaxLaneWords). The
+  /// packed words take the whole round's keys at once, so each key is
+  /// requested a whole kernel round before it is added.
+  uint64_t AddLanes(const uint64_t* key, const uint64_t* lanes, int words);
+  static constexpr int kMaxLaneWords = packed::kHoldRoom / 64;
   /// Applies every buffered key to the grid.
   void Flush();
   /// A packed Flush spread over threads by tile, for threads sharing one
@@ -102,10 +108,10 @@ class KeyBins {
   // Adds allowed between folds: no count reaches 2^24, so no colour sum
   // (at most 65535 per add) reaches 2^40 and carries into the count.
   static constexpr uint64_t kFoldAfter = (uint64_t{1} << 24) - 1;
-  // The largest add of one AddLanes call (64 keys of weight 64).
-  static constexpr uint64_t kMaxCallAdds = 64 * CountGrid::kMaxWeight;
+  // The largest add of one AddLanes call (kHoldRoom keys of weight 64).
+  static constexpr uint64_t kMaxCallAdds = packed::kHoldRoom * CountGrid::kMaxWeight;
   void AddPacked(uint64_t key);
-  uint64_t AddLanesPacked(const uint64_t* key, uint64_t lanes);
+  uint64_t AddLanesPacked(const uint64_t* key, const uint64_t* lanes, int words);
   // Adds the keys held by the last AddLanesPacked.
   void ApplyHeld();
   // Adds every packed word to the grid's tiles and zeroes it.

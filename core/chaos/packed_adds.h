@@ -19,10 +19,11 @@ namespace nimbus::packed {
 /// A word's count starts at this bit; its colour sum lies below.
 inline constexpr int kCountShift = 40;
 
-/// Room `hold` needs: a round's keys. (The vector loops store whole
-/// registers, but register r of the lanes lands at r or lower, so no store
-/// reaches past 64.)
-inline constexpr int kHoldRoom = 64;
+/// Room for a round's held keys: up to four calls of `hold`, each
+/// appending at most 64 keys. (The vector loops store whole registers, but
+/// register r of a call's lanes lands at r or lower past where the call
+/// began, so no store reaches past 64 per call.)
+inline constexpr int kHoldRoom = 256;
 
 struct Loops {
   /// Copies key[i] for every set bit i of `lanes` (at most 64), in lane

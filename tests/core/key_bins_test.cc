@@ -115,6 +115,41 @@ TEST(KeyBins, PackedWordsAddUpToDirectAdds) {
   }
 }
 
+// A flame round of 256 walkers hands over its landed lanes as four mask
+// words in one call, packed (the round's keys held together) or binned:
+// random words, empty and full ones among them, then the complements.
+TEST(KeyBins, ARoundOfSeveralMaskWordsAddsUpToDirectAdds) {
+  const Shape shapes[] = {{{1024, 1024, 1}, true, false}, {{64, 64, 64}, false, true}};
+  Rng rng(14, 0);
+  for (const Shape& s : shapes) {
+    SCOPED_TRACE(testing::Message() << s.resolution.x << "x" << s.resolution.y);
+    CountGrid direct(s.resolution, s.color), bins_grid(s.resolution, s.color);
+    KeyBins bins(bins_grid, 1 << 16, s.weighted);
+    EXPECT_EQ(bins.packed(), s.color);
+    const std::vector<uint64_t> keys = RandomKeys(direct, 256 * 800, s.weighted, rng);
+    for (uint64_t key : keys) direct.AddKey(key);
+    for (size_t i = 0; i < keys.size(); i += 256) {
+      uint64_t lanes[4], rest[4];
+      uint64_t want = 0;
+      for (int w = 0; w < 4; ++w) {
+        const uint64_t r = rng.Next();
+        lanes[w] = r % 5 == 0 ? 0 : r % 5 == 1 ? ~uint64_t{0} : rng.Next();
+        rest[w] = ~lanes[w];
+        want += uint64_t(std::popcount(lanes[w]));
+      }
+      const int words = i / 256 % 9 == 0 ? 3 : 4;  // a short round: its keys, less the last word's
+      if (words == 3) {
+        for (size_t k = i + 192; k < i + 256; ++k) bins.Add(keys[k]);
+        want -= uint64_t(std::popcount(lanes[3]));
+      }
+      EXPECT_EQ(bins.AddLanes(keys.data() + i, lanes, words), want);
+      bins.AddLanes(keys.data() + i, rest, words);
+    }
+    bins.Flush();
+    ExpectSameGrids(direct, bins_grid);
+  }
+}
+
 // Two threads' packed words folding into one grid under a shared lock
 // (a picture job's workers) add up to the direct adds of all their keys,
 // with flushes in the middle on both.
