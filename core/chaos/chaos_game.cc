@@ -814,8 +814,9 @@ uint64_t ChaosGame::BatchChunks() const {
   return fast_ || params_.chain ? 1 : uint64_t(flame::kMaxWalkers / flame_walkers_);
 }
 
-// A whole block while every thread has two more left; then fewer, down to
-// one chunk, so no thread is left with a long block as the others finish.
+// Whole blocks while every thread has two blocks' worth left, then smaller
+// ones down to single chunks, so no thread is left with a long block as
+// the others finish.
 uint64_t ChaosGame::ChunksToTake(uint64_t next, uint64_t target) const {
   const uint64_t left = target - next;
   return std::clamp<uint64_t>(left / (2 * uint64_t(threads_)), 1, BatchChunks());
@@ -869,7 +870,7 @@ void ChaosGame::RunChunkBatch(uint64_t first, uint64_t chunks, Worker& w) {
   const int per = flame_walkers_;  // walkers per chunk
   const int n = per * int(chunks);
   const bool color = p.color.mode != ColorMode::kNone;
-  // The chunk's walkers, and a block that re-warms one walker alone, copied
+  // The chunks' walkers, and a block that re-warms one walker alone, copied
   // into every lane: lanes compute independently, so alone or in the batch
   // a walker takes the same path.
   auto blocks = std::make_unique<flame::Walkers[]>(2);
