@@ -153,7 +153,7 @@ struct ResultGrids {
 
 // Built leaf by leaf straight from the count tiles (CountGrid::ForEachLeaf),
 // in the spec's frame.
-ResultGrids BuildFineGrids(const CountGrid& counts, const GridFrame& frame,
+ResultGrids BuildFineGrids(const CountGrid& counts, uint32_t max_count, const GridFrame& frame,
                            const DensityOptions& options, bool int64_counts) {
   ResultGrids g;
   g.density = NewGrid<openvdb::FloatGrid>(options.grid_name, frame, openvdb::GRID_FOG_VOLUME);
@@ -166,7 +166,7 @@ ResultGrids BuildFineGrids(const CountGrid& counts, const GridFrame& frame,
   if (options.raw_counts != RawCounts::kNone && !int64_counts)
     g.raw_f = NewGrid<openvdb::FloatGrid>("counts", frame, openvdb::GRID_UNKNOWN);
   if (int64_counts) g.raw_i = NewGrid<openvdb::Int64Grid>("counts", frame, openvdb::GRID_UNKNOWN);
-  const Normaliser norm(options, counts.Max());
+  const Normaliser norm(options, max_count);
   auto& tree = g.density->tree();
   const double inv_scale = 1.0 / CountGrid::kColorScale;
   counts.ForEachLeaf([&](Int3 origin, const uint32_t* v, const uint64_t* cs) {
@@ -269,6 +269,12 @@ double SuggestedDensityOf(const openvdb::FloatGrid& grid) {
   return SuggestedDensity(n, n ? sum / double(n) : 0.0, std::cbrt(h.x() * h.y() * h.z()));
 }
 
+// The counts' largest and total, which every result grid records.
+void AddCountMeta(openvdb::MetaMap& meta, const CountGrid::Sums& sums) {
+  meta.insertMeta("nimbus_max_count", openvdb::Int64Metadata(int64_t(sums.max)));
+  meta.insertMeta("nimbus_total_count", openvdb::Int64Metadata(int64_t(sums.total)));
+}
+
 // The conventions every grid shares: transform, frame and convention
 // metadata, half floats.
 void FinishGrid(openvdb::GridBase& grid, const GridFrame& frame, const OutputConventions& c,
@@ -283,7 +289,8 @@ void FinishGrid(openvdb::GridBase& grid, const GridFrame& frame, const OutputCon
 openvdb::GridPtrVec BuildGrids(const CountGrid& counts, const GridFrame& fine_frame,
                                const DensityOptions& options, const Metadata& metadata,
                                bool int64_counts = false) {
-  ResultGrids g = BuildFineGrids(counts, fine_frame, options, int64_counts);
+  const CountGrid::Sums sums = counts.MaxAndTotal();
+  ResultGrids g = BuildFineGrids(counts, sums.max, fine_frame, options, int64_counts);
   const int factor = OutputDownsampleFactor(counts, options);
   GridFrame frame = fine_frame;
   if (factor > 1) {
@@ -298,8 +305,7 @@ openvdb::GridPtrVec BuildGrids(const CountGrid& counts, const GridFrame& fine_fr
   // Every grid carries the frame and conventions, so each reads back alone.
   for (auto& grid : out) FinishGrid(*grid, frame, options.conventions, factor);
   auto& grid = *g.density;
-  grid.insertMeta("nimbus_max_count", openvdb::Int64Metadata(int64_t(counts.Max())));
-  grid.insertMeta("nimbus_total_count", openvdb::Int64Metadata(int64_t(counts.Total())));
+  AddCountMeta(grid, sums);
   grid.insertMeta("nimbus_density_mapping", openvdb::StringMetadata(MappingName(options.mapping)));
   if (options.mapping == DensityMapping::kGamma)
     grid.insertMeta("nimbus_density_gamma", openvdb::DoubleMetadata(options.gamma));
@@ -357,13 +363,18 @@ struct StreamedResult {
   GridFrame frame;
   const DensityOptions& options;
   const Metadata& metadata;
+  CountGrid::Sums sums;
   Normaliser norm;
   openvdb::FloatTree::Ptr topology;  // buffer-less, the density's leaves
   bool color = false;
 
-  StreamedResult(const CountGrid& c, const GridFrame& f, const DensityOptions& o,
-                 const Metadata& m)
-      : counts(c), frame(f), options(o), metadata(m), norm(o, c.Max()),
+  StreamedResult(const CountGrid& c, const GridFrame& f, const DensityOptions& o, const Metadata& m)
+      : counts(c),
+        frame(f),
+        options(o),
+        metadata(m),
+        sums(c.MaxAndTotal()),
+        norm(o, sums.max),
         topology(std::make_shared<openvdb::FloatTree>()),
         color(o.color && c.has_color()) {
     AddCountLeaves(counts, *topology);
@@ -417,8 +428,7 @@ EncodedGrid StreamedResult::Density() const {
   };
   EncodedGrid out = Encode<openvdb::FloatGrid>(
       grid, false, [&](uint32_t c, uint64_t) { return norm(c); }, modulate, add);
-  grid->insertMeta("nimbus_max_count", openvdb::Int64Metadata(int64_t(counts.Max())));
-  grid->insertMeta("nimbus_total_count", openvdb::Int64Metadata(int64_t(counts.Total())));
+  AddCountMeta(*grid, sums);
   grid->insertMeta("nimbus_density_mapping", openvdb::StringMetadata(MappingName(options.mapping)));
   if (options.mapping == DensityMapping::kGamma)
     grid->insertMeta("nimbus_density_gamma", openvdb::DoubleMetadata(options.gamma));
@@ -462,8 +472,7 @@ std::vector<GridProducer> StreamedResult::Producers(bool int64_counts) const {
   if (int64_counts)
     out.push_back({"counts", [this] {
       auto g = Grid<openvdb::Int64Grid>("counts", openvdb::GRID_UNKNOWN);
-      g->insertMeta("nimbus_max_count", openvdb::Int64Metadata(int64_t(counts.Max())));
-      g->insertMeta("nimbus_total_count", openvdb::Int64Metadata(int64_t(counts.Total())));
+      AddCountMeta(*g, sums);
       for (const auto& [k, v] : metadata) AddMeta(*g, k, v);
       return Encode<openvdb::Int64Grid>(g, false,
                                         [](uint32_t c, uint64_t) { return int64_t(c); });
@@ -713,8 +722,7 @@ absl::Status WriteBuiltIntegerCountsVdb(const std::filesystem::path& path,
   try {
     grids = BuildGrids(counts, frame, o, metadata, true);
     grids.erase(grids.begin());  // the density grid lives in the result
-    grids[0]->insertMeta("nimbus_max_count", openvdb::Int64Metadata(int64_t(counts.Max())));
-    grids[0]->insertMeta("nimbus_total_count", openvdb::Int64Metadata(int64_t(counts.Total())));
+    AddCountMeta(*grids[0], counts.MaxAndTotal());
     for (const auto& [k, v] : metadata) AddMeta(*grids[0], k, v);
   } catch (const std::exception& e) {
     return absl::InternalError(absl::StrCat("building the counts grid of ", path.string(), ": ",
