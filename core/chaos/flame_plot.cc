@@ -61,7 +61,7 @@ void PlotScalar(const PlotTarget& t, const Walkers& w, bool final_map, int n, Pl
   const double* px = final_map ? w.fx : w.x;
   const double* py = final_map ? w.fy : w.y;
   const double* pz = final_map ? w.fz : w.z;
-  *out = {};
+  out->ClearMasks();
   for (int k = 0; k < n; ++k) {
     const int word = k / 64;
     const uint64_t bit = uint64_t{1} << (k % 64);

@@ -55,6 +55,10 @@ struct Plotted {
   uint64_t inside[kMaskWords] = {};       // the point lands on the grid or picture
   uint64_t bad_walker[kMaskWords] = {};   // the walker's own point is not finite: restart it
   uint64_t bad_final[kMaskWords] = {};    // finite walker, non-finite plotted point
+  /// Zeroes the masks (the keys are read only where `inside` is set).
+  void ClearMasks() {
+    for (int i = 0; i < kMaskWords; ++i) inside[i] = bad_walker[i] = bad_final[i] = 0;
+  }
 };
 
 /// Plots walkers [0, n), n a multiple of kAlign; with `final_map` the

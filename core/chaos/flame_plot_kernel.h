@@ -117,8 +117,7 @@ struct PlotKernel {
     const double* px = final_map ? w.fx : w.x;
     const double* py = final_map ? w.fy : w.y;
     const double* pz = final_map ? w.fz : w.z;
-    for (int i = 0; i < kMaskWords; ++i)
-      out->inside[i] = out->bad_walker[i] = out->bad_final[i] = 0;
+    out->ClearMasks();
     for (int base = 0; base < n; base += 64) {  // mask word base / 64
       const int end = std::min(n, base + 64);
       uint64_t inside = 0, bad_walker = 0, bad_final = 0;
