@@ -146,7 +146,7 @@ int Main(int argc, char** argv) {
   const double look_s = filter_s + develop_s;
   std::printf("%-52s %25.2f s\n", "box filter 2x2 -> 6000x9000", filter_s);
   std::printf("%-52s %25.2f s\n", "tone map, palette, desaturation, glow", develop_s);
-  std::printf("%-52s %25.2f s  (%.0f MB)\n", "PNG write (libpng, 8-bit)", png_s,
+  std::printf("%-52s %25.2f s  (%.0f MB)\n", "PNG write (8-bit)", png_s,
               double(std::filesystem::file_size(out)) / 1e6);
   std::printf("look (filter + develop) = %.1f %% of the walk's %.2f s; poster total %.2f s\n",
               100 * look_s / walk_s, walk_s, walk_s + look_s + png_s);

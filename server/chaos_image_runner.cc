@@ -104,9 +104,7 @@ absl::Status RunPicturePass(JobDriver& d, ChaosGameParams params, const ImageJob
     NIMBUS_ASSIGN_OR_RETURN(density, BoxFilterImage({&counts}, plane.width, plane.height, ss, ss,
                                                     d.interrupter()));
   }
-  NIMBUS_ASSIGN_OR_RETURN(RgbImage rgb, DevelopImage(density, look, d.interrupter()));
-  density = {};
-  return WriteImage(path, rgb, im.format);
+  return WriteDevelopedImage(path, density, look, im.format, d.interrupter());
 }
 
 }  // namespace

@@ -9,6 +9,8 @@
 #include <cstdint>
 #include <vector>
 
+#include "core/base/status_macros.h"
+
 namespace nimbus {
 
 namespace {
@@ -133,61 +135,69 @@ double ToneMap(const LookParams& look, double d, double dmin, double dmax) {
   return std::clamp(v, 0.0, 1.0);
 }
 
-absl::StatusOr<RgbImage> DevelopImage(const ImageDensity& image, const LookParams& look,
-                                      Interrupter* interrupter) {
-  float dmin = 0, dmax = 0;
+Developer::Developer(const ImageDensity& image, const LookParams& look)
+    : image_(image), look_(look) {
   for (float d : image.density) {
     if (!(d > 0)) continue;
-    dmin = dmin > 0 ? std::min(dmin, d) : d;
-    dmax = std::max(dmax, d);
+    dmin_ = dmin_ > 0 ? std::min(dmin_, d) : d;
+    dmax_ = std::max(dmax_, d);
   }
+}
+
+Vec3 Developer::Shade(Vec3 c, double v) const {
+  // Mix with the colour's own grey (Rec. 709 luma) to desaturate.
+  const double grey = 0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z;
+  c = (1 - look_.desaturation) * c + look_.desaturation * Vec3{grey, grey, grey};
+  return Vec3{c.x * v, c.y * v, c.z * v};
+}
+
+void Developer::Rows(int first, int last, float* rgb) const {
+  for (int row = first; row < last; ++row)
+    Row(row, rgb + 3 * size_t(row - first) * size_t(image_.width));
+}
+
+void Developer::Row(int row, float* rgb) const {
+  const size_t first = size_t(row) * size_t(image_.width);
+  std::vector<int> lit;
+  std::vector<double> t, v;
+  for (int x = 0; x < image_.width; ++x) {
+    const double d = image_.density[first + size_t(x)];
+    if (!(d > 0)) {
+      for (int c = 0; c < 3; ++c) rgb[3 * x + c] = float(look_.background[c]);
+      continue;
+    }
+    lit.push_back(x);
+    v.push_back(look_.brightness * ToneMap(look_, d, dmin_, dmax_));
+    t.push_back(look_.colored ? image_.color[first + size_t(x)] : 0.0);
+  }
+  // The palette's sines a batch at a time; a pixel whose floats could
+  // round otherwise than Eval's colour would make them is redone with it.
+  std::vector<Vec3> near(lit.size(), Vec3{1, 1, 1});
+  if (look_.colored) look_.palette.EvalNear(t.data(), t.size(), near.data());
+  // The colours are within 2^-50 of Eval's, so the mix within
+  // (|1 - desaturation| + |desaturation|) 2^-49 and a value within v times
+  // that plus its own rounding: the margin is 16 times as much.
+  const double mix = std::fabs(1 - look_.desaturation) + std::fabs(look_.desaturation);
+  for (size_t k = 0; k < lit.size(); ++k) {
+    Vec3 y = Shade(near[k], v[k]);
+    auto alike = [&](double c) {
+      return palette_internal::RoundsAlike(c, (std::fabs(v[k]) * mix + std::fabs(c)) * 0x1.0p-44);
+    };
+    if (look_.colored && !(alike(y.x) && alike(y.y) && alike(y.z))) [[unlikely]]
+      y = Shade(look_.palette.Eval(t[k]), v[k]);
+    for (int c = 0; c < 3; ++c) rgb[3 * size_t(lit[k]) + size_t(c)] = float(y[c]);
+  }
+}
+
+absl::StatusOr<RgbImage> DevelopImage(const ImageDensity& image, const LookParams& look,
+                                      Interrupter* interrupter) {
+  const Developer developer(image, look);
   RgbImage out;
   out.width = image.width;
   out.height = image.height;
   out.rgb.resize(3 * size_t(image.width) * size_t(image.height));  // every pixel is written
-  const double keep = 1 - look.desaturation;
-  // A lit pixel's colour times its brightness, before rounding to float.
-  auto shade = [&](Vec3 c, double v) {
-    // Mix with the colour's own grey (Rec. 709 luma) to desaturate.
-    const double grey = 0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z;
-    c = keep * c + look.desaturation * Vec3{grey, grey, grey};
-    return Vec3{c.x * v, c.y * v, c.z * v};
-  };
-  // The colours are within 2^-50 of Eval's, so the mix within
-  // (|keep| + |desaturation|) 2^-49 and a value within v times that plus
-  // its own rounding: the margin is 16 times as much.
-  const double mix = std::fabs(keep) + std::fabs(look.desaturation);
-  absl::Status st = ForRows(image.height, interrupter, [&](int row) {
-    const size_t first = size_t(row) * size_t(image.width);
-    std::vector<int> lit;
-    std::vector<double> t, v;
-    for (int x = 0; x < image.width; ++x) {
-      const double d = image.density[first + size_t(x)];
-      if (!(d > 0)) {
-        float* o = out.At(x, row);
-        for (int c = 0; c < 3; ++c) o[c] = float(look.background[c]);
-        continue;
-      }
-      lit.push_back(x);
-      v.push_back(look.brightness * ToneMap(look, d, dmin, dmax));
-      t.push_back(look.colored ? image.color[first + size_t(x)] : 0.0);
-    }
-    // The palette's sines a batch at a time; a pixel whose floats could
-    // round otherwise than Eval's colour would make them is redone with it.
-    std::vector<Vec3> near(lit.size(), Vec3{1, 1, 1});
-    if (look.colored) look.palette.EvalNear(t.data(), t.size(), near.data());
-    for (size_t k = 0; k < lit.size(); ++k) {
-      Vec3 y = shade(near[k], v[k]);
-      auto alike = [&](double c) {
-        return palette_internal::RoundsAlike(c, (std::fabs(v[k]) * mix + std::fabs(c)) * 0x1.0p-44);
-      };
-      if (look.colored && !(alike(y.x) && alike(y.y) && alike(y.z))) [[unlikely]]
-        y = shade(look.palette.Eval(t[k]), v[k]);
-      float* o = out.At(lit[k], row);
-      for (int c = 0; c < 3; ++c) o[c] = float(y[c]);
-    }
-  });
-  if (!st.ok()) return st;
+  NIMBUS_RETURN_IF_ERROR(ForRows(image.height, interrupter,
+                                 [&](int row) { developer.Rows(row, row + 1, out.At(0, row)); }));
   AddGlow(out, look.glow, look.glow_radius);
   return out;
 }
@@ -241,7 +251,7 @@ void BoxLine(float* v, int n, size_t stride, const std::array<int, 3>& widths,
 }  // namespace
 
 void AddGlow(RgbImage& image, double amount, double radius) {
-  if (!(amount > 0) || !(radius > 0) || image.rgb.empty()) return;
+  if (!HasGlow(amount, radius) || image.rgb.empty()) return;
   // A Gaussian approximated by three box filters per axis (rows, then
   // columns), each line filtered on its own: O(1) per pixel for any radius,
   // and the same result for any thread count.

@@ -87,9 +87,35 @@ absl::StatusOr<ImageDensity> BoxFilterImage(const std::vector<const CountGrid*>&
 /// largest density (both > 0): monotone non-decreasing in d.
 double ToneMap(const LookParams& look, double d, double dmin, double dmax);
 
+/// @brief The look without its glow, a band of rows at a time, for
+/// pictures encoded as they are developed. Every row depends on its own
+/// pixels and on the picture's least and greatest lit density only.
+///
+///   Developer dev(density, look);  // finds those two densities
+///   dev.Rows(first, last, rgb);    // from any thread
+class Developer {
+ public:
+  /// Holds `image` and `look` by reference.
+  Developer(const ImageDensity& image, const LookParams& look);
+  /// Rows [first, last) into `rgb`, 3 floats per pixel, row after row.
+  void Rows(int first, int last, float* rgb) const;
+
+ private:
+  void Row(int row, float* rgb) const;
+  Vec3 Shade(Vec3 colour, double value) const;
+
+  const ImageDensity& image_;
+  const LookParams& look_;
+  float dmin_ = 0, dmax_ = 0;
+};
+
 /// Applies tone mapping, palette, desaturation, brightness and glow.
 absl::StatusOr<RgbImage> DevelopImage(const ImageDensity& image, const LookParams& look,
                                       Interrupter* interrupter);
+
+/// Whether a glow of `amount` and `radius` changes the picture: only then
+/// does developing it need the whole picture at once.
+inline bool HasGlow(double amount, double radius) { return amount > 0 && radius > 0; }
 
 /// Adds `amount` times a Gaussian blur (sigma `radius` pixels, as three
 /// successive box filters per axis) of `image` to itself; amount 0 or

@@ -10,56 +10,85 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
+#include <functional>
 #include <memory>
 #include <system_error>
 
 #include "absl/strings/str_cat.h"
-#include "core/base/zero_pages.h"
+#include "core/base/status_macros.h"
 #include "core/io/file_ptr.h"
-#include "core/io/png_internal.h"
+#include "core/io/png_encoder.h"
 
 namespace nimbus {
 
 namespace {
 
-// Quantised samples of `image`, clamped to [0, 1] (NaN to 0) and rounded
-// to nearest, halves up: what std::lround gives on [0, max], without a
-// library call per sample (a 1024^2 picture has three million of them).
-// Every sample is written, so they come unzeroed from huge pages
-// (ZeroPageAllocator): 3 MB of 4 KiB pages would be 750 page faults.
+// Samples clamped to [0, 1] (NaN to 0) and rounded to nearest, halves
+// up: what std::lround gives on [0, max], without a library call per
+// sample (a 1024^2 picture has three million of them).
 template <typename T>
-using Samples = std::vector<T, ZeroPageAllocator<T>>;
-
-template <typename T>
-Samples<T> Quantise(const RgbImage& image, double max) {
-  Samples<T> out(image.rgb.size());
-  for (size_t i = 0; i < out.size(); ++i) {
-    const float x = image.rgb[i];
+void Quantise(const float* in, size_t n, double max, uint8_t* out) {
+  for (size_t i = 0; i < n; ++i) {
+    const float x = in[i];
     const double v = (x >= 0 ? std::min(double(x), 1.0) : 0.0) * max;
     const int64_t down = int64_t(v);  // v >= 0: truncation is floor
-    out[i] = T(down + (v - double(down) >= 0.5));  // the difference is exact
+    const T q = T(down + (v - double(down) >= 0.5));  // the difference is exact
+    std::memcpy(out + i * sizeof(T), &q, sizeof(T));  // host order
   }
-  return out;
 }
 
-template <typename T>
-std::vector<png_bytep> RowPointers(Samples<T>& samples, int width, int height) {
-  std::vector<png_bytep> rows(static_cast<size_t>(height));
-  for (int r = 0; r < height; ++r)
-    rows[size_t(r)] = reinterpret_cast<png_bytep>(&samples[3 * size_t(r) * size_t(width)]);
-  return rows;
+void QuantiseRgb(const float* rgb, size_t n, int depth, uint8_t* out) {
+  if (depth == 8)
+    Quantise<uint8_t>(rgb, n, 255, out);
+  else
+    Quantise<uint16_t>(rgb, n, 65535, out);
 }
 
-bool WritePng(const PngSink& sink, const RgbImage& image, int depth) {
-  if (depth == 8) {
-    Samples<uint8_t> s = Quantise<uint8_t>(image, 255);
-    std::vector<png_bytep> rows = RowPointers(s, image.width, image.height);
-    return WritePngRows(sink, image.width, image.height, 8, 3, rows.data());
+// Writes through `path`.partial renamed into place, removing the partial
+// file on failure.
+absl::Status WriteThroughTemp(
+    const std::filesystem::path& path,
+    const std::function<absl::Status(const std::filesystem::path&)>& write) {
+  const std::filesystem::path tmp = path.string() + ".partial";
+  std::error_code ec;
+  if (absl::Status st = write(tmp); !st.ok()) {
+    std::filesystem::remove(tmp, ec);
+    return st;
   }
-  Samples<uint16_t> s = Quantise<uint16_t>(image, 65535);
-  std::vector<png_bytep> rows = RowPointers(s, image.width, image.height);
-  return WritePngRows(sink, image.width, image.height, 16, 3, rows.data());
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) return absl::InternalError(absl::StrCat("renaming ", tmp.string(), ": ", ec.message()));
+  return absl::OkStatus();
 }
+
+absl::Status WritePngFile(const std::filesystem::path& path, const PngShape& shape,
+                          const PngRows& rows, Interrupter* interrupter) {
+  FilePtr f(std::fopen(path.c_str(), "wb"));
+  if (!f) return absl::InternalError(absl::StrCat("cannot create ", path.string()));
+  absl::Status st = EncodePng(shape, rows, {f.get(), nullptr}, interrupter);
+  if (st.ok() && std::fflush(f.get()) != 0) st = absl::InternalError("flushing failed");
+  if (!st.ok() && !absl::IsCancelled(st))
+    return absl::InternalError(absl::StrCat("writing ", path.string(), ": ", st.message()));
+  return st;
+}
+
+// The rows of `image`, quantised.
+PngRows QuantisedRows(const RgbImage& image, int depth) {
+  return [&image, depth](int first, int last, uint8_t* out) {
+    const size_t per_row = 3 * size_t(image.width);
+    QuantiseRgb(&image.rgb[size_t(first) * per_row], size_t(last - first) * per_row, depth, out);
+    return absl::OkStatus();
+  };
+}
+
+absl::Status CheckImage(const RgbImage& image) {
+  if (image.width <= 0 || image.height <= 0 ||
+      image.rgb.size() != 3 * size_t(image.width) * size_t(image.height))
+    return absl::InvalidArgumentError("image size does not match its pixels");
+  return absl::OkStatus();
+}
+
+int PngDepth(ImageFormat format) { return format == ImageFormat::kPng16 ? 16 : 8; }
 
 absl::Status WriteExr(const std::filesystem::path& path, const RgbImage& image) {
   try {
@@ -89,36 +118,41 @@ const char* ImageExtension(ImageFormat format) {
 
 absl::Status WriteImage(const std::filesystem::path& path, const RgbImage& image,
                         ImageFormat format) {
-  if (image.width <= 0 || image.height <= 0 ||
-      image.rgb.size() != 3 * size_t(image.width) * size_t(image.height))
-    return absl::InvalidArgumentError("image size does not match its pixels");
-  const std::filesystem::path tmp = path.string() + ".partial";
-  absl::Status st;
-  if (format == ImageFormat::kExr) {
-    st = WriteExr(tmp, image);
-  } else {
-    FilePtr f(std::fopen(tmp.c_str(), "wb"));
-    if (!f) return absl::InternalError(absl::StrCat("cannot create ", tmp.string()));
-    if (!WritePng({f.get(), nullptr}, image, format == ImageFormat::kPng16 ? 16 : 8) ||
-        std::fflush(f.get()) != 0)
-      st = absl::InternalError(absl::StrCat("writing ", path.string(), " failed"));
+  NIMBUS_RETURN_IF_ERROR(CheckImage(image));
+  return WriteThroughTemp(path, [&](const std::filesystem::path& tmp) {
+    if (format == ImageFormat::kExr) return WriteExr(tmp, image);
+    const int depth = PngDepth(format);
+    return WritePngFile(tmp, {image.width, image.height, depth, 3}, QuantisedRows(image, depth),
+                        nullptr);
+  });
+}
+
+absl::Status WriteDevelopedImage(const std::filesystem::path& path, const ImageDensity& density,
+                                 const LookParams& look, ImageFormat format,
+                                 Interrupter* interrupter) {
+  if (format == ImageFormat::kExr || HasGlow(look.glow, look.glow_radius)) {
+    NIMBUS_ASSIGN_OR_RETURN(RgbImage rgb, DevelopImage(density, look, interrupter));
+    return WriteImage(path, rgb, format);
   }
-  std::error_code ec;
-  if (!st.ok()) {
-    std::filesystem::remove(tmp, ec);
-    return st;
-  }
-  std::filesystem::rename(tmp, path, ec);
-  if (ec) return absl::InternalError(absl::StrCat("renaming ", tmp.string(), ": ", ec.message()));
-  return absl::OkStatus();
+  const Developer developer(density, look);
+  const int depth = PngDepth(format);
+  auto rows = [&](int first, int last, uint8_t* out) {
+    const size_t n = 3 * size_t(density.width) * size_t(last - first);
+    std::vector<float> rgb(n);
+    developer.Rows(first, last, rgb.data());
+    QuantiseRgb(rgb.data(), n, depth, out);
+    return absl::OkStatus();
+  };
+  return WriteThroughTemp(path, [&](const std::filesystem::path& tmp) {
+    return WritePngFile(tmp, {density.width, density.height, depth, 3}, rows, interrupter);
+  });
 }
 
 absl::StatusOr<std::string> EncodePng8(const RgbImage& image) {
-  if (image.width <= 0 || image.height <= 0 ||
-      image.rgb.size() != 3 * size_t(image.width) * size_t(image.height))
-    return absl::InvalidArgumentError("image size does not match its pixels");
+  NIMBUS_RETURN_IF_ERROR(CheckImage(image));
   std::string bytes;
-  if (!WritePng({nullptr, &bytes}, image, 8)) return absl::InternalError("png encoding failed");
+  NIMBUS_RETURN_IF_ERROR(
+      EncodePng({image.width, image.height, 8, 3}, QuantisedRows(image, 8), {nullptr, &bytes}));
   return bytes;
 }
 

@@ -1,5 +1,6 @@
-// @brief Colour picture files: 8- and 16-bit RGB PNG (libpng) and float
-// RGB OpenEXR. The libraries stay behind this header.
+// @brief Colour picture files: 8- and 16-bit RGB PNG (written by
+// png_encoder.h, read with libpng) and float RGB OpenEXR. The libraries stay
+// behind this header.
 #pragma once
 
 #include <cstdint>
@@ -22,6 +23,14 @@ const char* ImageExtension(ImageFormat format);
 /// timestamps: the same image gives the same bytes.
 absl::Status WriteImage(const std::filesystem::path& path, const RgbImage& image,
                         ImageFormat format);
+
+/// Develops `density` with `look` (DevelopImage) and writes it as
+/// WriteImage does. A PNG without glow is developed a band of rows at a
+/// time while it is encoded (png_encoder.h), so the float picture never
+/// exists whole; the bytes are the same either way.
+absl::Status WriteDevelopedImage(const std::filesystem::path& path, const ImageDensity& density,
+                                 const LookParams& look, ImageFormat format,
+                                 Interrupter* interrupter);
 
 /// An 8-bit RGB PNG in memory (previews).
 absl::StatusOr<std::string> EncodePng8(const RgbImage& image);

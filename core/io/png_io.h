@@ -1,5 +1,5 @@
-// @brief 16-bit greyscale PNG files (libpng), for height maps. libpng stays
-// behind this header.
+// @brief 16-bit greyscale PNG files, for height maps: written by
+// png_encoder.h, read with libpng, which stays behind this header.
 #pragma once
 
 #include <cstdint>

@@ -3,13 +3,13 @@
 // that do not depend on the thread count, and the contact sheet's layout.
 #include <gtest/gtest.h>
 
-#include <atomic>
 #include <cmath>
 
 #include "core/chaos/ifs_explorer.h"
 #include "core/chaos/random_ifs.h"
 #include "core/grid/contact_sheet.h"
 #include "tests/support/contraction_oracle.h"
+#include "tests/support/test_util.h"
 
 namespace nimbus {
 namespace {
@@ -196,19 +196,10 @@ TEST(Explore, StopsAtMaxAttemptsWithWhatItKept) {
   EXPECT_EQ(run.stats.kept, run.kept.size());
 }
 
-class CancelAfter : public Interrupter {
- public:
-  explicit CancelAfter(int polls) : left_(polls) {}
-  bool WasInterrupted(uint64_t, uint64_t) override { return --left_ < 0; }
-
- private:
-  std::atomic<int> left_;
-};
-
 TEST(Explore, CancelsInsideARender) {
   ExploreParams p = Small(2, 8);
   p.thumbnail_iterations = uint64_t{1} << 24;
-  CancelAfter cancel(40);
+  testing::CancelAfter cancel(40);
   int kept = 0;
   auto stats = ExploreIfs(p, 2, &cancel, [&](const ExploreCandidate&, RgbImage) {
     ++kept;

@@ -2,8 +2,11 @@
 // Test servers bind port 0 and report the port they got (nimbusd_process.h).
 #pragma once
 
+#include <atomic>
 #include <filesystem>
 #include <string>
+
+#include "core/base/interrupter.h"
 
 namespace nimbus::testing {
 
@@ -26,5 +29,16 @@ std::filesystem::path SourcePath(const std::string& relative);
 
 /// A whole file's bytes; empty when it cannot be read.
 std::string ReadFileBytes(const std::filesystem::path& path);
+
+/// Lets `polls` polls pass, then interrupts every later one (from any
+/// thread).
+class CancelAfter : public Interrupter {
+ public:
+  explicit CancelAfter(int polls) : left_(polls) {}
+  bool WasInterrupted(uint64_t, uint64_t) override { return --left_ < 0; }
+
+ private:
+  std::atomic<int> left_;
+};
 
 }  // namespace nimbus::testing

@@ -1,0 +1,151 @@
+// PNG writing (docs/images.md, "PNG bytes"): the flam3 comparison's flame
+// picture (bench/flam3/flame6_2d_image.json, 10^8 points at 1024^2) is
+// drawn once, then written as the picture job wrote it before (develop
+// the whole picture, then libpng) and as it does now (WriteDevelopedImage:
+// bands developed and filtered in parallel while one thread deflates),
+// with the encoder's parts on their own. Every way must give the same
+// bytes; the bench says so. Prints figures, best of REPEAT; asserts nothing.
+//
+// Usage: png_bench [THREADS [REPEAT]]   (default 2 and 7)
+#include <tbb/global_control.h>
+#include <tbb/task_arena.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <functional>
+
+#include "core/chaos/chaos_game.h"
+#include "core/grid/image_look.h"
+#include "core/io/image_io.h"
+#include "core/io/png_encoder.h"
+#include "proto/spec_convert.h"
+#include "proto/spec_io.h"
+#include "tests/support/libpng_writer.h"
+#include "tests/support/test_util.h"
+
+namespace nimbus {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+// Best wall time of `repeat` runs of `f`, in milliseconds.
+double BestMs(int repeat, const std::function<void()>& f) {
+  double best = 1e30;
+  for (int i = 0; i < repeat; ++i) {
+    const auto t = Clock::now();
+    f();
+    best = std::min(best, std::chrono::duration<double, std::milli>(Clock::now() - t).count());
+  }
+  return best;
+}
+
+// The flame picture's box-filtered density and look, as the picture job
+// has them before developing.
+bool DrawFlame(ImageDensity* density, LookParams* look) {
+  auto spec = spec::LoadSpecFile(testing::SourcePath("bench/flam3/flame6_2d_image.json").string());
+  if (!spec.ok()) return false;
+  auto plan = spec::ConvertSpec(*spec, spec::Limits{});
+  if (!plan.ok() || plan->chaos_game() == nullptr) return false;
+  const ChaosGamePlan& cg = *plan->chaos_game();
+  ChaosGameParams p = cg.params;
+  p.image = MakeImagePlane(cg.image->view, p.frame.bounds, cg.image->width, cg.image->width);
+  auto game = ChaosGame::Create(p, tbb::this_task_arena::max_concurrency());
+  if (!game.ok() || !(*game)->Run(nullptr).ok()) return false;
+  const CountGrid counts = (*game)->TakeCounts();
+  auto d = BoxFilterImage({&counts}, p.image->width, p.image->height, 1, 1, nullptr);
+  if (!d.ok()) return false;
+  *density = std::move(*d);
+  *look = cg.image->look;
+  return true;
+}
+
+// Quantised 8- or 16-bit samples of `rgb`, host order: the encoder's rows
+// and libpng's input (std::lround, as the library's quantiser rounds).
+std::vector<uint8_t> Samples(const RgbImage& rgb, int depth) {
+  const double max = depth == 8 ? 255 : 65535;
+  const size_t bytes = size_t(depth / 8);
+  std::vector<uint8_t> out(rgb.rgb.size() * bytes);
+  for (size_t i = 0; i < rgb.rgb.size(); ++i) {
+    const float x = rgb.rgb[i];
+    const long q = std::lround((x >= 0 ? std::min(double(x), 1.0) : 0.0) * max);
+    for (size_t b = 0; b < bytes; ++b) out[i * bytes + b] = uint8_t(q >> (8 * b));
+  }
+  return out;
+}
+
+void Line(const char* what, double ms, const char* note = "") {
+  std::printf("%-58s %8.1f ms %s\n", what, ms, note);
+}
+
+int Main(int argc, char** argv) {
+  const int threads = argc > 1 ? std::atoi(argv[1]) : 2;
+  const int repeat = argc > 2 ? std::atoi(argv[2]) : 7;
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism, size_t(threads));
+  ImageDensity density;
+  LookParams look;
+  if (!DrawFlame(&density, &look)) {
+    std::fprintf(stderr, "png_bench: cannot draw bench/flam3/flame6_2d_image.json\n");
+    return 1;
+  }
+  auto rgb = DevelopImage(density, look, nullptr);
+  if (!rgb.ok()) return 1;
+  const testing::TempDir dir;
+  std::printf("flame picture %d x %d, 8-bit RGB, %d threads\n", density.width, density.height,
+              threads);
+  for (int depth : {8, 16}) {
+    const PngShape shape{density.width, density.height, depth, 3};
+    const std::vector<uint8_t> samples = Samples(*rgb, depth);
+    std::string ref, ours;
+    auto rows = [&](int first, int last, uint8_t* out) {
+      std::copy_n(&samples[size_t(first) * shape.RowBytes()],
+                  size_t(last - first) * shape.RowBytes(), out);
+      return absl::OkStatus();
+    };
+    std::printf("-- %d-bit samples\n", depth);
+    Line("libpng, defaults (the writer before)",
+         BestMs(repeat, [&] { ref = testing::LibpngEncode(shape, samples); }));
+    Line("EncodePng, 1 thread", BestMs(repeat, [&] {
+           tbb::task_arena one(1);
+           one.execute([&] {
+             ours.clear();
+             (void)EncodePng(shape, rows, {nullptr, &ours});
+           });
+         }));
+    Line("EncodePng",
+         BestMs(repeat,
+                [&] {
+                  ours.clear();
+                  (void)EncodePng(shape, rows, {nullptr, &ours});
+                }),
+         ours == ref ? "(same bytes as libpng)" : "(BYTES DIFFER FROM LIBPNG)");
+    std::printf("   %zu bytes\n", ours.size());
+  }
+  const ImageFormat png8 = ImageFormat::kPng8;
+  std::printf("-- the picture job's last step: develop and write the 8-bit PNG\n");
+  Line("develop, then write (the job before)",
+       BestMs(repeat,
+              [&] {
+                auto whole = DevelopImage(density, look, nullptr);
+                const std::vector<uint8_t> s = Samples(*whole, 8);
+                (void)testing::LibpngEncode({density.width, density.height, 8, 3}, s);
+              }),
+       "(quantised with std::lround)");
+  Line("develop the whole picture alone",
+       BestMs(repeat, [&] { (void)DevelopImage(density, look, nullptr); }));
+  Line("WriteDevelopedImage (the job now)", BestMs(repeat, [&] {
+         (void)WriteDevelopedImage(dir / "a.png", density, look, png8, nullptr);
+       }));
+  (void)WriteImage(dir / "b.png", *rgb, png8);
+  const bool same = testing::ReadFileBytes(dir / "a.png") == testing::ReadFileBytes(dir / "b.png");
+  std::printf("streamed and whole-picture files %s\n", same ? "are identical" : "DIFFER");
+  return 0;
+}
+
+}  // namespace
+}  // namespace nimbus
+
+int main(int argc, char** argv) { return nimbus::Main(argc, argv); }
