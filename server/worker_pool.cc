@@ -2,6 +2,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
 #include <algorithm>
@@ -32,6 +33,14 @@ v1::ProgressPhase ToProto(JobPhase phase) {
 }
 
 double Seconds(Clock::duration d) { return std::chrono::duration<double>(d).count(); }
+
+// TBB starts its scheduler, loads its allocator and starts its threads on
+// first use, a few milliseconds; a worker does it before it looks for a job,
+// so a new server's first job does not wait for it.
+void WarmUpEngineThreads(int threads) {
+  tbb::task_arena arena(threads);
+  arena.execute([&] { tbb::parallel_for(0, threads, [](int) {}); });
+}
 
 // Stops the engine when the job is cancelled or the server shuts down.
 class JobInterrupter : public Interrupter {
@@ -343,6 +352,7 @@ void WorkerPool::Cancel(const std::string& job_id) {
 
 void WorkerPool::Loop(int index) {
   const std::string worker_id = absl::StrCat(options_.instance_id, "/w", index);
+  WarmUpEngineThreads(threads_per_job_);
   while (true) {
     uint64_t generation;
     {
