@@ -160,6 +160,52 @@ TEST(ImageCounting, SameCountsForAnyThreadCount) {
   }
 }
 
+// One sample per pixel takes a path of its own: the counts and mean
+// colours of two summed parts, pixel for pixel against the counters read
+// one by one, across partial tile columns (70 = 2 x 32 + 6), the tile
+// rows past row 1024, unallocated tiles, and a part without colour.
+TEST(ImageLook, OneSamplePerPixelIsEachPixelsCounters) {
+  const int w = 70, h = 1100;
+  const Int3 res = FoldedImageResolution(w, h);
+  std::vector<CountGrid> parts;
+  parts.emplace_back(res, true);
+  parts.emplace_back(res, true);
+  std::mt19937 rng(11);
+  for (int k = 0; k < 20000; ++k) {
+    const int x = int(rng() % 40), row = int(rng() % uint32_t(h));  // columns 40+ stay empty
+    const Int3 v = FoldedImageVoxel(x, row);
+    const uint32_t c16 = rng() % (CountGrid::kColorScale + 1);
+    parts[k % 2].AddKey(CountGrid::WithColor(parts[0].Key(v.x, v.y, v.z), c16), 1 + rng() % 3);
+  }
+  CountGrid grey(res, false);
+  grey.Add(FoldedImageVoxel(69, 1099).x, FoldedImageVoxel(69, 1099).y, FoldedImageVoxel(69, 1099).z,
+           5);
+  for (bool coloured : {true, false}) {
+    std::vector<const CountGrid*> ptrs;
+    if (coloured)
+      ptrs = {&parts[0], &parts[1]};
+    else
+      ptrs = {&grey};
+    auto d = BoxFilterImage(ptrs, w, h, 1, 1, nullptr);
+    ASSERT_TRUE(d.ok()) << d.status();
+    ASSERT_EQ(d->width, w);
+    ASSERT_EQ(d->height, h);
+    for (int row = 0; row < h; ++row)
+      for (int x = 0; x < w; ++x) {
+        const Int3 v = FoldedImageVoxel(x, row);
+        uint64_t sum = 0, col = 0;
+        for (const CountGrid* g : ptrs) {
+          sum += g->Get(v.x, v.y, v.z);
+          col += g->GetColorSum(v.x, v.y, v.z);
+        }
+        const size_t p = size_t(row) * w + size_t(x);
+        ASSERT_EQ(d->density[p], float(double(sum))) << x << ", " << row;
+        const float want = sum ? float(double(col) / (double(sum) * CountGrid::kColorScale)) : 0.f;
+        ASSERT_EQ(d->color[p], want) << x << ", " << row;
+      }
+  }
+}
+
 TEST(ImageLook, SupersampledEqualsTheDoubleSizeBoxFilteredDown) {
   ChaosGameParams p = Sierpinski(4'000'000);
   p.color.mode = ColorMode::kAddress;
