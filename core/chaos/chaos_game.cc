@@ -360,6 +360,9 @@ flame::PlotTarget MakePlotTarget(const ChaosGameParams& p, const CountGrid& grid
     for (int r = 0; r < 3; ++r)
       for (int c = 0; c < 4; ++c) t.view[4 * r + c] = image->view.m[r][c];
     t.focal = image->focal, t.cx = image->cx, t.cy = image->cy, t.near = image->near;
+    const double* v = t.view;
+    t.axis_aligned = t.kind == flame::PlotTarget::kOrtho && v[1] == 0 && v[2] == 0 && v[4] == 0 &&
+                     v[6] == 0 && v[8] == 0 && v[9] == 0;
   }
   t.color = p.color.mode != ColorMode::kNone;
   return t;

@@ -29,6 +29,12 @@ struct PlotTarget {
   /// keeps c.z > near and plots (cx + focal c.x / c.z, cy - focal c.y / c.z).
   double view[12] = {};
   double focal = 0, cx = 0, cy = 0, near = 0;
+  /// kOrtho with an axis-aligned view: view[1], [2], [4], [6], [8] and [9]
+  /// are 0, so c = (view[0] x + view[3], view[5] y + view[7], view[10] z +
+  /// view[11]) and the vector kernels skip the zero products. Those add
+  /// only zeros, and wherever a key is kept the point is finite, so they
+  /// could change at most the sign of a zero coordinate: never a key.
+  bool axis_aligned = false;
   /// The lattice points must fall in: the grid's resolution, or (width,
   /// height, 1) for a picture.
   int32_t res[3] = {0, 0, 0};

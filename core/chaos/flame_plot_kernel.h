@@ -49,6 +49,11 @@ struct PlotKernel {
       const D p[3] = {x, y, z};
       for (int a = 0; a < 3; ++a)
         f[a] = S::Mul(S::Sub(p[a], S::Set(t.min[a])), S::Set(t.inv_voxel[a]));
+    } else if (t.axis_aligned) {
+      f[0] = S::Add(S::Mul(S::Set(t.view[0]), x), S::Set(t.view[3]));
+      f[1] = S::Add(S::Mul(S::Set(t.view[5]), y), S::Set(t.view[7]));
+      f[2] = S::Zero();
+      in = InRange(S::Add(S::Mul(S::Set(t.view[10]), z), S::Set(t.view[11])), 0, 1);
     } else {
       D cx = Row(t.view, x, y, z), cy = Row(t.view + 4, x, y, z);
       const D cz = Row(t.view + 8, x, y, z);
