@@ -11,7 +11,6 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
-#include <functional>
 #include <memory>
 #include <system_error>
 
@@ -43,33 +42,6 @@ void QuantiseRgb(const float* rgb, size_t n, int depth, uint8_t* out) {
     Quantise<uint8_t>(rgb, n, 255, out);
   else
     Quantise<uint16_t>(rgb, n, 65535, out);
-}
-
-// Writes through `path`.partial renamed into place, removing the partial
-// file on failure.
-absl::Status WriteThroughTemp(
-    const std::filesystem::path& path,
-    const std::function<absl::Status(const std::filesystem::path&)>& write) {
-  const std::filesystem::path tmp = path.string() + ".partial";
-  std::error_code ec;
-  if (absl::Status st = write(tmp); !st.ok()) {
-    std::filesystem::remove(tmp, ec);
-    return st;
-  }
-  std::filesystem::rename(tmp, path, ec);
-  if (ec) return absl::InternalError(absl::StrCat("renaming ", tmp.string(), ": ", ec.message()));
-  return absl::OkStatus();
-}
-
-absl::Status WritePngFile(const std::filesystem::path& path, const PngShape& shape,
-                          const PngRows& rows, Interrupter* interrupter) {
-  FilePtr f(std::fopen(path.c_str(), "wb"));
-  if (!f) return absl::InternalError(absl::StrCat("cannot create ", path.string()));
-  absl::Status st = EncodePng(shape, rows, {f.get(), nullptr}, interrupter);
-  if (st.ok() && std::fflush(f.get()) != 0) st = absl::InternalError("flushing failed");
-  if (!st.ok() && !absl::IsCancelled(st))
-    return absl::InternalError(absl::StrCat("writing ", path.string(), ": ", st.message()));
-  return st;
 }
 
 // The rows of `image`, quantised.
@@ -122,8 +94,8 @@ absl::Status WriteImage(const std::filesystem::path& path, const RgbImage& image
   return WriteThroughTemp(path, [&](const std::filesystem::path& tmp) {
     if (format == ImageFormat::kExr) return WriteExr(tmp, image);
     const int depth = PngDepth(format);
-    return WritePngFile(tmp, {image.width, image.height, depth, 3}, QuantisedRows(image, depth),
-                        nullptr);
+    return EncodePngFile(tmp, {image.width, image.height, depth, 3}, QuantisedRows(image, depth),
+                         nullptr);
   });
 }
 
@@ -144,7 +116,7 @@ absl::Status WriteDevelopedImage(const std::filesystem::path& path, const ImageD
     return absl::OkStatus();
   };
   return WriteThroughTemp(path, [&](const std::filesystem::path& tmp) {
-    return WritePngFile(tmp, {density.width, density.height, depth, 3}, rows, interrupter);
+    return EncodePngFile(tmp, {density.width, density.height, depth, 3}, rows, interrupter);
   });
 }
 

@@ -13,6 +13,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "core/base/status_macros.h"
+#include "core/io/file_ptr.h"
 
 namespace nimbus {
 
@@ -346,6 +347,17 @@ absl::Status EncodePng(const PngShape& shape, const PngRows& rows, const PngSink
   NIMBUS_RETURN_IF_ERROR(RunBands(shape, rows, idat, interrupter));
   NIMBUS_RETURN_IF_ERROR(idat.Finish());
   return WriteChunk(sink, "IEND", nullptr, 0);
+}
+
+absl::Status EncodePngFile(const std::filesystem::path& path, const PngShape& shape,
+                           const PngRows& rows, Interrupter* interrupter) {
+  FilePtr f(std::fopen(path.c_str(), "wb"));
+  if (!f) return absl::InternalError(absl::StrCat("cannot create ", path.string()));
+  absl::Status st = EncodePng(shape, rows, {f.get(), nullptr}, interrupter);
+  if (st.ok() && std::fflush(f.get()) != 0) st = absl::InternalError("flushing failed");
+  if (!st.ok() && !absl::IsCancelled(st))
+    return absl::InternalError(absl::StrCat("writing ", path.string(), ": ", st.message()));
+  return st;
 }
 
 }  // namespace nimbus

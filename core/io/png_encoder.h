@@ -16,6 +16,7 @@
 
 #include <cstdint>
 #include <cstdio>
+#include <filesystem>
 #include <functional>
 #include <string>
 
@@ -48,5 +49,9 @@ using PngRows = std::function<absl::Status(int first, int last, uint8_t* out)>;
 /// shape, a failing `rows` or sink, or Cancelled when `interrupter` asks.
 absl::Status EncodePng(const PngShape& shape, const PngRows& rows, const PngSink& sink,
                        Interrupter* interrupter = nullptr);
+
+/// EncodePng into a new file at `path`; errors other than Cancelled name it.
+absl::Status EncodePngFile(const std::filesystem::path& path, const PngShape& shape,
+                           const PngRows& rows, Interrupter* interrupter = nullptr);
 
 }  // namespace nimbus

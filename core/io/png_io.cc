@@ -2,10 +2,7 @@
 
 #include <png.h>
 
-#include <cstdio>
 #include <cstring>
-#include <memory>
-#include <system_error>
 
 #include "absl/strings/str_cat.h"
 #include "core/io/file_ptr.h"
@@ -17,27 +14,14 @@ absl::Status WritePng16(const std::filesystem::path& path, const Gray16Image& im
   if (image.width <= 0 || image.height <= 0 ||
       image.pixels.size() != size_t(image.width) * size_t(image.height))
     return absl::InvalidArgumentError("png: image size does not match its pixels");
-  const std::filesystem::path tmp = path.string() + ".partial";
   const PngShape shape{image.width, image.height, 16, 1};
   auto rows = [&](int first, int last, uint8_t* out) {
     std::memcpy(out, &image.pixels[size_t(first) * size_t(image.width)],
                 size_t(last - first) * shape.RowBytes());
     return absl::OkStatus();
   };
-  {
-    FilePtr f(std::fopen(tmp.c_str(), "wb"));
-    if (!f) return absl::InternalError(absl::StrCat("cannot create ", tmp.string()));
-    if (!EncodePng(shape, rows, {f.get(), nullptr}).ok() || std::fflush(f.get()) != 0) {
-      f.reset();
-      std::error_code ec;
-      std::filesystem::remove(tmp, ec);
-      return absl::InternalError(absl::StrCat("writing ", path.string(), " failed"));
-    }
-  }
-  std::error_code ec;
-  std::filesystem::rename(tmp, path, ec);
-  if (ec) return absl::InternalError(absl::StrCat("renaming ", tmp.string(), ": ", ec.message()));
-  return absl::OkStatus();
+  return WriteThroughTemp(
+      path, [&](const std::filesystem::path& tmp) { return EncodePngFile(tmp, shape, rows); });
 }
 
 absl::StatusOr<Gray16Image> ReadPng16(const std::filesystem::path& path) {
