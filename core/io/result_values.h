@@ -66,6 +66,26 @@ struct Normaliser {
   }
 };
 
+// What both writers of a result take from its counts, computed once: the
+// largest and total count (recorded as metadata), the density's
+// normaliser, and whether colour is written.
+struct CountedResult {
+  const CountGrid& counts;
+  const DensityOptions& options;
+  const Metadata& metadata;
+  CountGrid::Sums sums;
+  Normaliser norm;
+  bool color;
+
+  CountedResult(const CountGrid& c, const DensityOptions& o, const Metadata& m)
+      : counts(c),
+        options(o),
+        metadata(m),
+        sums(c.MaxAndTotal()),
+        norm(o, sums.max),
+        color(o.color && c.has_color()) {}
+};
+
 // The 512 counters (and colour sums, when `cs`) of the voxel leaf at `o`,
 // in LeafNode order, as CountGrid::ForEachLeaf hands them out.
 inline void GatherCountLeaf(const CountGrid& counts, Int3 o, uint32_t* v, uint64_t* cs) {

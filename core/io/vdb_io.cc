@@ -358,25 +358,12 @@ void CopyLeafMasks(const openvdb::FloatTree& from, TreeT& tree) {
 }
 
 // What a streamed result writes, shared by its grid producers.
-struct StreamedResult {
-  const CountGrid& counts;
+struct StreamedResult : CountedResult {
   GridFrame frame;
-  const DensityOptions& options;
-  const Metadata& metadata;
-  CountGrid::Sums sums;
-  Normaliser norm;
   openvdb::FloatTree::Ptr topology;  // buffer-less, the density's leaves
-  bool color = false;
 
   StreamedResult(const CountGrid& c, const GridFrame& f, const DensityOptions& o, const Metadata& m)
-      : counts(c),
-        frame(f),
-        options(o),
-        metadata(m),
-        sums(c.MaxAndTotal()),
-        norm(o, sums.max),
-        topology(std::make_shared<openvdb::FloatTree>()),
-        color(o.color && c.has_color()) {
+      : CountedResult(c, o, m), frame(f), topology(std::make_shared<openvdb::FloatTree>()) {
     AddCountLeaves(counts, *topology);
   }
 

@@ -113,25 +113,12 @@ void ForEachActive(const Leaf& leaf, F&& f) {
 }
 
 // A result's grids as the module's StreamedResult makes them.
-struct Result {
-  const CountGrid& counts;
+struct Result : CountedResult {
   const GridFrame& frame;
-  const DensityOptions& options;
-  const Metadata& metadata;
-  CountGrid::Sums sums;
-  Normaliser norm;
   std::shared_ptr<const LeafList> leaves;  // shared by every grid
-  bool color;
 
   Result(const CountGrid& c, const GridFrame& f, const DensityOptions& o, const Metadata& m)
-      : counts(c),
-        frame(f),
-        options(o),
-        metadata(m),
-        sums(c.MaxAndTotal()),
-        norm(o, sums.max),
-        leaves(CountLeaves(c)),
-        color(o.color && c.has_color()) {}
+      : CountedResult(c, o, m), frame(f), leaves(CountLeaves(c)) {}
 
   // An empty grid of the result: NewGrid's name and class plus FinishGrid's
   // conventions (transform, frame, up axis, factor 1, half floats).

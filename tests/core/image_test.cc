@@ -178,8 +178,8 @@ TEST(ImageLook, OneSamplePerPixelIsEachPixelsCounters) {
     parts[k % 2].AddKey(CountGrid::WithColor(parts[0].Key(v.x, v.y, v.z), c16), 1 + rng() % 3);
   }
   CountGrid grey(res, false);
-  grey.Add(FoldedImageVoxel(69, 1099).x, FoldedImageVoxel(69, 1099).y, FoldedImageVoxel(69, 1099).z,
-           5);
+  const Int3 corner = FoldedImageVoxel(69, 1099);
+  grey.Add(corner.x, corner.y, corner.z, 5);
   for (bool coloured : {true, false}) {
     std::vector<const CountGrid*> ptrs;
     if (coloured)
