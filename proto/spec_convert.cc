@@ -5,6 +5,7 @@
 #include "absl/strings/str_join.h"
 #include "core/base/sha256.h"
 #include "proto/convert_internal.h"
+#include "proto/spec_shape.h"
 
 namespace nimbus::spec {
 
@@ -242,6 +243,7 @@ absl::Status CheckShards(const v1::JobSpec& spec, const JobPlan& job) {
 }  // namespace
 
 absl::StatusOr<JobPlan> ConvertSpec(const v1::JobSpec& spec, const Limits& limits) {
+  NIMBUS_RETURN_IF_ERROR(CheckSpecShape(spec, limits));
   JobPlan job;
   NIMBUS_RETURN_IF_ERROR(ConvertName(spec, job));
   // An exploration frames each candidate itself: its grid is optional.

@@ -12,6 +12,7 @@
 #include <sstream>
 
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_join.h"
 #include "server/asset_store.h"
 #include "server/auth.h"
 #include "server/data_dir_lock.h"
@@ -19,9 +20,12 @@
 #include "server/job_store.h"
 #include "server/job_view.h"
 #include "server/nimbus_service.h"
+#include "server/parse_errors.h"
+#include "server/result_audit.h"
 #include "server/result_export.h"
 #include "server/result_store.h"
 #include "server/retention.h"
+#include "server/tls_files.h"
 #include "server/worker_pool.h"
 
 namespace nimbus::server {
@@ -78,12 +82,18 @@ absl::StatusOr<std::shared_ptr<grpc::ServerCredentials>> ListenCredentials(const
   if (!cert.ok()) return cert.status();
   auto key = ReadPem("--tls-key", o.tls_key_file);
   if (!key.ok()) return key.status();
+  if (auto st = CheckTlsKeyPair({"--tls-cert", o.tls_cert_file, *cert},
+                                {"--tls-key", o.tls_key_file, *key});
+      !st.ok())
+    return st;
   pair.cert_chain = std::move(*cert);
   pair.private_key = std::move(*key);
   ssl.pem_key_cert_pairs.push_back(std::move(pair));
   if (!o.tls_client_ca_file.empty()) {
     auto ca = ReadPem("--tls-client-ca", o.tls_client_ca_file);
     if (!ca.ok()) return ca.status();
+    if (auto st = CheckPemCertificates({"--tls-client-ca", o.tls_client_ca_file, *ca}); !st.ok())
+      return st;
     ssl.pem_root_certs = std::move(*ca);
     ssl.client_certificate_request = GRPC_SSL_REQUEST_AND_REQUIRE_CLIENT_CERTIFICATE_AND_VERIFY;
   }
@@ -116,6 +126,26 @@ absl::Status CheckExposure(const ServerOptions& o, const TokenTable& tokens) {
       "refusing to listen on ", o.listen,
       " without authentication: anyone who reaches it could read and cancel every job. Give "
       "--auth-tokens FILE (with --tls-cert/--tls-key), listen on 127.0.0.1, or pass --insecure"));
+}
+
+// Result files no job owns mean the job store lost jobs (a damaged or
+// replaced jobs.db, a store pointed at the wrong database): say so at
+// start, naming a few, rather than serve an empty queue in silence.
+void ReportUnknownResults(JobStore& store, const std::filesystem::path& results_dir) {
+  constexpr size_t kMaxChecked = 100'000;
+  auto unknown = FindUnknownResults(store, results_dir, kMaxChecked);
+  if (!unknown.ok()) {
+    spdlog::warn("event=result_audit_failed error=\"{}\"", unknown.status().ToString());
+    return;
+  }
+  if (unknown->ids.empty()) return;
+  const size_t shown = std::min<size_t>(unknown->ids.size(), 5);
+  spdlog::warn(
+      "event=unknown_results count={} checked={} dir={} first=\"{}\" hint=\"result files whose "
+      "jobs this job store does not have: was jobs.db replaced or damaged? They are kept, not "
+      "served; restore the store from a backup or delete them\"",
+      unknown->ids.size(), unknown->checked, results_dir.string(),
+      absl::StrJoin(unknown->ids.begin(), unknown->ids.begin() + shown, " "));
 }
 
 }  // namespace
@@ -219,6 +249,7 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
     spdlog::error("event=requeue_failed error=\"{}\"", requeued.status().ToString());
   else if (*requeued > 0)
     spdlog::warn("event=recovered requeued_jobs={}", *requeued);
+  ReportUnknownResults(*impl->store, results_dir);
   if (auto space = impl->results->CheckFreeSpace(); !space.ok())
     spdlog::warn("event=low_disk error=\"{}\"", std::string(space.message()));
 
@@ -252,6 +283,7 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
   grpc::ServerBuilder builder;
   if (!options.listen.empty()) builder.AddListeningPort(options.listen, *credentials, &impl->port);
   builder.RegisterService(impl->service.get());
+  builder.experimental().SetInterceptorCreators(UndecodableRequestInterceptors());
   // Previews and result chunks are a few MiB at most.
   builder.SetMaxSendMessageSize(64 << 20);
   builder.SetMaxReceiveMessageSize(64 << 20);

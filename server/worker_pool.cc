@@ -571,7 +571,9 @@ absl::Status WorkerPool::ConvertAndRun(const v1::JobSpec& spec, const JobRecord&
   // Files are parsed in this process only after a sandboxed reader read
   // them whole (once per asset: the result is remembered), so a poison
   // file stored before that check existed fails here, not in the worker.
-  if (auto st = CheckSpecAssets(spec, options_.limits.asset_dir); !st.ok()) return st;
+  const spec::Limits& limits = options_.limits;
+  if (auto st = CheckSpecAssets(spec, limits.asset_dir, limits.allow_local_paths); !st.ok())
+    return st;
   auto plan = spec::ConvertSpec(spec, options_.limits);
   if (!plan.ok()) return plan.status();
   // Every engine thread of this job, TBB loops included, runs in its own

@@ -8,6 +8,7 @@
 #include <chrono>
 #include <cstdint>
 #include <filesystem>
+#include <fstream>
 #include <future>
 #include <memory>
 #include <mutex>
@@ -232,6 +233,31 @@ TEST_P(JobStoreTest, CreateIsIdempotentByRequestId) {
   absl::StatusOr<ListPage> page = store_->List({});
   ASSERT_TRUE(page.ok()) << page.status();
   EXPECT_EQ(Ids(page->jobs), (std::vector<std::string>{"d", "c", "a"}));
+}
+
+// A key belongs to its principal: another's use of the same key, for any
+// spec, is a first use and makes a job of its own.
+TEST_P(JobStoreTest, RequestIdsArePerPrincipal) {
+  auto job = [](const char* id, const char* spec, const char* owner) {
+    NewJob j = MakeJob(id, "req", spec);
+    j.owner = owner;
+    return j;
+  };
+  ASSERT_TRUE(store_->Create(job("a", "s", "alice"), kT0).ok());
+  // Bob's key for another spec than Alice's is not a conflict ...
+  absl::StatusOr<JobRecord> bob = store_->Create(job("b", "t", "bob"), kT0 + 1);
+  ASSERT_TRUE(bob.ok()) << bob.status();
+  EXPECT_EQ(bob->id, "b");
+  // ... his retry finds his own job ...
+  absl::StatusOr<JobRecord> again = store_->Create(job("b2", "t", "bob"), kT0 + 2);
+  ASSERT_TRUE(again.ok()) << again.status();
+  EXPECT_EQ(again->id, "b");
+  // ... and Carol's key for Alice's very spec is a new job, not Alice's.
+  absl::StatusOr<JobRecord> carol = store_->Create(job("c", "s", "carol"), kT0 + 3);
+  ASSERT_TRUE(carol.ok()) << carol.status();
+  EXPECT_EQ(carol->id, "c");
+  EXPECT_EQ(carol->owner, "carol");
+  EXPECT_EQ(store_->Get("a")->owner, "alice");
 }
 
 TEST_P(JobStoreTest, DuplicateIdIsAlreadyExists) {
@@ -774,28 +800,32 @@ int64_t QueryInt(const std::string& path, const char* sql) {
 
 TEST_F(SqliteJobStoreTest, SchemaIsVersionedWalAndIndexed) {
   const std::string path = db_path().string();
-  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 5);
+  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 6);
   // WAL is persistent in the file header, so a fresh connection reports it.
   EXPECT_EQ(QueryInt(path, "SELECT journal_mode = 'wal' FROM pragma_journal_mode"), 1);
   EXPECT_EQ(QueryInt(path,
                      "SELECT count(*) FROM sqlite_master WHERE type = 'index' AND "
-                     "name = 'jobs_request_id' AND sql LIKE '%UNIQUE%WHERE%'"),
+                     "name = 'jobs_owner_request_id' AND sql LIKE '%UNIQUE%WHERE%'"),
             1);
+  EXPECT_EQ(QueryInt(path,
+                     "SELECT count(*) FROM pragma_index_info('jobs_owner_request_id') "
+                     "WHERE name IN ('owner', 'request_id')"),
+            2);
   EXPECT_EQ(QueryInt(path,
                      "SELECT count(*) FROM pragma_index_info('jobs_state_create') "
                      "WHERE name IN ('state', 'create_time')"),
             2);
 }
 
-// Closing does not checkpoint (no fsync at exit): the WAL stays beside the
-// file, and whatever opens the file next reads it.
-TEST_F(SqliteJobStoreTest, ClosingLeavesTheWalForTheNextOpen) {
+// A clean close folds the WAL into the file and removes it: jobs.db alone
+// holds every job, so a WAL damaged or lost after a clean stop loses none.
+TEST_F(SqliteJobStoreTest, ClosingCheckpointsTheWalIntoTheFile) {
   ASSERT_TRUE(store_->Create(MakeJob("j-wal"), 1000).ok());
   store_.reset();
   const std::filesystem::path wal = db_path().string() + "-wal";
-  ASSERT_TRUE(std::filesystem::exists(wal));
-  EXPECT_GT(std::filesystem::file_size(wal), 0u);
-  EXPECT_EQ(QueryInt(db_path().string(), "SELECT count(*) FROM jobs WHERE id = 'j-wal'"), 1);
+  EXPECT_FALSE(std::filesystem::exists(wal));
+  // Garbage where the WAL was, as a damaged disk or a bad copy would leave.
+  std::ofstream(wal, std::ios::binary) << std::string(4096, '\x5a');
   store_ = OpenOrDie(db_path());
   ASSERT_NE(store_, nullptr);
   EXPECT_TRUE(store_->Get("j-wal").ok());
@@ -869,7 +899,7 @@ TEST(SqliteJobStoreOpenTest, UpgradesAVersionOneFile) {
   ExecOnFile(path, kVersionOneSchema);
   std::unique_ptr<JobStore> store = OpenOrDie(path);
   ASSERT_NE(store, nullptr);
-  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 5);
+  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 6);
   // Old jobs keep everything and gain the code their end implies.
   const std::pair<const char*, int> expected[] = {{"queued", 0}, {"failed", 2}, {"cancelled", 1}};
   for (const auto& [id, code] : expected) {
@@ -889,7 +919,7 @@ TEST(SqliteJobStoreOpenTest, UpgradesAVersionOneFile) {
   store = OpenOrDie(path);
   ASSERT_NE(store, nullptr);
   EXPECT_EQ(store->Get("queued")->error_code, 8);
-  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 5);
+  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 6);
 }
 
 // Another connection holds the write lock, as a slow writer in another
@@ -1123,7 +1153,7 @@ TEST(SqliteJobStoreOpenTest, UpgradesAVersionTwoFileWithOwnersAndAPokesTable) {
                        "PRAGMA user_version=2;");
   std::unique_ptr<JobStore> store = OpenOrDie(path);
   ASSERT_NE(store, nullptr);
-  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 5);
+  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 6);
   EXPECT_EQ(QueryInt(path, "SELECT count(*) FROM pokes"), 0);
   // Version 5: old jobs are top-level, unsharded and not in the cache.
   EXPECT_EQ(QueryInt(path, "SELECT count(*) FROM jobs WHERE parent_id <> '' OR shard_count <> 0 "
