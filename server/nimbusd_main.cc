@@ -1,21 +1,21 @@
 // nimbusd: the Nimbus job server.
-#include <CLI/CLI.hpp>
+#include <pthread.h>
 #include <spdlog/spdlog.h>
 
+#include <CLI/CLI.hpp>
+#include <chrono>
 #include <csignal>
 #include <cstdio>
-#include <filesystem>
-#include <fstream>
-#include <pthread.h>
-
-#include <chrono>
 #include <cstdlib>
 #include <ctime>
+#include <filesystem>
+#include <fstream>
 #include <thread>
 
 #include "absl/strings/str_cat.h"
 #include "core/base/heap_tuning.h"
 #include "server/job_store.h"
+#include "server/json_log.h"
 #include "server/server.h"
 
 namespace {
@@ -133,6 +133,11 @@ int main(int argc, char** argv) {
                  "results folder; replicas on one store must share it (default: "
                  "DATA_DIR/results)");
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error")->capture_default_str();
+  std::string log_format = "text";
+  app.add_option("--log-format", log_format,
+                 "text (readable key=value lines) or json (one JSON object per line)")
+      ->check(CLI::IsMember({"text", "json"}))
+      ->capture_default_str();
   CLI11_PARSE(app, argc, argv);
   o.data_dir = data_dir;
   // A URL with a password is better kept out of the process list.
@@ -151,8 +156,13 @@ int main(int argc, char** argv) {
   o.limits.max_memory_bytes = uint64_t(max_memory_gib * double(1ull << 30));
   spdlog::set_level(spdlog::level::from_str(log_level));
   // Every line names the replica, so merged logs of several stay readable.
-  spdlog::set_pattern(
-      absl::StrCat("%Y-%m-%dT%H:%M:%S.%e %^%l%$ nimbusd replica=", o.replica_id, " %v"));
+  if (log_format == "json") {
+    spdlog::set_formatter(std::make_unique<nimbus::server::JsonLogFormatter>(o.replica_id));
+    nimbus::server::RouteGrpcLogsToSpdlog();
+  } else {
+    spdlog::set_pattern(
+        absl::StrCat("%Y-%m-%dT%H:%M:%S.%e %^%l%$ nimbusd replica=", o.replica_id, " %v"));
+  }
 
   // Block the stop signals before any thread exists, so every thread
   // inherits the mask and sigwait below is the one place they arrive.
