@@ -64,6 +64,24 @@ TEST(SpecConvert, MalformedJsonIsReported) {
   EXPECT_THAT(std::string(spec.status().message()), HasSubstr("malformed JSON"));
 }
 
+// Random balls inside random balls, `levels` SetSources deep.
+std::string NestedTextSpec(int levels) {
+  std::string open, close;
+  for (int i = 0; i < levels; ++i) open += "random_balls { inside { ", close += "} } ";
+  return "set_ifs { maps { condensation { " + open + "sphere { radius: 1 } " + close + "} } }";
+}
+
+TEST(SpecConvert, DeeplyNestedTextSpecIsRefusedBeforeTheStackRunsOut) {
+  auto deep = ParseSpec(NestedTextSpec(5000), SpecFormat::kText, "deep.txtpb");
+  ASSERT_FALSE(deep.ok());
+  EXPECT_EQ(deep.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_THAT(std::string(deep.status().message()), HasSubstr("deep.txtpb:1:"));
+  EXPECT_THAT(std::string(deep.status().message()), HasSubstr("recursion limit of 100"));
+  // 3 + 2 * 48 + 1 = 100 message levels is the deepest accepted.
+  EXPECT_TRUE(ParseSpec(NestedTextSpec(48), SpecFormat::kText).ok());
+  EXPECT_FALSE(ParseSpec(NestedTextSpec(49), SpecFormat::kText).ok());
+}
+
 TEST(SpecConvert, UnknownStepKindNamesTheField) {
   auto spec = ParseSpec(R"({"chaos_game": {"ifs": {"maps": [{"steps": [{"twist": {}}]}]}}})",
                         SpecFormat::kJson);
