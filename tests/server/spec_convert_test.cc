@@ -82,6 +82,28 @@ TEST(SpecConvert, DeeplyNestedTextSpecIsRefusedBeforeTheStackRunsOut) {
   EXPECT_FALSE(ParseSpec(NestedTextSpec(49), SpecFormat::kText).ok());
 }
 
+TEST(SpecConvert, GridNameIsAShortPlainNameOfNoOtherGrid) {
+  const std::vector<std::pair<std::string, std::string>> bad = {
+      {std::string(1 << 20, 'a'), "output.grid_name: must be at most 128 bytes, got 1048576"},
+      {std::string("../x\0y", 6), "output.grid_name: use letters, digits"},
+      {"a b", "output.grid_name: use letters, digits"},
+      {"Cd", "output.grid_name: 'Cd' is the name of another grid"},
+      {"counts", "output.grid_name: 'counts' is the name of another grid"},
+  };
+  for (const auto& [name, message] : bad) {
+    v1::JobSpec spec = Valid();
+    spec.mutable_output()->set_grid_name(name);
+    const absl::Status s = Check(spec);
+    EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument) << message;
+    EXPECT_THAT(std::string(s.message()), HasSubstr(message));
+  }
+  v1::JobSpec spec = Valid();
+  spec.mutable_output()->set_grid_name(std::string(128, 'd'));
+  EXPECT_TRUE(Check(spec).ok());
+  spec.mutable_output()->set_grid_name("fog.density-2_b");
+  EXPECT_TRUE(Check(spec).ok());
+}
+
 TEST(SpecConvert, UnknownStepKindNamesTheField) {
   auto spec = ParseSpec(R"({"chaos_game": {"ifs": {"maps": [{"steps": [{"twist": {}}]}]}}})",
                         SpecFormat::kJson);
