@@ -1,6 +1,7 @@
 // Hostile jobs against a real nimbusd on loopback: a job that spends its
 // time in warm-up still cancels at once, SIGTERM ends the server within its
-// drain time whatever runs, and absurd specs are refused at submit.
+// drain time whatever runs, absurd specs (degenerate fields, unchecked
+// names) are refused at submit, and a full disk fails a job clearly.
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
@@ -45,6 +46,12 @@ v1::JobSpec WarmupHeavy() {
   return *spec;
 }
 
+v1::JobSpec Parse(const std::string& json) {
+  auto spec = spec::ParseSpec(json, spec::SpecFormat::kJson);
+  EXPECT_TRUE(spec.ok()) << spec.status();
+  return spec.ok() ? *spec : v1::JobSpec();
+}
+
 class FaultsE2E : public ::testing::Test {
  protected:
   void Start(std::vector<std::string> more) {
@@ -78,6 +85,13 @@ class FaultsE2E : public ::testing::Test {
     reader->Finish();
     EXPECT_TRUE(running) << "the job never ran";
     return running ? job->id() : "";
+  }
+
+  // Submits `spec`; a job that should have been refused is cancelled at once.
+  absl::Status Refusal(const v1::JobSpec& spec) {
+    auto job = client_->Submit(spec);
+    if (job.ok()) (void)client_->Cancel(job->id());
+    return job.status();
   }
 
   testing::TempDir dir_;
@@ -205,6 +219,40 @@ TEST_F(FaultsE2E, FullDiskFailsTheJobClearlyAndKeepsServingReads) {
   EXPECT_EQ(got->state(), v1::JOB_STATE_FAILED);
   ASSERT_TRUE(client_->Fetch(small->id(), dir_ / "small.vdb").ok());
   EXPECT_EQ(*Sha256File(dir_ / "small.vdb"), small_done->result().sha256());
+}
+
+TEST_F(FaultsE2E, DegenerateFieldsAndGridNamesAreRefusedByField) {
+  Start({});
+  const std::string field = R"({"name": "f", "grid": {"resolution": [16]}, "fractal_field": {
+      "field": {"dimensions": 4, "mesh_series": {"base_cell_size": [0.5], "ratio": 0.5,
+                "count": 2}, WEIGHTS "mapping": {"wind": {"kind": "WIND_KIND_SINE",
+                "amplitude": [0.3], "period": 1}}},
+      "animation": {"frames": 2}}})";
+  auto with = [&](const std::string& weights) {
+    std::string json = field;
+    json.replace(json.find("WEIGHTS"), 7, weights);
+    return Parse(json);
+  };
+  v1::JobSpec spec = with("");
+  spec.mutable_fractal_field()->mutable_field()->mutable_mapping()->mutable_wind()->set_period(
+      1e-320);
+  absl::Status st = Refusal(spec);
+  EXPECT_EQ(st.code(), absl::StatusCode::kInvalidArgument) << st;
+  EXPECT_THAT(st.message(), HasSubstr("fractal_field.field.mapping.wind.period: must be in"));
+  st = Refusal(with(R"("weights": {"rule": "WEIGHT_RULE_EXPLICIT", "explicit_weights": [0, 0]},)"));
+  EXPECT_EQ(st.code(), absl::StatusCode::kInvalidArgument) << st;
+  EXPECT_THAT(st.message(), HasSubstr("fractal_field.field.weights.explicit_weights: need at "
+                                      "least one weight that is not 0"));
+
+  spec = with("");
+  spec.mutable_output()->set_grid_name(std::string(1 << 20, 'g'));
+  st = Refusal(spec);
+  EXPECT_EQ(st.code(), absl::StatusCode::kInvalidArgument) << st;
+  EXPECT_THAT(st.message(), HasSubstr("output.grid_name"));
+  spec.mutable_output()->set_grid_name(std::string("../x\0y", 6));
+  st = Refusal(spec);
+  EXPECT_EQ(st.code(), absl::StatusCode::kInvalidArgument) << st;
+  EXPECT_THAT(st.message(), HasSubstr("output.grid_name: use letters, digits"));
 }
 
 }  // namespace
