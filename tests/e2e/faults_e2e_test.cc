@@ -94,9 +94,27 @@ class FaultsE2E : public ::testing::Test {
     return job.status();
   }
 
+  // Puts the data folder's results/ on a tmpfs of `size` ("8m"), the job
+  // database staying on the normal disk, so only result writes meet a full
+  // disk; false where this process may not mount. Unmounted after the test.
+  bool ResultsOnTmpfs(const std::string& size) {
+    std::filesystem::create_directories(tiny_);
+    if (::mount("tmpfs", tiny_.c_str(), "tmpfs", 0, ("size=" + size).c_str()) != 0) return false;
+    mounted_ = true;
+    std::filesystem::create_directories(tiny_ / "results" / "scratch");
+    std::filesystem::create_directories(dir_ / "data");
+    std::filesystem::create_directory_symlink(tiny_ / "results", dir_ / "data" / "results");
+    return true;
+  }
+  void TearDown() override {
+    if (mounted_) ::umount2(tiny_.c_str(), MNT_DETACH);
+  }
+
   testing::TempDir dir_;
   testing::NimbusdProcess server_{dir_ / "data"};
   std::unique_ptr<NimbusClient> client_;
+  const std::filesystem::path tiny_ = dir_ / "tiny";
+  bool mounted_ = false;
 };
 
 TEST_F(FaultsE2E, WarmupHeavyJobCancelsPromptly) {
@@ -178,17 +196,9 @@ void FillLeaving(const std::filesystem::path& dir, uint64_t keep) {
 // results/ on a 8 MiB tmpfs (the job database stays on the normal disk,
 // so only the result write meets the full disk).
 TEST_F(FaultsE2E, FullDiskFailsTheJobClearlyAndKeepsServingReads) {
-  const std::filesystem::path mnt = dir_ / "tiny";
-  std::filesystem::create_directories(mnt);
-  if (::mount("tmpfs", mnt.c_str(), "tmpfs", 0, "size=8m") != 0)
+  if (!ResultsOnTmpfs("8m"))
     GTEST_SKIP() << "cannot mount a tmpfs here (" << std::strerror(errno) << ")";
-  struct Unmount {
-    std::filesystem::path p;
-    ~Unmount() { ::umount2(p.c_str(), MNT_DETACH); }
-  } unmount{mnt};
-  std::filesystem::create_directories(mnt / "results" / "scratch");
-  std::filesystem::create_directories(dir_ / "data");
-  std::filesystem::create_directory_symlink(mnt / "results", dir_ / "data" / "results");
+  const std::filesystem::path& mnt = tiny_;
   Start({"--cancel-wait-ms", "30000"});
 
   auto small = client_->Submit(Tetrahedron(32, 100'000));
@@ -253,6 +263,38 @@ TEST_F(FaultsE2E, DegenerateFieldsAndGridNamesAreRefusedByField) {
   st = Refusal(spec);
   EXPECT_EQ(st.code(), absl::StatusCode::kInvalidArgument) << st;
   EXPECT_THAT(st.message(), HasSubstr("output.grid_name: use letters, digits"));
+}
+
+// A result too big to keep its encoded leaves in memory (over 4 MiB) on a
+// 2 MiB results disk: the leaves' spill file fills it before the .vdb is
+// written. The client reads the documented code and message, and no
+// server path.
+TEST_F(FaultsE2E, FullDiskUnderASpillingResultIsResourceExhaustedWithoutPaths) {
+  if (!ResultsOnTmpfs("2m"))
+    GTEST_SKIP() << "cannot mount a tmpfs here (" << std::strerror(errno) << ")";
+  Start({});
+  // Eight half-size copies fill the cube: every voxel of 160^3 is hit.
+  v1::JobSpec spec = WarmupHeavy();
+  spec.mutable_grid()->set_resolution(0, 160);
+  auto* cg = spec.mutable_chaos_game();
+  cg->set_iterations(40'000'000);
+  cg->set_warmup(0);
+  cg->mutable_ifs()->clear_maps();
+  for (int m = 0; m < 8; ++m) {
+    auto* steps = cg->mutable_ifs()->add_maps()->mutable_steps();
+    auto* t = steps->Add()->mutable_translate();
+    t->set_x(m & 1 ? 0.5 : -0.5), t->set_y(m & 2 ? 0.5 : -0.5), t->set_z(m & 4 ? 0.5 : -0.5);
+    steps->Add()->mutable_scale()->set_uniform(0.5);
+  }
+  auto job = client_->Submit(spec);
+  ASSERT_TRUE(job.ok()) << job.status();
+  auto done = client_->Watch(job->id(), {}, [](const v1::WatchJobResponse&) {});
+  ASSERT_TRUE(done.ok()) << done.status();
+  EXPECT_EQ(done->state(), v1::JOB_STATE_FAILED);
+  EXPECT_EQ(done->status().code(), int(absl::StatusCode::kResourceExhausted)) << done->error();
+  EXPECT_THAT(done->error(), HasSubstr("disk full while writing the result"));
+  EXPECT_THAT(done->error(), ::testing::Not(HasSubstr(dir_.path().string())));
+  EXPECT_THAT(done->error(), ::testing::Not(HasSubstr("scratch/")));
 }
 
 }  // namespace
