@@ -1,7 +1,8 @@
 // Hostile jobs against a real nimbusd on loopback: a job that spends its
 // time in warm-up still cancels at once, SIGTERM ends the server within its
-// drain time whatever runs, absurd specs (degenerate fields, unchecked
-// names) are refused at submit, and a full disk fails a job clearly.
+// drain time whatever runs, absurd specs (meshes that fan out into huge
+// work, degenerate fields, unchecked names) are refused at submit, and a
+// full disk fails a job clearly.
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
@@ -15,6 +16,7 @@
 
 #include <grpcpp/grpcpp.h>
 
+#include "absl/strings/str_cat.h"
 #include "client/nimbus_client.h"
 #include "core/base/sha256.h"
 #include "nimbus/v1/nimbus_service.grpc.pb.h"
@@ -52,6 +54,27 @@ v1::JobSpec Parse(const std::string& json) {
   return spec.ok() ? *spec : v1::JobSpec();
 }
 
+// A set IFS condensing onto the uploaded mesh `sha256`, fitted to the grid.
+v1::JobSpec MeshJob(const std::string& sha256, int resolution) {
+  return Parse(absl::StrCat(R"({"name": "m", "grid": {"resolution": [)", resolution,
+                            R"(]}, "set_ifs": {"maps": [{"condensation": {"mesh": {"asset": )",
+                            R"({"sha256": ")", sha256,
+                            R"(", "label": "m.obj"}}}}], "random": {"iterations": "3"}}})"));
+}
+
+// Three corners of a slanted triangle, then `lines` faces of `corners`
+// corners that go round it again and again: the fan of each face holds
+// (corners - 2) / 3 copies of the whole triangle.
+std::string FanningObj(int lines, int corners) {
+  std::string obj = "v 0 0 0\nv 1 0.2 0.3\nv 0.3 1 0.6\n";
+  for (int l = 0; l < lines; ++l) {
+    obj += "f";
+    for (int c = 0; c < corners; ++c) absl::StrAppend(&obj, " ", c % 3 + 1);
+    obj += "\n";
+  }
+  return obj;
+}
+
 class FaultsE2E : public ::testing::Test {
  protected:
   void Start(std::vector<std::string> more) {
@@ -85,6 +108,14 @@ class FaultsE2E : public ::testing::Test {
     reader->Finish();
     EXPECT_TRUE(running) << "the job never ran";
     return running ? job->id() : "";
+  }
+
+  // Uploads `bytes` as `name` and returns the sha256 (empty on failure).
+  std::string Upload(const std::string& name, const std::string& bytes) {
+    const std::string sha = Sha256Hex(bytes);
+    auto up = client_->UploadBytes(name, bytes, sha, bytes.size());
+    EXPECT_TRUE(up.ok()) << up.status();
+    return up.ok() ? sha : "";
   }
 
   // Submits `spec`; a job that should have been refused is cancelled at once.
@@ -229,6 +260,43 @@ TEST_F(FaultsE2E, FullDiskFailsTheJobClearlyAndKeepsServingReads) {
   EXPECT_EQ(got->state(), v1::JOB_STATE_FAILED);
   ASSERT_TRUE(client_->Fetch(small->id(), dir_ / "small.vdb").ok());
   EXPECT_EQ(*Sha256File(dir_ / "small.vdb"), small_done->result().sha256());
+}
+
+TEST_F(FaultsE2E, APolygonOfAMillionCornersIsRefusedByName) {
+  Start({});
+  const std::string obj = FanningObj(1, 1'000'000);
+  // Named .obj, the upload itself is read and refused.
+  auto up = client_->UploadBytes("poly.obj", obj, Sha256Hex(obj), obj.size());
+  ASSERT_FALSE(up.ok());
+  EXPECT_EQ(up.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_THAT(up.status().message(), HasSubstr("face has 1000000 corners; at most 4096"));
+  // Without a format in its name it is stored; the spec that uses it is refused.
+  const std::string sha = Upload("poly", obj);
+  ASSERT_FALSE(sha.empty());
+  const absl::Status st = Refusal(MeshJob(sha, 32));
+  EXPECT_EQ(st.code(), absl::StatusCode::kInvalidArgument) << st;
+  EXPECT_THAT(st.message(), HasSubstr("set_ifs.maps[0].condensation.mesh.asset: mesh asset m.obj"));
+  EXPECT_THAT(st.message(), HasSubstr("face has 1000000 corners; at most 4096"));
+}
+
+// 100 faces of 4096 corners, 800 KB: 136,500 copies of a triangle across a
+// 64^3 grid. Each copy meets about 1,500 lattice rays of an axis, so the
+// ray vote alone would hold some 2.4 GB of crossings.
+TEST_F(FaultsE2E, ASmallMeshThatFansOutIsPricedAtAdmission) {
+  Start({"--max-memory-gib", "1"});
+  const std::string sha = Upload("fan.obj", FanningObj(100, 4096));
+  ASSERT_FALSE(sha.empty());
+  const absl::Status st = Refusal(MeshJob(sha, 64));
+  EXPECT_EQ(st.code(), absl::StatusCode::kResourceExhausted) << st;
+  EXPECT_THAT(st.message(), HasSubstr("set_ifs.maps[0].condensation: voxelising its mesh"));
+  EXPECT_THAT(st.message(), HasSubstr("the server limit is 1.00 GiB"));
+  // One face of the same triangle is an ordinary small job.
+  const std::string one = Upload("one.obj", FanningObj(1, 3));
+  auto job = client_->Submit(MeshJob(one, 64));
+  ASSERT_TRUE(job.ok()) << job.status();
+  auto done = client_->Watch(job->id(), {}, [](const v1::WatchJobResponse&) {});
+  ASSERT_TRUE(done.ok()) << done.status();
+  EXPECT_EQ(done->state(), v1::JOB_STATE_SUCCEEDED) << done->error();
 }
 
 TEST_F(FaultsE2E, DegenerateFieldsAndGridNamesAreRefusedByField) {
