@@ -1,16 +1,26 @@
-// Fractal-field specs reach the plan as the spec says (docs/fractal_fields.md):
-// mesh weights equal A · ratio^(H·k) for the power rule and ratio^(n·k)
-// for the cell-volume rule, worked from the spec's numbers; and a field
-// with a linear wind equals the same spec without wind displaced by v·t at
-// a time that is no whole period.
+// Fractal-field specs reach the plan and the files as the spec says
+// (docs/fractal_fields.md): mesh weights equal A · ratio^(H·k) for the
+// power rule and ratio^(n·k) for the cell-volume rule, worked from the
+// spec's numbers; a field with a linear wind equals the same spec without
+// wind displaced by v·t at a time that is no whole period; the written
+// density is the documented gain, threshold and clip of v = field / Σ|p|
+// at each voxel centre, and the height PNG holds (v + 1)/2 · 65535 with
+// north at the top, both from the point evaluator.
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <memory>
+#include <optional>
 #include <string>
 
 #include "core/field/fractal_field.h"
+#include "core/io/image_io.h"
+#include "core/io/vdb_io.h"
 #include "proto/spec_convert.h"
 #include "proto/spec_io.h"
+#include "server/job_runner.h"
+#include "server/result_store.h"
+#include "tests/support/fake_job_context.h"
 
 namespace nimbus::spec {
 namespace {
@@ -83,6 +93,81 @@ TEST(FieldSpecOracle, ConvertedWindIsTheStillFieldDisplacedByVelocityTimesTime) 
       differs += std::abs(a.Sample(x, t) - b.Sample(x, t)) > 1e-3;
     }
   EXPECT_GT(differs, 10);
+}
+
+// A spec's plan and its run through the runner; the files stay in the
+// context's folder. `job` is empty when the spec does not convert.
+struct FieldRun {
+  std::optional<JobPlan> job;
+  std::unique_ptr<nimbus::testing::FakeJobContext> ctx =
+      std::make_unique<nimbus::testing::FakeJobContext>();
+};
+
+FieldRun RunField(const std::string& json) {
+  FieldRun run;
+  auto spec = ParseSpec(json, SpecFormat::kJson);
+  EXPECT_TRUE(spec.ok()) << spec.status();
+  auto job = spec.ok() ? ConvertSpec(*spec, {}) : absl::StatusOr<JobPlan>(spec.status());
+  EXPECT_TRUE(job.ok()) << job.status();
+  if (!job.ok()) return run;
+  run.job = *std::move(job);
+  EXPECT_TRUE(server::RunJobPlan(*run.job, *run.ctx).ok());
+  return run;
+}
+
+// y = gain · (v - threshold); 0 for y <= 0, else min(y, 1), or 1 - e^-y
+// with soft_clip.
+TEST(FieldSpecOracle, WrittenDensityIsGainThresholdAndClipOfTheNormalisedField) {
+  for (const bool soft : {false, true}) {
+    SCOPED_TRACE(soft ? "soft clip" : "hard clip");
+    const FieldRun run = RunField(std::string(R"({"name": "fog", "grid": {"resolution": [10, 9, 8]},
+      "fractal_field": {"field": {"dimensions": 3, "seed": "8",
+        "mesh_series": {"base_cell_size": [0.6], "count": 3}},
+        "density": {"threshold": -0.1, "gain": 3, "soft_clip": )") +
+                                  (soft ? "true" : "false") + "}}}");
+    ASSERT_TRUE(run.job.has_value());
+    const FractalField f(run.job->fractal_field()->field);
+    auto vol = ReadVdbFile(run.ctx->result());
+    ASSERT_TRUE(vol.ok()) << vol.status();
+    const GridFrame& g = run.job->frame;
+    ASSERT_EQ(vol->frame.resolution, g.resolution);
+    int clipped = 0, zero = 0;
+    for (int x = 0; x < 10; ++x)
+      for (int y = 0; y < 9; ++y)
+        for (int z = 0; z < 8; ++z) {
+          const Vec3 c = g.VoxelCenter({x, y, z});
+          const double p[3] = {c.x, c.y, c.z};
+          const double u = 3 * (f.Sample(p, 0) / f.WeightSum() + 0.1);
+          const double want = u <= 0 ? 0 : soft ? 1 - std::exp(-u) : std::min(u, 1.0);
+          clipped += u > 1;
+          zero += u <= 0;
+          ASSERT_NEAR(vol->At(x, y, z), want, 1e-5) << x << "," << y << "," << z;
+        }
+    EXPECT_GT(clipped, 10);  // both sides of the clip are exercised
+    EXPECT_GT(zero, 10);
+  }
+}
+
+TEST(FieldSpecOracle, HeightPngIsTheNormalisedFieldNorthUp) {
+  const FieldRun run = RunField(R"({"name": "hills", "grid": {"resolution": [12, 7, 8]},
+    "fractal_field": {"field": {"dimensions": 2, "seed": "3",
+      "mesh_series": {"base_cell_size": [0.8], "count": 3}}, "terrain": {}}})");
+  ASSERT_TRUE(run.job.has_value());
+  const FractalField f(run.job->fractal_field()->field);
+  auto png = ReadPngPixels(server::ExtraFilesDir(run.ctx->result()) / "hills.height.png");
+  ASSERT_TRUE(png.ok()) << png.status();
+  ASSERT_EQ(png->width, 12);
+  ASSERT_EQ(png->height, 7);
+  ASSERT_EQ(png->channels, 1);
+  for (int x = 0; x < 12; ++x)
+    for (int y = 0; y < 7; ++y) {
+      const Vec3 c = run.job->frame.VoxelCenter({x, y, 0});
+      const double p[2] = {c.x, c.y};
+      const double v = f.Sample(p, 0) / f.WeightSum();
+      const int row = 6 - y;  // the largest y (north) is the top row
+      EXPECT_NEAR(png->samples[size_t(row) * 12 + size_t(x)], (v + 1) / 2 * 65535, 1.01)
+          << x << "," << y;
+    }
 }
 
 }  // namespace

@@ -341,5 +341,27 @@ TEST(JellyRunner, ABodyOnASpringSwingsAsTheHarmonicOscillator) {
   }
 }
 
+// A spec impulse J = 0.2 on a body of mass 2 at rest, with no gravity,
+// shown first by frame 3: the body stays until frame 2, then moves at
+// J/m = 0.1 m/s, 1 cm per frame at 10 fps, and the velocity grid says so.
+TEST(JellyRunner, ASpecImpulseStartsTheBodyAtImpulseOverMass) {
+  const v1::JobSpec spec = OneBody(
+      R"({"mass": 2, "scale": {"uniform": 0.5}, "position": {"y": 1}})",
+      R"("gravity": {}, "impulses": [{"frame": 3, "push": {"body": 0, "impulse": {"x": 0.2}}}])",
+      R"({"resolution": [16, 2, 2], "bounds_min": {"x": -0.01, "y": 0.995, "z": -0.005},
+          "bounds_max": {"x": 0.07, "y": 1.005, "z": 0.005}})",
+      8, 10);
+  const auto ctx = RunOneBody(spec);
+  const auto dir = server::ExtraFilesDir(ctx->result());
+  for (uint64_t f = 0; f < 8; ++f) {
+    SCOPED_TRACE(::testing::Message() << "frame " << f);
+    const LitVoxel leaf = FrameLeaf(dir, f);
+    ASSERT_EQ(leaf.lit, 1);
+    const double x = f < 3 ? 0 : 0.01 * double(f - 2);
+    EXPECT_NEAR(leaf.centre.x, x, 0.0025 + 1e-6);
+    EXPECT_NEAR(leaf.velocity.x, f < 3 ? 0 : 0.1, 1e-5);
+  }
+}
+
 }  // namespace
 }  // namespace nimbus::spec
