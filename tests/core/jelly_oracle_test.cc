@@ -3,7 +3,9 @@
 // and compressed springs and by the period 2π·sqrt(m/k) of a body on an
 // anchored spring; the ground by a dropped body that lands on the step
 // the symplectic fall predicts, leaves with restitution times its impact
-// speed, loses μ(1+e) times that speed to friction and then rests on it.
+// speed, loses μ(1+e) times that speed to friction and then rests on it;
+// wind drag by the discrete relaxation it implies, and a head-on collision
+// by momentum and restitution.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -122,6 +124,52 @@ TEST(JellyOracle, BodyWithoutBounceRestsOnTheGround) {
   for (uint64_t n = 0; n < land + 500; ++n) world->Step();
   EXPECT_EQ(world->state()[0].position.y, -0.25);
   EXPECT_EQ(world->state()[0].velocity.y, 0);
+}
+
+// Drag c·(w - v) on a mass m with no other force: each symplectic step
+// multiplies w - v by (1 - c·dt/m), so v_n = w·(1 - (1 - c·dt/m)^n).
+TEST(JellyOracle, WindDragRelaxesTheVelocityTowardsTheWind) {
+  JellySim sim;
+  sim.gravity = {0, 0, 0};
+  sim.dt = 0.01;
+  sim.wind.velocity = {1, 0, -2};
+  sim.wind.drag = 0.5;
+  JellyBody b;
+  b.mass = 2;
+  sim.bodies = {b};
+  auto world = JellyWorld::Create(sim);
+  ASSERT_TRUE(world.ok()) << world.status();
+  for (int n = 1; n <= 400; ++n) {
+    world->Step();
+    const double left = std::pow(1 - 0.5 * 0.01 / 2, n);
+    ASSERT_NEAR(world->state()[0].velocity.x, 1 - left, 1e-12) << n;
+    ASSERT_NEAR(world->state()[0].velocity.z, -2 * (1 - left), 1e-12) << n;
+  }
+}
+
+// Masses 1 and 3 at 2 and -1 m/s meet head on with restitution 0.5:
+// momentum 2 - 3 = -1 is kept and the closing speed 3 becomes a parting
+// speed 1.5, so they leave at -1.375 and +0.125 m/s.
+TEST(JellyOracle, HeadOnCollisionKeepsMomentumAndScalesTheRelativeSpeed) {
+  JellySim sim;
+  sim.gravity = {0, 0, 0};
+  sim.dt = 1e-3;
+  sim.collisions = true;
+  sim.collision_restitution = 0.5;
+  JellyBody a, b;
+  a.radius = b.radius = 0.1;
+  a.position = {-0.5, 0, 0};
+  a.velocity = {2, 0, 0};
+  b.mass = 3;
+  b.position = {0.5, 0, 0};
+  b.velocity = {-1, 0, 0};
+  sim.bodies = {a, b};
+  auto world = JellyWorld::Create(sim);
+  ASSERT_TRUE(world.ok()) << world.status();
+  for (int n = 0; n < 600; ++n) world->Step();  // they meet at t ≈ 0.27 s
+  EXPECT_NEAR(world->state()[0].velocity.x, -1.375, 1e-12);
+  EXPECT_NEAR(world->state()[1].velocity.x, 0.125, 1e-12);
+  EXPECT_GT(world->state()[1].position.x - world->state()[0].position.x, 0.2);
 }
 
 }  // namespace
