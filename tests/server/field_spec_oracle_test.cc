@@ -2,7 +2,9 @@
 // (docs/fractal_fields.md): mesh weights equal A · ratio^(H·k) for the
 // power rule and ratio^(n·k) for the cell-volume rule, worked from the
 // spec's numbers; a field with a linear wind equals the same spec without
-// wind displaced by v·t at a time that is no whole period; the written
+// wind displaced by v·t at a time that is no whole period, and a sine wind
+// by A·sin(2πt/P + φ) with φ given in degrees; a periodic axis holds a
+// whole number of each mesh's cells, rounded; the written
 // density is the documented gain, threshold and clip of v = field / Σ|p|
 // at each voxel centre, and the height PNG holds (v + 1)/2 · 65535 with
 // north at the top, both from the point evaluator.
@@ -168,6 +170,53 @@ TEST(FieldSpecOracle, HeightPngIsTheNormalisedFieldNorthUp) {
       EXPECT_NEAR(png->samples[size_t(row) * 12 + size_t(x)], (v + 1) / 2 * 65535, 1.01)
           << x << "," << y;
     }
+}
+
+// A sine wind given in degrees: δ(t) = A·sin(2π t / P + φ). At t = 0.3
+// with P = 1.2 and φ = 30°, the angle is 90° + 30°, so δ = A·√3/2.
+TEST(FieldSpecOracle, ConvertedSineWindIsTheStillFieldDisplacedByItsPhase) {
+  const std::string weights = R"({"rule": "WEIGHT_RULE_POWER", "hurst": 0.5})";
+  auto windy = ConvertSpec(FieldSpec(weights, R"({"wind": {"kind": "WIND_KIND_SINE",
+      "amplitude": [0.4, 0, -0.2], "period": 1.2, "phase_degrees": 30}})"),
+                           {});
+  auto still = ConvertSpec(FieldSpec(weights), {});
+  ASSERT_TRUE(windy.ok() && still.ok()) << windy.status() << still.status();
+  const FractalField a(windy->fractal_field()->field), b(still->fractal_field()->field);
+  const double s = std::sqrt(3) / 2;
+  for (double q = -1; q < 1; q += 0.23) {
+    const double x[3] = {q, 0.4 - q, 0.8 * q};
+    const double moved[3] = {x[0] + 0.4 * s, x[1], x[2] - 0.2 * s};
+    EXPECT_NEAR(a.Sample(x, 0.3), b.Sample(moved, 0.3), 1e-12) << q;
+  }
+}
+
+// A periodic axis holds a whole number of cells of every mesh: period 2
+// over cells 0.3 · 0.5^k gives round(2 / cell) = 7, 13, 27 nodes and cells
+// 2/7, 2/13, 2/27; the axes without a period keep their cells.
+TEST(FieldSpecOracle, PeriodicAxisSnapsCellsToAWholeNumberPerPeriod) {
+  auto spec = ParseSpec(R"({"name": "p", "grid": {"resolution": [8]},
+    "fractal_field": {"field": {"dimensions": 3, "seed": "1",
+      "mesh_series": {"base_cell_size": [0.3], "count": 3, "aligned": true},
+      "mapping": {"period": [2]}}}})",
+                        SpecFormat::kJson);
+  ASSERT_TRUE(spec.ok()) << spec.status();
+  auto job = ConvertSpec(*spec, {});
+  ASSERT_TRUE(job.ok()) << job.status();
+  const auto& meshes = job->fractal_field()->field.meshes;
+  ASSERT_EQ(meshes.size(), 3u);
+  const int64_t nodes[3] = {7, 13, 27};
+  for (size_t k = 0; k < 3; ++k) {
+    EXPECT_EQ(meshes[k].period_nodes[0], nodes[k]) << k;
+    EXPECT_DOUBLE_EQ(meshes[k].cell[0], 2.0 / double(nodes[k])) << k;
+    EXPECT_EQ(meshes[k].period_nodes[1], 0) << k;
+    EXPECT_DOUBLE_EQ(meshes[k].cell[1], 0.3 * std::pow(0.5, double(k))) << k;
+  }
+  // And the field repeats: x and x + 2 give the same value.
+  const FractalField f(job->fractal_field()->field);
+  for (double q = -0.9; q < 1; q += 0.31) {
+    const double x[3] = {q, 0.2, -0.4}, shifted[3] = {q + 2, 0.2, -0.4};
+    EXPECT_NEAR(f.Sample(x, 0), f.Sample(shifted, 0), 1e-12) << q;
+  }
 }
 
 }  // namespace
