@@ -4,8 +4,9 @@
 // anchored spring; the ground by a dropped body that lands on the step
 // the symplectic fall predicts, leaves with restitution times its impact
 // speed, loses μ(1+e) times that speed to friction and then rests on it;
-// wind drag by the discrete relaxation it implies, and a head-on collision
-// by momentum and restitution.
+// wind drag by the discrete relaxation it implies, a head-on collision
+// by momentum and restitution, and a dynamic scale by the balance of its
+// spring against the force at the lever.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -170,6 +171,33 @@ TEST(JellyOracle, HeadOnCollisionKeepsMomentumAndScalesTheRelativeSpeed) {
   EXPECT_NEAR(world->state()[0].velocity.x, -1.375, 1e-12);
   EXPECT_NEAR(world->state()[1].velocity.x, 0.125, 1e-12);
   EXPECT_GT(world->state()[1].position.x - world->state()[0].position.x, 0.2);
+}
+
+// Gravity m·g acting at the lever point (0, 0.5, 0) of a body with dynamic
+// scale pulls its y scale until the scale spring balances it:
+// k_s·Δs_y = lever_y·F_y, so Δs_y = -m·g·0.5 / k_s; x and z keep theirs.
+TEST(JellyOracle, DynamicScaleSettlesWhereItsSpringBalancesTheLeverForce) {
+  JellySim sim;
+  sim.dt = 1e-3;
+  JellyBody b;
+  b.mass = 1.5;
+  b.lever = {0, 0.5, 0};
+  b.dynamic_scale = true;
+  b.inertia = 0.1;
+  b.scale_stiffness = 20;
+  b.scale_damping = 2 * std::sqrt(20 * 0.1);  // critical
+  sim.bodies = {b};
+  auto world = JellyWorld::Create(sim);
+  ASSERT_TRUE(world.ok()) << world.status();
+  for (int n = 0; n < 5000; ++n) world->Step();
+  const JellyBodyState& s = world->state()[0];
+  EXPECT_NEAR(s.scale_offset.y, -1.5 * 9.81 * 0.5 / 20, 1e-6);
+  EXPECT_EQ(s.scale_offset.x, 0);
+  EXPECT_EQ(s.scale_offset.z, 0);
+  // The map scales y by 1 + Δs_y about the body's position.
+  const Affine3 m = world->Maps()[0];
+  const Vec3 p = m.Apply({0, 1, 0}) - m.Apply({0, 0, 0});
+  EXPECT_NEAR(p.y, 1 - 1.5 * 9.81 * 0.5 / 20, 1e-6);
 }
 
 }  // namespace
