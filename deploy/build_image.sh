@@ -16,11 +16,13 @@
 #   NIMBUS_DEPLOY_CACHE     base tarball cache      (/var/cache/nimbus-deploy)
 #   NIMBUS_DEBIAN_MIRROR    Debian mirror           (http://deb.debian.org/debian)
 #   NIMBUS_IMAGE_BUDGET_MB  size budget of the nimbusd image (250)
-#   NIMBUS_CCACHE_DIR       a host ccache directory the build stage uses instead
-#                           of its private cache mount (e.g. the one
-#                           scripts/build.sh fills, so the image reuses its
-#                           objects); unset: the cache mount `nimbus-ccache`
+#   NIMBUS_PREBUILT         a host build tree (e.g. build) whose bin/ and
+#                           lib/nimbus/ go into the image instead of compiling
+#                           in the build stage (same Debian release only);
+#                           unset: compile, through ccache in a cache mount
 #   NIMBUS_BUILD_PG=0       skip the PostgreSQL image
+#   NIMBUS_NO_CACHE=1       ignore podman's layer cache (a build from scratch
+#                           but for the base tarball and the ccache mount)
 set -euo pipefail
 # shellcheck source=podman/env.sh
 source "$(dirname "$0")/podman/env.sh"
@@ -81,18 +83,24 @@ SOURCES
 base=$(base_image)
 log "base image $base"
 
-ccache_args=()
-if [ -n "${NIMBUS_CCACHE_DIR:-}" ]; then
-  mkdir -p "$NIMBUS_CCACHE_DIR"
-  ccache_args=(--volume "$NIMBUS_CCACHE_DIR:/ccache-host:rw")
+cache_args=(--layers)
+[ "${NIMBUS_NO_CACHE:-0}" = 1 ] && cache_args=(--no-cache)
+prebuilt_args=()
+if [ -n "${NIMBUS_PREBUILT:-}" ]; then
+  prebuilt=$(cd "$NIMBUS_PREBUILT" && pwd)
+  [ -x "$prebuilt/bin/nimbusd" ] || { log "no $prebuilt/bin/nimbusd"; exit 1; }
+  prebuilt_args=(--volume "$prebuilt:/prebuilt:ro")
+  # The layer cache knows nothing of the mounted programs: rebuild the stage.
+  prebuilt_args+=(--build-arg "PREBUILT_ID=$(cat "$prebuilt/bin/nimbusd" \
+    "$prebuilt/bin/nimbus" "$prebuilt"/lib/nimbus/*.so | sha256sum | cut -c1-16)")
 fi
 start=$(date +%s)
-podman build --network host --layers --build-arg "BASE=$base" "${ccache_args[@]}" \
+podman build --network host "${cache_args[@]}" --build-arg "BASE=$base" "${prebuilt_args[@]}" \
   -f deploy/Containerfile -t "$NIMBUS_IMAGE" .
 log "nimbusd image $NIMBUS_IMAGE built in $(( $(date +%s) - start )) s"
 
 if [ "${NIMBUS_BUILD_PG:-1}" != 0 ]; then
-  podman build --network host --layers --build-arg "BASE=$base" \
+  podman build --network host "${cache_args[@]}" --build-arg "BASE=$base" \
     -f deploy/postgres/Containerfile -t "$NIMBUS_PG_IMAGE" deploy/postgres
   log "PostgreSQL image $NIMBUS_PG_IMAGE: $(podman image inspect -f '{{.Size}}' "$NIMBUS_PG_IMAGE" |
     awk '{printf "%.0f MB", $1/1e6}')"

@@ -105,8 +105,8 @@ json.dump(spec, open(sys.argv[2], "w"))
 PY
 }
 spec small 16 20000
-spec medium 32 ${NIMBUS_TEST_MEDIUM_ITERATIONS:-60000000}
-spec long 32 ${NIMBUS_TEST_LONG_ITERATIONS:-600000000}
+spec medium 32 ${NIMBUS_TEST_MEDIUM_ITERATIONS:-2000000000}
+spec long 32 ${NIMBUS_TEST_LONG_ITERATIONS:-6000000000}
 
 if [ "${NIMBUS_SKIP_BUILD:-0}" != 1 ]; then
   start=$(now)
@@ -173,6 +173,7 @@ views = json.load(open(sys.argv[1]))
 logs = [p.read_text() for p in pathlib.Path(sys.argv[2]).glob("*r[12].log")]
 want_attempts, want_starts = sys.argv[3], sys.argv[4]
 errors, shas, workers = [], set(), set()
+starts_total = retried = 0
 for v in views:
     jid = v.get("id", "?")
     if v.get("state") != "JOB_STATE_SUCCEEDED":
@@ -186,6 +187,8 @@ for v in views:
         errors.append(f"{jid}: {ends} end events")
     if want_starts != "any" and starts != int(want_starts):
         errors.append(f"{jid}: {starts} start events")
+    starts_total += starts
+    retried += v.get("attempts", 1) > 1
     shas.add(v["result"]["sha256"])
     for log in logs:
         m = re.search(rf"replica=(\S+) .*job={jid} event=end", log)
@@ -194,7 +197,8 @@ for v in views:
 if errors:
     print("; ".join(errors[:5]))
     sys.exit(1)
-print(f"{len(views)} jobs, {len(shas)} distinct sha256, ended on {len(workers)} replicas")
+print(f"{len(views)} jobs, {len(shas)} distinct sha256, ended on {len(workers)} replicas, "
+      f"{starts_total} starts, {retried} with attempts > 1")
 PY
 }
 
@@ -211,7 +215,7 @@ scenario_jobs() {
   local summary
   summary=$(check_jobs_once 1 1) || fail "jobs: $summary"
   case "$summary" in
-    *" 1 distinct sha256, ended on 2 replicas") ;;
+    *" 1 distinct sha256, ended on 2 replicas,"*) ;;
     *) fail "jobs: $summary (want one sha256, both replicas)" ;;
   esac
   say "PASS jobs: $summary, in $(since "$start") s"
