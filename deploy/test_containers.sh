@@ -51,6 +51,7 @@ compose="$deploy_dir/compose.sh"
 
 cleanup() {
   local rc=$?
+  set +e
   trap - EXIT INT TERM
   if [ -n "${watchdog:-}" ]; then pkill -P "$watchdog" 2>/dev/null; kill "$watchdog" 2>/dev/null; fi
   if [ -n "${watcher:-}" ]; then kill "$watcher" 2>/dev/null; fi
