@@ -18,6 +18,7 @@
 #
 #   deploy/test_containers.sh             the full set (as root)
 #   deploy/test_containers.sh --quick     jobs (20 of them), failover, disk-full
+#   deploy/test_containers.sh rolling postgres    the scenarios named
 #   deploy/test_containers.sh --check     exit 0 if podman can run here,
 #                                         else print why and exit 1
 # Builds the images first (deploy/build_image.sh; NIMBUS_SKIP_BUILD=1 uses
@@ -29,12 +30,17 @@ set -euo pipefail
 # shellcheck source=podman/env.sh
 source "$(dirname "$0")/podman/env.sh"
 
-mode=full
+all_scenarios="jobs failover rolling postgres disk-full"
+scenarios=$all_scenarios jobs_count=50
 case "${1:-}" in
-  --quick) mode=quick ;;
+  --quick) scenarios="jobs failover disk-full" jobs_count=20 ;;
   --check) why=$(podman_unusable); [ -z "$why" ] && exit 0; echo "$why"; exit 1 ;;
   "") ;;
-  *) sed -n '2,30p' "$0" | sed 's/^# \{0,1\}//'; exit 2 ;;
+  *)
+    for s in "$@"; do
+      case " $all_scenarios " in *" $s "*) ;; *) sed -n '2,31p' "$0" | sed 's/^# \{0,1\}//'; exit 2 ;; esac
+    done
+    scenarios="$*" ;;
 esac
 
 say() { echo "test_containers: $*"; }
@@ -205,7 +211,7 @@ PY
 
 # jobs: N small jobs alternately on both replicas.
 scenario_jobs() {
-  local count=$1 start
+  local count=${1:-50} start
   start=$(now)
   podman exec "$prefix-cli" sh -c 'for i in $(seq "$3"); do
       if [ $((i % 2)) = 1 ]; then s=$1; else s=$2; fi
@@ -373,15 +379,7 @@ PY
     "the next job succeeded once space was freed"
 }
 
-if [ "$mode" = quick ]; then
-  scenario_jobs 20
-  scenario_failover
-  scenario_disk_full
-else
-  scenario_jobs 50
-  scenario_failover
-  scenario_rolling
-  scenario_postgres
-  scenario_disk_full
-fi
-say "PASSED ($mode)"
+for s in $scenarios; do
+  "scenario_${s//-/_}" $([ "$s" = jobs ] && echo "$jobs_count")
+done
+say "PASSED ($scenarios)"
