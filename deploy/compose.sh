@@ -150,5 +150,5 @@ case "${1:-}" in
   stop-replica) stop_replica "$2" ;;
   start-replica) start_replica "$2" ;;
   logs) podman logs "$prefix-$2" ;;
-  *) sed -n '2,20p' "$0" | sed 's/^# \{0,1\}//'; exit 2 ;;
+  *) usage "$0"; exit 2 ;;
 esac

@@ -38,7 +38,7 @@ case "${1:-}" in
   "") ;;
   *)
     for s in "$@"; do
-      case " $all_scenarios " in *" $s "*) ;; *) sed -n '2,31p' "$0" | sed 's/^# \{0,1\}//'; exit 2 ;; esac
+      case " $all_scenarios " in *" $s "*) ;; *) usage "$0"; exit 2 ;; esac
     done
     scenarios="$*" ;;
 esac

@@ -16,3 +16,6 @@ podman_unusable() {
   local out
   out=$(podman info 2>&1) || { echo "podman info failed: $(tail -1 <<<"$out")"; return; }
 }
+
+# Prints the comment block at the top of script $1 (its usage).
+usage() { awk 'NR > 1 && /^#/ { sub(/^# ?/, ""); print; next } NR > 1 { exit }' "$1"; }
