@@ -31,6 +31,7 @@
 #include "absl/strings/str_split.h"
 #include "client/flame_import.h"
 #include "client/nimbus_client.h"
+#include "client/output_names.h"
 #include "client/preview_files.h"
 #include "core/base/heap_tuning.h"
 #include "core/base/status_macros.h"
@@ -493,12 +494,16 @@ struct SpecSession {
   v1::JobSpec spec;
 };
 
-absl::StatusOr<SpecSession> OpenWithSpec(const Options& o, bool private_if_busy) {
+// `check` sees the spec before a server is reached.
+absl::StatusOr<SpecSession> OpenWithSpec(
+    const Options& o, bool private_if_busy,
+    const std::function<absl::Status(const v1::JobSpec&)>& check = nullptr) {
   SpecSession s;
   NIMBUS_ASSIGN_OR_RETURN(s.spec, nimbus::spec::LoadSpecFile(o.spec_path));
   // Command-line overrides of the spec (docs/result_cache.md, docs/sharding.md).
   if (o.no_cache) s.spec.set_no_cache(true);
   if (o.shards > 0) s.spec.set_shards(o.shards);
+  if (check) NIMBUS_RETURN_IF_ERROR(check(s.spec));
   NIMBUS_ASSIGN_OR_RETURN(s.conn, Connect(o.global, private_if_busy));
   NIMBUS_RETURN_IF_ERROR(
       s.conn.client->UploadSpecAssets(s.spec, std::filesystem::path(o.spec_path).parent_path()));
@@ -521,8 +526,20 @@ absl::StatusOr<std::filesystem::path> PrepareOutputs(const Options& o) {
   return std::filesystem::path(o.frames_dir);
 }
 
+// "wrote x.png" for one further file, "wrote 12 further files, the last
+// x.0012.vdb" for several.
+std::string FurtherFilesLine(const FrameFetcher& files) {
+  if (files.count() == 1) return absl::StrCat("wrote ", files.last().string(), "\n");
+  return absl::StrFormat("wrote %d further files, the last %s\n", files.count(),
+                         files.last().string());
+}
+
 int RunRender(const Options& o) {
-  auto session = OpenWithSpec(o, /*private_if_busy=*/true);
+  std::filesystem::path main_path;
+  auto session = OpenWithSpec(o, /*private_if_busy=*/true, [&](const v1::JobSpec& spec) {
+    NIMBUS_ASSIGN_OR_RETURN(main_path, nimbus::client::MainOutputPath(o.out_path, spec));
+    return absl::OkStatus();
+  });
   if (!session.ok()) return ExitFor(session.status());
   NimbusClient& client = *session->conn.client;
   auto job = client.Submit(session->spec);
@@ -545,13 +562,11 @@ int RunRender(const Options& o) {
   // The final list carries every file with its committed hash.
   if (auto full = client.Get(job->id()); full.ok())
     if (auto s = frames.FetchNew(*full); !s.ok()) return ExitFor(s);
-  if (auto s = FetchMain(session->conn, job->id(), o.out_path); !s.ok()) return ExitFor(s);
-  std::cerr << absl::StrFormat("wrote %s (%s bytes, sha256 %s)\n", o.out_path,
+  if (auto s = FetchMain(session->conn, job->id(), main_path); !s.ok()) return ExitFor(s);
+  std::cerr << absl::StrFormat("wrote %s (%s bytes, sha256 %s)\n", main_path.string(),
                                Human(double(final_job->result().size_bytes())),
                                final_job->result().sha256());
-  if (frames.count() > 0)
-    std::cerr << absl::StrFormat("wrote %d frames, the last %s\n", frames.count(),
-                                 frames.last().string());
+  if (frames.count() > 0) std::cerr << FurtherFilesLine(frames);
   if (session->conn.embedded) ExitWithoutTeardown(session->conn, 0);
   return 0;
 }
@@ -671,6 +686,14 @@ int RunWatch(const Options& o) {
 int RunFetch(const Options& o) {
   auto conn = Connect(o.global);
   if (!conn.ok()) return ExitFor(conn.status());
+  std::string file_name = o.fetch_file;
+  if (file_name.empty()) {
+    auto job = conn->client->Get(o.job_id);
+    if (!job.ok()) return ExitFor(job.status());
+    file_name = job->result().file_name();
+  }
+  if (auto s = nimbus::client::CheckOutputExtension(o.out_path, file_name); !s.ok())
+    return ExitFor(s);
   const absl::Status s = o.fetch_file.empty()
                              ? FetchMain(*conn, o.job_id, o.out_path)
                              : conn->client->Fetch(o.job_id, o.out_path, o.fetch_file);
@@ -818,7 +841,10 @@ void AddWatchFlags(CLI::App* c, WatchArgs& w) {
 std::vector<Command> AddCommands(CLI::App& app, Options& o) {
   auto* render = app.add_subcommand("render", "submit a spec, show progress, fetch the .vdb");
   render->add_option("spec", o.spec_path, "spec file (.json or text format)")->required();
-  render->add_option("-o,--output", o.out_path, "output .vdb path")->required();
+  render->add_option("-o,--output", o.out_path,
+                     "main result path: .vdb, or .png/.exr for a picture-only job (a picture "
+                     "beside a volume goes next to it)")
+      ->required();
   render->add_option("--frames", o.frames_dir,
                      "folder for further result files (book pages, OUT.0001.vdb ...); "
                      "default: next to -o");
@@ -860,7 +886,8 @@ std::vector<Command> AddCommands(CLI::App& app, Options& o) {
   AddWatchFlags(watch, o.watch);
   auto* fetch = app.add_subcommand("fetch", "download a finished job's .vdb");
   fetch->add_option("job", o.job_id)->required();
-  fetch->add_option("-o,--output", o.out_path, "output .vdb path")->required();
+  fetch->add_option("-o,--output", o.out_path, "output path, with the file's extension")
+      ->required();
   fetch->add_option("--file", o.fetch_file, "one of the job's further files (e.g. NAME.0003.vdb)");
   auto* get = app.add_subcommand("get", "print a job as JSON");
   get->add_option("job", o.job_id)->required();
