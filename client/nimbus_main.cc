@@ -122,6 +122,9 @@ absl::StatusOr<Connection> Connect(const GlobalOptions& g, bool private_if_busy 
   // One user, one job: no reserve to keep for others. A full disk still
   // fails the render with "disk full while writing the result".
   o.min_free_disk_mib = 0;
+  // When the command ends, nothing of this process is left to serve: open
+  // streams are cancelled at once instead of drained.
+  o.drain_ms = 0;
   auto server = nimbus::server::NimbusServer::Start(o);
   if (!server.ok() && absl::IsFailedPrecondition(server.status()) && private_if_busy &&
       g.data_dir.empty()) {
@@ -135,22 +138,6 @@ absl::StatusOr<Connection> Connect(const GlobalOptions& g, bool private_if_busy 
   c.embedded = std::move(*server);
   c.client = std::make_unique<NimbusClient>(c.embedded->InProcessChannel());
   return c;
-}
-
-// Ends a one-shot command (render) whose result is on disk. An embedded
-// server on the user's data dir has nothing left to do then: the job is
-// committed in its store (SQLite, whose journal makes leaving it as safe
-// as a crash) and the result renamed into place. Stopping it anyway
-// (threads joined, gRPC and the store closed, destructors, libraries
-// unloaded) took some 25 ms, an eighth of a small render. A private
-// data dir is removed first: dropping the one reference runs its deleter.
-[[noreturn]] void ExitWithoutTeardown(Connection& c, int rc) {
-  c.scratch.reset();
-  spdlog::default_logger()->flush();
-  std::cout.flush();
-  std::cerr.flush();
-  std::fflush(nullptr);
-  std::_Exit(rc);
 }
 
 // A job's main result to `path`: an embedded server's store hands it over
@@ -567,7 +554,6 @@ int RunRender(const Options& o) {
                                Human(double(final_job->result().size_bytes())),
                                final_job->result().sha256());
   if (frames.count() > 0) std::cerr << FurtherFilesLine(frames);
-  if (session->conn.embedded) ExitWithoutTeardown(session->conn, 0);
   return 0;
 }
 

@@ -27,14 +27,15 @@ v1::JobSpec SmallArcs() {
   return spec;
 }
 
-// Runs `nimbus render` on `spec` with -o `out`; stderr goes to `log`.
+// Runs `nimbus render` on `spec` with -o `out`; its output (the server's
+// log lines with -v among them) goes to `log`.
 int Render(const testing::TempDir& dir, const v1::JobSpec& spec, const std::filesystem::path& out,
-           const std::filesystem::path& log) {
+           const std::filesystem::path& log, const std::string& flags = "") {
   std::ofstream(dir / "spec.json") << spec::SpecToJson(spec);
-  const std::string cmd = std::string(NIMBUS_BIN_DIR) + "/nimbus --threads 1 --data-dir " +
-                          (dir / "data").string() + " render --no-cache " +
-                          (dir / "spec.json").string() + " -o " + out.string() + " 2>" +
-                          log.string();
+  const std::string cmd = std::string(NIMBUS_BIN_DIR) + "/nimbus " + flags +
+                          " --threads 1 --data-dir " + (dir / "data").string() +
+                          " render --no-cache " + (dir / "spec.json").string() + " -o " +
+                          out.string() + " >" + log.string() + " 2>&1";
   return WEXITSTATUS(std::system(cmd.c_str()));
 }
 
@@ -56,6 +57,20 @@ TEST(CliOutputsE2E, PngOutputOfAVolumeWithAPictureWritesTheVolumeAsVdbBesideIt) 
   EXPECT_NE(log.find("wrote " + (dir / "out" / "arcs.png").string() + "\n"), std::string::npos)
       << log;
   EXPECT_EQ(log.find("frames"), std::string::npos) << log;
+}
+
+// The embedded server is stopped (its log's last event), not abandoned by
+// an exit, after the result is written.
+TEST(CliOutputsE2E, RenderStopsItsEmbeddedServer) {
+  testing::TempDir dir;
+  v1::JobSpec spec = SmallArcs();
+  spec.clear_image();
+  ASSERT_EQ(Render(dir, spec, dir / "a.vdb", dir / "log", "-v"), 0)
+      << testing::ReadFileBytes(dir / "log");
+  const std::string log = testing::ReadFileBytes(dir / "log");
+  const size_t wrote = log.find("wrote " + (dir / "a.vdb").string());
+  ASSERT_NE(wrote, std::string::npos) << log;
+  EXPECT_NE(log.find("event=stopped", wrote), std::string::npos) << log;
 }
 
 TEST(CliOutputsE2E, VdbOutputOfAPictureOnlyJobIsRefusedBeforeItRuns) {
