@@ -22,6 +22,7 @@
 #include <set>
 #include <string>
 #include <thread>
+#include <variant>
 #include <vector>
 
 #include "absl/strings/str_cat.h"
@@ -369,52 +370,69 @@ class CancelOnInterrupt {
   std::thread thread_;
 };
 
-// The one place that reads a converted spec (the job plan): `nimbus
-// validate`'s summary. Memory is priced as for a two-thread run.
-int PrintValidation(const std::string& spec_path, const v1::JobSpec& spec) {
-  const nimbus::spec::Limits limits;
-  auto plan = nimbus::spec::ConvertSpec(spec, limits);
-  if (!plan.ok()) return ExitFor(plan.status());
-  auto memory = nimbus::server::AdmitMemory(*plan, limits, 2);
-  if (!memory.ok()) return ExitFor(memory.status());
-  const auto r = plan->frame.resolution;
-  std::cout << spec_path << ": ok\n"
-            << "  name: " << plan->name << "\n";
-  if (!plan->explore()) std::cout << "  grid: " << r.x << " x " << r.y << " x " << r.z << "\n";
-  const std::string peak = absl::StrFormat("  peak memory (estimate): %.1f MiB\n",
-                                           double(memory->estimated_bytes) / (1 << 20));
-  if (const nimbus::SetIfsPlan* p = plan->set_ifs()) {
+// `nimbus validate`'s lines for each kind of job plan, after its name; one
+// overload per kind, so a new kind without its summary does not compile.
+struct KindSummary {
+  const nimbus::JobPlan& plan;
+  const v1::JobSpec& spec;
+  std::string peak;  // the "peak memory" line
+
+  void Grid() const {
+    const auto r = plan.frame.resolution;
+    std::cout << "  grid: " << r.x << " x " << r.y << " x " << r.z << "\n";
+  }
+  void Hash() const { std::cout << "  spec sha256: " << nimbus::spec::SpecHash(spec) << "\n"; }
+  void PointRun(const nimbus::ChaosGameParams& run) const {
+    Grid();
+    std::cout << "  maps: " << run.ifs.maps.size() << "\n";
+    for (size_t i = 0; i < run.ifs.maps.size(); ++i)
+      std::cout << absl::StrFormat("    [%d] p=%.4f contraction=%.4f %s\n", i,
+                                   run.ifs.probabilities[i], plan.contraction_factors[i],
+                                   run.ifs.maps[i].name);
+    std::cout << "  iterations: " << run.iterations << "\n" << peak;
+    Hash();
+  }
+  void operator()(const nimbus::ChaosGamePlan& p) const { PointRun(p.params); }
+  void operator()(const nimbus::IfsMatrixPlan& p) const { PointRun(p.run); }
+  void operator()(const nimbus::SetIfsPlan& p) const {
     static const char* kKinds[] = {"median", "rotated median", "constant", "point"};
-    std::cout << "  set maps: " << p->maps.size() << "\n";
-    for (size_t i = 0; i < p->maps.size(); ++i)
-      std::cout << absl::StrFormat("    [%s] p=%.4f %s\n", p->labels[i], p->probabilities[i],
-                                   kKinds[int(p->maps[i].kind)]);
-    if (p->book)
-      std::cout << "  book: depth " << p->depth << ", " << p->pages << " pages\n";
+    Grid();
+    std::cout << "  set maps: " << p.maps.size() << "\n";
+    for (size_t i = 0; i < p.maps.size(); ++i)
+      std::cout << absl::StrFormat("    [%s] p=%.4f %s\n", p.labels[i], p.probabilities[i],
+                                   kKinds[int(p.maps[i].kind)]);
+    if (p.book)
+      std::cout << "  book: depth " << p.depth << ", " << p.pages << " pages\n";
     else
-      std::cout << "  set iterations: " << p->iterations << " after " << p->warmup << " warm-up\n";
+      std::cout << "  set iterations: " << p.iterations << " after " << p.warmup << " warm-up\n";
     std::cout << peak;
-  } else if (const nimbus::FractalFieldPlan* f = plan->fractal_field()) {
+  }
+  void operator()(const nimbus::FractalFieldPlan& f) const {
     static const char* kInterp[] = {"n-linear", "pseudo n-cubic", "quintic", "cubic"};
-    std::cout << "  field: " << f->field.dims << "D, " << f->field.meshes.size() << " meshes, "
-              << kInterp[int(f->field.interpolation)] << ", "
-              << (f->output == nimbus::FieldOutputKind::kTerrain ? "terrain" : "density")
-              << (f->shape ? ", shaped" : "") << "\n";
-    for (size_t k = 0; k < f->field.meshes.size(); ++k)
+    Grid();
+    std::cout << "  field: " << f.field.dims << "D, " << f.field.meshes.size() << " meshes, "
+              << kInterp[int(f.field.interpolation)] << ", "
+              << (f.output == nimbus::FieldOutputKind::kTerrain ? "terrain" : "density")
+              << (f.shape ? ", shaped" : "") << "\n";
+    for (size_t k = 0; k < f.field.meshes.size(); ++k)
       std::cout << absl::StrFormat("    [%d] cell=%.6g weight=%.6g\n", k,
-                                   f->field.meshes[k].cell[0], f->field.meshes[k].weight);
-    if (f->animation.frames > 0)
-      std::cout << "  frames: " << f->animation.frames << (f->animation.loop ? " (loop)" : "")
+                                   f.field.meshes[k].cell[0], f.field.meshes[k].weight);
+    if (f.animation.frames > 0)
+      std::cout << "  frames: " << f.animation.frames << (f.animation.loop ? " (loop)" : "")
                 << "\n";
-    std::cout << peak << "  spec sha256: " << nimbus::spec::SpecHash(spec) << "\n";
-  } else if (const nimbus::JellyPlan* p = plan->jelly()) {
-    std::cout << "  bodies: " << p->sim.bodies.size() << ", springs: " << p->sim.springs.size()
+    std::cout << peak;
+    Hash();
+  }
+  void operator()(const nimbus::JellyPlan& p) const {
+    Grid();
+    std::cout << "  bodies: " << p.sim.bodies.size() << ", springs: " << p.sim.springs.size()
               << "\n"
-              << absl::StrFormat("  frames: %u at %g fps, %u substeps (dt %g s)\n", p->frames,
-                                 p->fps, p->substeps, p->sim.dt)
+              << absl::StrFormat("  frames: %u at %g fps, %u substeps (dt %g s)\n", p.frames,
+                                 p.fps, p.substeps, p.sim.dt)
               << peak;
-  } else if (const nimbus::ExplorePlan* e = plan->explore()) {
-    const nimbus::ExploreParams& p = e->params;
+  }
+  void operator()(const nimbus::ExplorePlan& e) const {
+    const nimbus::ExploreParams& p = e.params;
     const bool sv = p.measure == nimbus::ContractionMeasure::kSingularValue;
     std::cout << absl::StrFormat("  explore: %d candidates, %dD IFS of %d-%d maps, seed %d\n",
                                  p.count, p.draw.dimensions, p.draw.min_maps, p.draw.max_maps,
@@ -424,17 +442,24 @@ int PrintValidation(const std::string& spec_path, const v1::JobSpec& spec) {
                                  p.max_attempts)
               << absl::StrFormat("  thumbnails: %d px, %d iterations each\n", p.thumbnail_size,
                                  p.thumbnail_iterations)
-              << peak << "  spec sha256: " << nimbus::spec::SpecHash(spec) << "\n";
-  } else {
-    const nimbus::ChaosGameParams& run = *plan->point_run();
-    std::cout << "  maps: " << run.ifs.maps.size() << "\n";
-    for (size_t i = 0; i < run.ifs.maps.size(); ++i)
-      std::cout << absl::StrFormat("    [%d] p=%.4f contraction=%.4f %s\n", i,
-                                   run.ifs.probabilities[i], plan->contraction_factors[i],
-                                   run.ifs.maps[i].name);
-    std::cout << "  iterations: " << run.iterations << "\n"
-              << peak << "  spec sha256: " << nimbus::spec::SpecHash(spec) << "\n";
+              << peak;
+    Hash();
   }
+};
+
+// The one place that reads a converted spec (the job plan): `nimbus
+// validate`'s summary. Memory is priced as for a two-thread run.
+int PrintValidation(const std::string& spec_path, const v1::JobSpec& spec) {
+  const nimbus::spec::Limits limits;
+  auto plan = nimbus::spec::ConvertSpec(spec, limits);
+  if (!plan.ok()) return ExitFor(plan.status());
+  auto memory = nimbus::server::AdmitMemory(*plan, limits, 2);
+  if (!memory.ok()) return ExitFor(memory.status());
+  std::cout << spec_path << ": ok\n"
+            << "  name: " << plan->name << "\n";
+  const std::string peak = absl::StrFormat("  peak memory (estimate): %.1f MiB\n",
+                                           double(memory->estimated_bytes) / (1 << 20));
+  std::visit(KindSummary{*plan, spec, peak}, plan->kind);
   for (const auto& w : plan->warnings) std::cout << "  warning: " << w << "\n";
   return 0;
 }
