@@ -113,6 +113,22 @@ void ForEachAsset(v1::JobSpec& spec,
   if (s->has_start()) VisitSource(*s->mutable_start(), "set_ifs.start", f);
 }
 
+absl::Status LocalPathRefused(const std::string& field) {
+  return absl::InvalidArgumentError(
+      StrCat(field,
+             ".path: this server never opens files named in a spec; upload the file and "
+             "give its sha256 instead (the nimbus CLI does this)"));
+}
+
+absl::Status RefuseAssetPaths(const v1::JobSpec& spec) {
+  v1::JobSpec copy = spec;  // ForEachAsset visits mutable assets
+  absl::Status result;
+  ForEachAsset(copy, [&](const std::string& field, v1::Asset& a) {
+    if (result.ok() && a.source_case() == v1::Asset::kPath) result = LocalPathRefused(field);
+  });
+  return result;
+}
+
 void ResolveAssetPaths(v1::JobSpec& spec, const std::filesystem::path& base_dir) {
   ForEachAsset(spec, [&](const std::string&, v1::Asset& a) {
     if (a.source_case() != v1::Asset::kPath || a.path().empty()) return;

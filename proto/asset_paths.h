@@ -65,6 +65,16 @@ std::string AssetDisplayName(const std::string& label, const std::string& sha256
 void ForEachAsset(v1::JobSpec& spec,
                   const std::function<void(const std::string& field, v1::Asset& asset)>& f);
 
+/// The one answer a server reached over the network gives to an asset named
+/// by `path`: INVALID_ARGUMENT naming `field`, the same words whatever exists
+/// at that path (or does not), since the server never looks.
+absl::Status LocalPathRefused(const std::string& field);
+
+/// Refuses a spec that names any asset by `path`, with LocalPathRefused for
+/// the first one; makes no file system call. nimbusd calls it before any
+/// other check of a submission when it listens on a network.
+absl::Status RefuseAssetPaths(const v1::JobSpec& spec);
+
 /// Makes relative asset paths absolute against `base_dir` (the spec file's
 /// folder), as the CLI does before uploading.
 void ResolveAssetPaths(v1::JobSpec& spec, const std::filesystem::path& base_dir);

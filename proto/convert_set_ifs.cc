@@ -51,7 +51,6 @@ bool IsHexSha256(const std::string& s) {
 absl::Status ResolveAsset(const v1::Asset& asset, const std::string& field, const Limits& limits,
                           SetSourcePlan& out) {
   if (auto st = CheckLength(asset.label(), kMaxLabelBytes, field + ".label"); !st.ok()) return st;
-  if (auto st = CheckLength(asset.path(), kMaxPathBytes, field + ".path"); !st.ok()) return st;
   switch (asset.source_case()) {
     case v1::Asset::kSha256: {
       if (!IsHexSha256(asset.sha256()))
@@ -70,11 +69,9 @@ absl::Status ResolveAsset(const v1::Asset& asset, const std::string& field, cons
       return absl::OkStatus();
     }
     case v1::Asset::kPath: {
+      if (!limits.allow_local_paths) return LocalPathRefused(field);
+      if (auto st = CheckLength(asset.path(), kMaxPathBytes, field + ".path"); !st.ok()) return st;
       if (asset.path().empty()) return Invalid(field + ".path", "must not be empty");
-      if (!limits.allow_local_paths)
-        return Invalid(field + ".path",
-                       StrCat("this server does not read local files ('", asset.path(),
-                              "'); upload it and give its sha256 (the nimbus CLI does this)"));
       std::error_code ec;
       if (!std::filesystem::is_regular_file(asset.path(), ec))
         return Invalid(field + ".path", StrCat("no such file: ", asset.path()));

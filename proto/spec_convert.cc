@@ -5,6 +5,7 @@
 #include "absl/strings/str_join.h"
 #include "core/base/sha256.h"
 #include "proto/convert_internal.h"
+#include "proto/spec_shape.h"
 
 namespace nimbus::spec {
 
@@ -151,14 +152,30 @@ absl::StatusOr<Affine3> ComposeSteps(const google::protobuf::RepeatedPtrField<v1
 
 namespace {
 
-absl::Status ConvertName(const v1::JobSpec& spec, JobPlan& job) {
-  // Names go into file names, logs and every listing: keep them short.
-  if (spec.name().size() > 128)
-    return Invalid("name", StrCat("must be at most 128 bytes, got ", spec.name().size()));
-  job.name = spec.name().empty() ? "nimbus" : spec.name();
-  for (char c : job.name)
+// Names go into file names, grid names, logs and every listing: short, and
+// letters, digits, '_', '-' and '.' only.
+absl::Status CheckPlainName(const std::string& name, const std::string& field) {
+  if (name.size() > 128)
+    return Invalid(field, StrCat("must be at most 128 bytes, got ", name.size()));
+  for (char c : name)
     if (!(std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-' || c == '.'))
-      return Invalid("name", "use letters, digits, '_', '-' and '.' only");
+      return Invalid(field, "use letters, digits, '_', '-' and '.' only");
+  return absl::OkStatus();
+}
+
+absl::Status ConvertName(const v1::JobSpec& spec, JobPlan& job) {
+  NIMBUS_RETURN_IF_ERROR(CheckPlainName(spec.name(), "name"));
+  job.name = spec.name().empty() ? "nimbus" : spec.name();
+  return absl::OkStatus();
+}
+
+// The density grid's name: a plain name that no other grid of the file has.
+absl::Status CheckGridName(const std::string& name) {
+  NIMBUS_RETURN_IF_ERROR(CheckPlainName(name, "output.grid_name"));
+  for (const char* taken : {"Cd", "address", "counts", "component", "v"})
+    if (name == taken)
+      return Invalid("output.grid_name",
+                     StrCat("'", name, "' is the name of another grid Nimbus may write"));
   return absl::OkStatus();
 }
 
@@ -190,6 +207,7 @@ absl::Status ConvertConventions(const v1::Output& o, OutputConventions& c) {
 }
 
 absl::Status ConvertOutput(const v1::Output& o, DensityOptions& density) {
+  NIMBUS_RETURN_IF_ERROR(CheckGridName(o.grid_name()));
   density.grid_name = o.grid_name().empty() ? "density" : o.grid_name();
   switch (o.density_mapping()) {
     case v1::DENSITY_MAPPING_UNSPECIFIED:
@@ -242,6 +260,7 @@ absl::Status CheckShards(const v1::JobSpec& spec, const JobPlan& job) {
 }  // namespace
 
 absl::StatusOr<JobPlan> ConvertSpec(const v1::JobSpec& spec, const Limits& limits) {
+  NIMBUS_RETURN_IF_ERROR(CheckSpecShape(spec, limits));
   JobPlan job;
   NIMBUS_RETURN_IF_ERROR(ConvertName(spec, job));
   // An exploration frames each candidate itself: its grid is optional.

@@ -26,7 +26,7 @@ absl::StatusOr<JobRecord> LoadVisibleJob(JobQueue& store, const Principal& p,
 
 absl::Status CheckAssetOwnership(const v1::JobSpec& spec, const Principal& p,
                                  const AssetStore& assets) {
-  if (p.admin || !spec.has_set_ifs()) return absl::OkStatus();
+  if (p.admin) return absl::OkStatus();
   v1::JobSpec copy = spec;  // ForEachAsset visits mutable assets
   absl::Status result;
   spec::ForEachAsset(copy, [&](const std::string& field, v1::Asset& asset) {

@@ -237,11 +237,14 @@ absl::StatusOr<AssetInfo> AssetStore::Upload::Finish() {
           store_->RememberLine(spec::StoredAssetNamesPath(store_->dir_, sha256_), sha256_, name_);
       !st.ok())
     return st;
+  // Bytes only another principal uploaded answer as a first upload would:
+  // the answer must not tell a caller what others have stored.
+  const bool had_it = !fresh && (owner_.empty() || store_->IsOwner(sha256_, owner_));
   if (!owner_.empty())
     if (auto st = store_->AddOwner(sha256_, owner_); !st.ok()) return st;
   auto info = store_->Find(sha256_);
   if (!info.ok()) return info.status();
-  info->already_present = !fresh;
+  info->already_present = had_it;
   return info;
 }
 

@@ -23,7 +23,8 @@ struct AssetInfo {
   std::string sha256;
   uint64_t size = 0;
   std::filesystem::path path;
-  /// The store had the file before this upload.
+  /// The uploader had already uploaded these bytes before this upload
+  /// (another principal's copy does not count).
   bool already_present = false;
   /// File names it was uploaded under, oldest first.
   std::vector<std::string> names;

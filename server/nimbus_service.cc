@@ -1,5 +1,6 @@
 #include "server/nimbus_service.h"
 
+#include <malloc.h>
 #include <spdlog/spdlog.h>
 
 #include <chrono>
@@ -9,7 +10,9 @@
 #include <random>
 
 #include "absl/strings/str_cat.h"
+#include "proto/asset_paths.h"
 #include "proto/spec_convert.h"
+#include "proto/spec_shape.h"
 #include "server/access.h"
 #include "server/bounded_text.h"
 #include "server/job_view.h"
@@ -462,6 +465,11 @@ NimbusServiceImpl::NimbusServiceImpl(JobStore* store, ResultStore* results, Asse
       pool_(pool),
       limits_(std::move(limits)) {}
 
+namespace {
+// Submissions at least this large are followed by malloc_trim.
+constexpr size_t kTrimAfterRequestBytes = size_t{1} << 20;
+}  // namespace
+
 grpc::ServerUnaryReactor* NimbusServiceImpl::SubmitJob(grpc::CallbackServerContext* ctx,
                                                        const v1::SubmitJobRequest* req,
                                                        v1::SubmitJobResponse* resp) {
@@ -473,8 +481,13 @@ grpc::ServerUnaryReactor* NimbusServiceImpl::SubmitJob(grpc::CallbackServerConte
     reactor->Finish(ToGrpc(caller.status()));
     return reactor;
   }
-  if (!admission_.Post(
-          [this, req, resp, reactor, p = *caller] { reactor->Finish(Admit(p, *req, *resp)); }))
+  if (!admission_.Post([this, req, resp, reactor, p = *caller] {
+        const bool large = req->ByteSizeLong() > kTrimAfterRequestBytes;
+        reactor->Finish(Admit(p, *req, *resp));
+        // The copies a large request made are freed by now: hand their
+        // pages back instead of keeping them for reuse (heap_tuning.h).
+        if (large) ::malloc_trim(0);
+      }))
     reactor->Finish(
         grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
                      absl::StrCat("server busy: ", admission_.max_pending(),
@@ -503,6 +516,12 @@ grpc::Status CheckSubmittedText(const v1::SubmitJobRequest& req) {
 grpc::Status NimbusServiceImpl::Admit(const Principal& caller, const v1::SubmitJobRequest& req,
                                       v1::SubmitJobResponse& resp) {
   if (grpc::Status st = CheckSubmittedText(req); !st.ok()) return st;
+  // Its size, unknown fields and list lengths, before anything copies it.
+  if (auto st = spec::CheckSpecShape(req.spec(), limits_); !st.ok()) return ToGrpc(st);
+  // Before anything else looks at the spec: a request never names a file
+  // this server opens (only the CLI's in-process server reads local paths).
+  if (!limits_.allow_local_paths)
+    if (auto st = spec::RefuseAssetPaths(req.spec()); !st.ok()) return ToGrpc(st);
   if (auto st = CheckJobQuotas(*store_, caller, quotas_); !st.ok()) return ToGrpc(st);
   if (assets_ != nullptr)
     if (auto st = CheckAssetOwnership(req.spec(), caller, *assets_); !st.ok()) return ToGrpc(st);
@@ -510,7 +529,8 @@ grpc::Status NimbusServiceImpl::Admit(const Principal& caller, const v1::SubmitJ
   if (auto st = results_->CheckFreeSpace(); !st.ok()) return ToGrpc(st);
   // Meshes and grids are read whole by a sandboxed child before the
   // converter parses any of them in this process (server/untrusted_file.h).
-  if (auto st = CheckSpecAssets(req.spec(), limits_.asset_dir); !st.ok()) return ToGrpc(st);
+  if (auto st = CheckSpecAssets(req.spec(), limits_.asset_dir, limits_.allow_local_paths); !st.ok())
+    return ToGrpc(st);
   // Validation names the offending field; nothing is allocated for grids.
   auto job = spec::ConvertSpec(req.spec(), limits_);
   if (!job.ok()) return ToGrpc(job.status());

@@ -1,21 +1,21 @@
 // nimbusd: the Nimbus job server.
-#include <CLI/CLI.hpp>
+#include <pthread.h>
 #include <spdlog/spdlog.h>
 
+#include <CLI/CLI.hpp>
+#include <chrono>
 #include <csignal>
 #include <cstdio>
-#include <filesystem>
-#include <fstream>
-#include <pthread.h>
-
-#include <chrono>
 #include <cstdlib>
 #include <ctime>
+#include <filesystem>
+#include <fstream>
 #include <thread>
 
 #include "absl/strings/str_cat.h"
 #include "core/base/heap_tuning.h"
 #include "server/job_store.h"
+#include "server/json_log.h"
 #include "server/server.h"
 
 namespace {
@@ -69,6 +69,7 @@ struct DaemonFlags {
   std::string data_dir = o.data_dir.string();
   double max_memory_gib = double(o.limits.max_memory_bytes) / double(1ull << 30);
   std::string log_level = "info";
+  std::string log_format = "text";
   std::string port_file;
   double retention_hours = 0, retention_seconds = 0;
 };
@@ -160,8 +161,13 @@ bool FinishOptions(DaemonFlags& f) {
   o.limits.max_memory_bytes = uint64_t(f.max_memory_gib * double(1ull << 30));
   spdlog::set_level(spdlog::level::from_str(f.log_level));
   // Every line names the replica, so merged logs of several stay readable.
-  spdlog::set_pattern(
-      absl::StrCat("%Y-%m-%dT%H:%M:%S.%e %^%l%$ nimbusd replica=", o.replica_id, " %v"));
+  if (f.log_format == "json") {
+    spdlog::set_formatter(std::make_unique<nimbus::server::JsonLogFormatter>(o.replica_id));
+    nimbus::server::RouteGrpcLogsToSpdlog();
+  } else {
+    spdlog::set_pattern(
+        absl::StrCat("%Y-%m-%dT%H:%M:%S.%e %^%l%$ nimbusd replica=", o.replica_id, " %v"));
+  }
   return true;
 }
 
@@ -218,6 +224,10 @@ int main(int argc, char** argv) {
   AddSecurityFlags(app, f.o, f.retention_hours, f.retention_seconds);
   AddReplicaFlags(app, f);
   app.add_option("--log-level", f.log_level, "trace, debug, info, warn, error")
+      ->capture_default_str();
+  app.add_option("--log-format", f.log_format,
+                 "text (readable key=value lines) or json (one JSON object per line)")
+      ->check(CLI::IsMember({"text", "json"}))
       ->capture_default_str();
   CLI11_PARSE(app, argc, argv);
   if (!FinishOptions(f)) return 2;

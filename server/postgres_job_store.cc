@@ -39,7 +39,9 @@ namespace {
 // 1: the schema of SQLite's version 4 (owners, pins, expiry, pokes).
 // 2: previews and preview wishes (watchers on other replicas).
 // 3: sharded jobs and the result cache (parent_id ... spec_sha256).
-constexpr int kSchemaVersion = 4;
+// 4: cache hits name their source (cached_from).
+// 5: idempotency keys are each principal's own.
+constexpr int kSchemaVersion = 5;
 // Any fixed 64-bit number: the advisory lock that serialises migrations.
 constexpr int64_t kMigrationLockKey = 0x6e696d6275730001;  // "nimbus" + 1
 constexpr int kDefaultPageSize = 50;
@@ -121,8 +123,17 @@ constexpr char kSchemaV4Sql[] = R"sql(
 ALTER TABLE jobs ADD COLUMN IF NOT EXISTS cached_from TEXT NOT NULL DEFAULT '';
 )sql";
 
+// A request_id names a job only among its principal's own: the same key
+// from two principals is two jobs, and neither learns of the other.
+constexpr char kSchemaV5Sql[] = R"sql(
+DROP INDEX IF EXISTS jobs_request_id;
+CREATE UNIQUE INDEX IF NOT EXISTS jobs_owner_request_id ON jobs (owner, request_id)
+  WHERE request_id <> '';
+)sql";
+
 // Migrations in order: kMigrations[v - 1] takes the schema to version v.
-constexpr const char* kMigrations[] = {kSchemaV1Sql, kSchemaV2Sql, kSchemaV3Sql, kSchemaV4Sql};
+constexpr const char* kMigrations[] = {kSchemaV1Sql, kSchemaV2Sql, kSchemaV3Sql, kSchemaV4Sql,
+                                       kSchemaV5Sql};
 static_assert(std::size(kMigrations) == kSchemaVersion);
 
 // The columns RowToRecord reads, in order. Text a reader could make huge is
@@ -547,14 +558,11 @@ absl::StatusOr<JobRecord> PostgresJobStore::Create(const NewJob& job, TimeMs now
   return InTxn<JobRecord>("create a job", [&](pqxx::work& t) {
     auto existing_for_key = [&]() -> std::optional<JobRecord> {
       if (job.request_id.empty()) return std::nullopt;
-      pqxx::result r = t.exec_params(
-          "SELECT " NIMBUS_PG_COLUMNS " FROM jobs WHERE request_id = $1", job.request_id);
+      pqxx::result r = t.exec_params("SELECT " NIMBUS_PG_COLUMNS
+                                     " FROM jobs WHERE owner = $1 AND request_id = $2",
+                                     job.owner, job.request_id);
       if (r.empty()) return std::nullopt;
       JobRecord existing = RowToRecord(r[0]);
-      // Keys are global; another principal's job is never named.
-      if (existing.owner != job.owner)
-        throw Abort{absl::AlreadyExistsError(absl::StrCat(
-            "request_id ", EchoId(job.request_id), " was already used by another principal"))};
       if (existing.spec != job.spec)
         throw Abort{absl::AlreadyExistsError(
             absl::StrCat("request_id ", EchoId(job.request_id),

@@ -12,6 +12,7 @@
 #include <sstream>
 
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_join.h"
 #include "server/asset_store.h"
 #include "server/auth.h"
 #include "server/data_dir_lock.h"
@@ -19,9 +20,13 @@
 #include "server/job_store.h"
 #include "server/job_view.h"
 #include "server/nimbus_service.h"
+#include "server/parse_errors.h"
+#include "server/result_audit.h"
 #include "server/result_export.h"
 #include "server/result_store.h"
 #include "server/retention.h"
+#include "server/store_probe.h"
+#include "server/tls_files.h"
 #include "server/worker_pool.h"
 
 namespace nimbus::server {
@@ -36,6 +41,7 @@ struct NimbusServer::Impl {
   std::unique_ptr<NimbusServiceImpl> service;
   std::unique_ptr<RetentionSweeper> sweeper;
   std::unique_ptr<grpc::Server> server;
+  std::unique_ptr<StoreProbe> store_probe;  // destroyed before the server and store
   int port = 0;
   std::string address;
   std::mutex mu;
@@ -78,12 +84,18 @@ absl::StatusOr<std::shared_ptr<grpc::ServerCredentials>> ListenCredentials(const
   if (!cert.ok()) return cert.status();
   auto key = ReadPem("--tls-key", o.tls_key_file);
   if (!key.ok()) return key.status();
+  if (auto st = CheckTlsKeyPair({"--tls-cert", o.tls_cert_file, *cert},
+                                {"--tls-key", o.tls_key_file, *key});
+      !st.ok())
+    return st;
   pair.cert_chain = std::move(*cert);
   pair.private_key = std::move(*key);
   ssl.pem_key_cert_pairs.push_back(std::move(pair));
   if (!o.tls_client_ca_file.empty()) {
     auto ca = ReadPem("--tls-client-ca", o.tls_client_ca_file);
     if (!ca.ok()) return ca.status();
+    if (auto st = CheckPemCertificates({"--tls-client-ca", o.tls_client_ca_file, *ca}); !st.ok())
+      return st;
     ssl.pem_root_certs = std::move(*ca);
     ssl.client_certificate_request = GRPC_SSL_REQUEST_AND_REQUIRE_CLIENT_CERTIFICATE_AND_VERIFY;
   }
@@ -118,7 +130,51 @@ absl::Status CheckExposure(const ServerOptions& o, const TokenTable& tokens) {
       "--auth-tokens FILE (with --tls-cert/--tls-key), listen on 127.0.0.1, or pass --insecure"));
 }
 
+// Result files no job owns mean the job store lost jobs (a damaged or
+// replaced jobs.db, a store pointed at the wrong database): say so at
+// start, naming a few, rather than serve an empty queue in silence.
+void ReportUnknownResults(JobStore& store, const std::filesystem::path& results_dir) {
+  constexpr size_t kMaxChecked = 100'000;
+  auto unknown = FindUnknownResults(store, results_dir, kMaxChecked);
+  if (!unknown.ok()) {
+    spdlog::warn("event=result_audit_failed error=\"{}\"", unknown.status().ToString());
+    return;
+  }
+  if (unknown->ids.empty()) return;
+  const size_t shown = std::min<size_t>(unknown->ids.size(), 5);
+  spdlog::warn(
+      "event=unknown_results count={} checked={} dir={} first=\"{}\" hint=\"result files whose "
+      "jobs this job store does not have: was jobs.db replaced or damaged? They are kept, not "
+      "served; restore the store from a backup or delete them\"",
+      unknown->ids.size(), unknown->checked, results_dir.string(),
+      absl::StrJoin(unknown->ids.begin(), unknown->ids.begin() + shown, " "));
+}
+
 }  // namespace
+
+// Readiness follows the shared store: the service's health status is
+// NOT_SERVING while the store does not answer, SERVING again once it does.
+// The overall status (liveness) stays SERVING, so an orchestrator does not
+// restart every replica during a database outage.
+void NimbusServer::FollowStoreHealth(Impl& impl) {
+  grpc::HealthCheckServiceInterface* health = impl.server->GetHealthCheckService();
+  if (health == nullptr) return;
+  JobStore* store = impl.store.get();
+  constexpr int64_t kProbeMs = 1'000;
+  impl.store_probe = std::make_unique<StoreProbe>(
+      // A job id that never exists: NOT_FOUND is the store's answer.
+      [store] { return store->Get("~store-probe").status(); },
+      [health](bool up) {
+        health->SetServingStatus("nimbus.v1.NimbusService", up);
+        if (up) {
+          spdlog::info("event=store_reachable");
+        } else {
+          spdlog::warn("event=store_unreachable");
+        }
+      },
+      kProbeMs);
+  impl.store_probe->Start();
+}
 
 // The shared store's change feed: a submit on any replica wakes an idle
 // worker here at once, and watchers here of a job another replica runs get
@@ -219,6 +275,7 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
     spdlog::error("event=requeue_failed error=\"{}\"", requeued.status().ToString());
   else if (*requeued > 0)
     spdlog::warn("event=recovered requeued_jobs={}", *requeued);
+  ReportUnknownResults(*impl->store, results_dir);
   if (auto space = impl->results->CheckFreeSpace(); !space.ok())
     spdlog::warn("event=low_disk error=\"{}\"", std::string(space.message()));
 
@@ -252,6 +309,7 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
   grpc::ServerBuilder builder;
   if (!options.listen.empty()) builder.AddListeningPort(options.listen, *credentials, &impl->port);
   builder.RegisterService(impl->service.get());
+  builder.experimental().SetInterceptorCreators(UndecodableRequestInterceptors());
   // Previews and result chunks are a few MiB at most.
   builder.SetMaxSendMessageSize(64 << 20);
   builder.SetMaxReceiveMessageSize(64 << 20);
@@ -267,7 +325,10 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
     const size_t colon = options.listen.rfind(':');
     impl->address = absl::StrCat(options.listen.substr(0, colon), ":", impl->port);
   }
-  if (shared_store) FollowOtherReplicas(*impl);
+  if (shared_store) {
+    FollowOtherReplicas(*impl);
+    FollowStoreHealth(*impl);
+  }
   impl->pool->Start();
   impl->sweeper->Start();
   spdlog::info(
@@ -303,6 +364,7 @@ void NimbusServer::Shutdown() {
     if (impl_->shut_down) return;
     impl_->shut_down = true;
   }
+  if (impl_->store_probe) impl_->store_probe->Stop();
   if (auto* health = impl_->server->GetHealthCheckService()) health->SetServingStatus(false);
   // Stop workers first so watchers see jobs go back to the queue, then
   // close the streams.

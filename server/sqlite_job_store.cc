@@ -37,7 +37,7 @@ namespace {
 // table (jelly jobs). 5: adds sharded jobs (parent_id, shard_index,
 // shard_count, shards_pending) and the result cache (spec_sha256,
 // cached_from).
-constexpr int kSchemaVersion = 5;
+constexpr int kSchemaVersion = 6;
 // Long enough to ride out another process's short write transactions, short
 // enough that a wedged peer surfaces as UNAVAILABLE instead of a hang.
 constexpr int kBusyTimeoutMs = 10000;
@@ -123,6 +123,15 @@ ALTER TABLE jobs ADD COLUMN cached_from TEXT NOT NULL DEFAULT '';
 CREATE INDEX IF NOT EXISTS jobs_parent ON jobs (parent_id, shard_index) WHERE parent_id <> '';
 CREATE INDEX IF NOT EXISTS jobs_spec_sha256 ON jobs (spec_sha256, owner)
   WHERE spec_sha256 <> '';
+)sql";
+
+// Version 5 files key idempotent submissions by principal: the same
+// request_id from two principals is two jobs, and neither learns of the
+// other. Every file runs it, a fresh one too.
+constexpr char kMigrateToV6Sql[] = R"sql(
+DROP INDEX IF EXISTS jobs_request_id;
+CREATE UNIQUE INDEX IF NOT EXISTS jobs_owner_request_id ON jobs (owner, request_id)
+  WHERE request_id <> '';
 )sql";
 
 // Column order shared by every SELECT that feeds RowToRecord. Text a client
@@ -452,7 +461,9 @@ void SqliteJobStore::Connection::Close() {
 
 SqliteJobStore::~SqliteJobStore() {
   if (r_ != &w_) own_reader_.Close();
-  w_.Close();  // without a checkpoint (Init)
+  // The last connection: closing checkpoints the WAL into jobs.db and
+  // removes it, so a clean stop leaves every job in the one file.
+  w_.Close();
 }
 
 absl::Status SqliteJobStore::OpenReader(const std::string& path) {
@@ -505,12 +516,6 @@ absl::Status SqliteJobStore::Init() {
   // That is the trade we want: acceptance stays cheap and process crashes,
   // the failure we actually recover from, lose nothing.
   if (absl::Status s = Exec("PRAGMA synchronous=NORMAL"); !s.ok()) return s;
-  // By the same trade, closing leaves the WAL as it is: no checkpoint and
-  // no fsync (about 10 ms, a tenth of a small render's whole run from the
-  // CLI). The next open reads the WAL, and SQLite's automatic checkpoint
-  // (every 1000 pages) folds it into the file during later commits.
-  sqlite3_db_config(w_.db, SQLITE_DBCONFIG_NO_CKPT_ON_CLOSE, 1, nullptr);
-
   return Migrate();
 }
 
@@ -549,7 +554,9 @@ absl::Status SqliteJobStore::Migrate() {
     if (*version < 4)
       if (absl::Status s = Exec(kMigrateToV4Sql); !s.ok()) return s;
   }
-  if (absl::Status s = Exec(kMigrateToV5Sql); !s.ok()) return s;
+  if (*version < 5)
+    if (absl::Status s = Exec(kMigrateToV5Sql); !s.ok()) return s;
+  if (absl::Status s = Exec(kMigrateToV6Sql); !s.ok()) return s;
   if (absl::Status s = Exec(absl::StrCat("PRAGMA user_version=", kSchemaVersion).c_str());
       !s.ok()) {
     return s;
@@ -633,19 +640,15 @@ absl::StatusOr<JobRecord> SqliteJobStore::Create(const NewJob& job, TimeMs now) 
 
   if (!job.request_id.empty()) {
     absl::StatusOr<Statement> s =
-        Prepare("SELECT " NIMBUS_JOB_COLUMNS " FROM jobs WHERE request_id = ?1");
+        Prepare("SELECT " NIMBUS_JOB_COLUMNS " FROM jobs WHERE owner = ?1 AND request_id = ?2");
     if (!s.ok()) return s.status();
-    s->Bind(1, job.request_id);
+    s->Bind(1, job.owner).Bind(2, job.request_id);
     absl::StatusOr<bool> row = s->Step();
     if (!row.ok()) return row.status();
     if (*row) {
       // An idempotent retry gets the original job; the same key for
       // another spec is a client bug that must not pass silently.
       JobRecord existing = RowToRecord(*s);
-      // Keys are global; another principal's job is never named.
-      if (existing.owner != job.owner)
-        return absl::AlreadyExistsError(absl::StrCat("request_id ", EchoId(job.request_id),
-                                                     " was already used by another principal"));
       if (existing.spec != job.spec)
         return absl::AlreadyExistsError(
             absl::StrCat("request_id ", EchoId(job.request_id), " was already used for another spec (job ",

@@ -281,7 +281,9 @@ absl::Status CheckStoredAsset(const std::string& sha256, const UntrustedFile& fi
 }
 
 absl::Status CheckSpecAssets(const v1::JobSpec& spec, const std::filesystem::path& asset_dir,
-                             const SandboxLimits& limits) {
+                             bool allow_local_paths, const SandboxLimits& limits) {
+  if (!allow_local_paths)
+    if (auto st = spec::RefuseAssetPaths(spec); !st.ok()) return st;
   // Every asset ForEachAsset knows: set IFS sources and fractal-field shapes.
   v1::JobSpec copy = spec;  // ForEachAsset visits mutable assets
   absl::Status result;

@@ -72,7 +72,10 @@ absl::Status CheckStoredAsset(const std::string& sha256, const UntrustedFile& fi
 ///   "set_ifs.start.grid.asset: grid asset cow.vdb (sha256 3fa2c81d9e07...):
 ///    not a readable VDB file: <short reason>".
 /// Assets that cannot be found are left to the converter's own errors.
+/// Without `allow_local_paths` (a server reached over the network) an asset
+/// named by path is refused with spec::LocalPathRefused before any file
+/// system call.
 absl::Status CheckSpecAssets(const v1::JobSpec& spec, const std::filesystem::path& asset_dir,
-                             const SandboxLimits& limits = {});
+                             bool allow_local_paths, const SandboxLimits& limits = {});
 
 }  // namespace nimbus::server

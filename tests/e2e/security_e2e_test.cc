@@ -19,6 +19,7 @@
 #include "core/base/sha256.h"
 #include "proto/asset_paths.h"
 #include "proto/spec_io.h"
+#include "tests/support/e2e_clients.h"
 #include "tests/support/nimbusd_process.h"
 #include "tests/support/test_pki.h"
 #include "tests/support/test_util.h"
@@ -35,14 +36,7 @@ constexpr char kAlice[] = "alice-token-0123456789abcdef";
 constexpr char kBob[] = "bob-token-0123456789abcdef00";
 constexpr char kRoot[] = "root-token-0123456789abcdef0";
 
-// A job that finishes in well under a second.
-v1::JobSpec SmallJob() {
-  auto spec = spec::LoadSpecFile(testing::SourcePath("examples/sierpinski_tetrahedron.json"));
-  EXPECT_TRUE(spec.ok()) << spec.status();
-  spec->mutable_grid()->set_resolution(0, 16);
-  spec->mutable_chaos_game()->set_iterations(100'000);
-  return *spec;
-}
+v1::JobSpec SmallJob() { return testing::SmallTetrahedronJob(); }
 
 // A job that runs until cancelled.
 v1::JobSpec EndlessJob() {
@@ -85,12 +79,7 @@ class SecurityE2E : public ::testing::Test {
   }
 
   std::unique_ptr<NimbusClient> As(const std::string& token) {
-    ConnectOptions o;
-    o.token = token;
-    auto c = NimbusClient::Connect(server_.target(), o);
-    EXPECT_TRUE(c.ok()) << c.status();
-    EXPECT_TRUE((*c)->WaitForReady(20).ok());
-    return std::move(*c);
+    return testing::ConnectAs(server_.target(), token);
   }
 
   // Submits and watches to the end.
@@ -270,10 +259,11 @@ TEST_F(SecurityE2E, AnotherPrincipalsJobIsNotFoundAndAdminSeesIt) {
   EXPECT_EQ(refused.status().code(), absl::StatusCode::kNotFound) << refused.status();
   EXPECT_THAT(refused.status().message(),
               HasSubstr("set_ifs.maps[0].condensation.mesh.asset.sha256: no uploaded asset"));
-  // Once bob uploads the same bytes, they are his too (stored once).
+  // Once bob uploads the same bytes, they are his too (stored once); the
+  // answer is a first upload's, so it tells him nothing of alice's.
   auto again = bob->UploadBytes("cow.obj", cow, Sha256Hex(cow), cow.size());
   ASSERT_TRUE(again.ok());
-  EXPECT_TRUE(again->already_present());
+  EXPECT_FALSE(again->already_present());
   auto accepted = bob->Submit(*spec);
   ASSERT_TRUE(accepted.ok()) << accepted.status();
   EXPECT_TRUE(bob->Cancel(accepted->id()).ok());
@@ -415,6 +405,26 @@ TEST_F(SecurityE2E, CliSpeaksTlsSendsTheTokenAndPinsAndDeletes) {
   EXPECT_THAT(out, HasSubstr(id + " deleted"));
   EXPECT_FALSE(std::filesystem::exists(ResultPath(id)));
   EXPECT_EQ((*c)->Get(id).status().code(), absl::StatusCode::kNotFound);
+}
+
+// The result cache answers a principal only from its own jobs
+// (docs/result_cache.md): alice's resubmission is a hit, bob's submission
+// of the very same spec runs on its own.
+TEST_F(SecurityE2E, TheCacheNeverAnswersOnePrincipalWithAnothersResult) {
+  StartWithTokens();
+  auto alice = As(kAlice), bob = As(kBob);
+  const v1::Job first = Run(*alice, SmallJob());
+  auto hit = alice->Submit(SmallJob());
+  ASSERT_TRUE(hit.ok()) << hit.status();
+  EXPECT_EQ(hit->cached_from(), first.id());
+  auto other = bob->Submit(SmallJob());
+  ASSERT_TRUE(other.ok()) << other.status();
+  EXPECT_EQ(other->owner(), "bob");
+  EXPECT_EQ(other->cached_from(), "") << "bob was answered with alice's result";
+  auto done = bob->Watch(other->id(), {}, [](const v1::WatchJobResponse&) {});
+  ASSERT_TRUE(done.ok()) << done.status();
+  EXPECT_EQ(done->state(), v1::JOB_STATE_SUCCEEDED);
+  EXPECT_EQ(done->cached_from(), "");
 }
 
 }  // namespace

@@ -133,6 +133,31 @@ TEST_P(JobQueueTest, CreateIsIdempotentByRequestId) {
   EXPECT_EQ(Ids(page->jobs), (std::vector<std::string>{"d", "c", "a"}));
 }
 
+// A key belongs to its principal: another's use of the same key, for any
+// spec, is a first use and makes a job of its own.
+TEST_P(JobQueueTest, RequestIdsArePerPrincipal) {
+  auto job = [](const char* id, const char* spec, const char* owner) {
+    NewJob j = MakeJob(id, "req", spec);
+    j.owner = owner;
+    return j;
+  };
+  ASSERT_TRUE(store_->Create(job("a", "s", "alice"), kT0).ok());
+  // Bob's key for another spec than Alice's is not a conflict ...
+  absl::StatusOr<JobRecord> bob = store_->Create(job("b", "t", "bob"), kT0 + 1);
+  ASSERT_TRUE(bob.ok()) << bob.status();
+  EXPECT_EQ(bob->id, "b");
+  // ... his retry finds his own job ...
+  absl::StatusOr<JobRecord> again = store_->Create(job("b2", "t", "bob"), kT0 + 2);
+  ASSERT_TRUE(again.ok()) << again.status();
+  EXPECT_EQ(again->id, "b");
+  // ... and Carol's key for Alice's very spec is a new job, not Alice's.
+  absl::StatusOr<JobRecord> carol = store_->Create(job("c", "s", "carol"), kT0 + 3);
+  ASSERT_TRUE(carol.ok()) << carol.status();
+  EXPECT_EQ(carol->id, "c");
+  EXPECT_EQ(carol->owner, "carol");
+  EXPECT_EQ(store_->Get("a")->owner, "alice");
+}
+
 TEST_P(JobQueueTest, DuplicateIdIsAlreadyExists) {
   ASSERT_TRUE(store_->Create(MakeJob("a"), kT0).ok());
   absl::StatusOr<JobRecord> dup = store_->Create(MakeJob("a"), kT0 + 1);

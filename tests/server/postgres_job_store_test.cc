@@ -67,10 +67,11 @@ TEST_F(PostgresJobStoreTest, ReplicasStartingTogetherMigrateOnce) {
   for (auto& t : threads) t.join();
   ASSERT_TRUE(errors.empty()) << errors.front();
   EXPECT_EQ(QueryInt("SELECT count(*) FROM nimbus_schema"), 1);
-  EXPECT_EQ(QueryInt("SELECT max(version) FROM nimbus_schema"), 4);
-  EXPECT_EQ(QueryInt("SELECT count(*) FROM pg_indexes WHERE indexname = 'jobs_request_id' "
-                     "AND indexdef LIKE '%UNIQUE%WHERE%'"),
+  EXPECT_EQ(QueryInt("SELECT max(version) FROM nimbus_schema"), 5);
+  EXPECT_EQ(QueryInt("SELECT count(*) FROM pg_indexes WHERE indexname = 'jobs_owner_request_id' "
+                     "AND indexdef LIKE '%UNIQUE%(owner, request_id)%WHERE%'"),
             1);
+  EXPECT_EQ(QueryInt("SELECT count(*) FROM pg_indexes WHERE indexname = 'jobs_request_id'"), 0);
 }
 
 TEST_F(PostgresJobStoreTest, RefusesANewerSchema) {

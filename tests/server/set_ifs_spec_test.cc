@@ -145,7 +145,9 @@ TEST(SetIfsSpec, AssetsByPathAndBySha256) {
   EXPECT_EQ(Error(spec), "ok");
   Limits remote;
   remote.allow_local_paths = false;
-  EXPECT_NE(Error(spec, remote).find("upload it"), std::string::npos);
+  EXPECT_EQ(Error(spec, remote),
+            "set_ifs.maps[0].condensation.mesh.asset.path: this server never opens files named "
+            "in a spec; upload the file and give its sha256 instead (the nimbus CLI does this)");
 
   // By hash: found in the asset folder under <sha256>.obj.
   nimbus::testing::TempDir dir;

@@ -132,5 +132,37 @@ TEST(SpecBounds, WarmupHasACapAndCountsTowardTheIterationLimit) {
   ExpectRefused(spec, "chaos_game.warmup", absl::StatusCode::kResourceExhausted, limits);
 }
 
+// A palette at its bound converts; one stop more, a list past the general
+// bound, or an unknown field deep inside is refused by field before the
+// converter reads anything.
+TEST(SpecBounds, ListsAndUnknownFieldsAreBoundedByField) {
+  auto spec = Valid();
+  auto* palette = spec.mutable_chaos_game()->mutable_color()->mutable_palette();
+  for (int i = 0; i < 4096; ++i) {
+    auto* stop = palette->add_stops();
+    stop->set_position(i / 4095.0);
+    stop->mutable_rgb()->set_x(0.5);
+  }
+  const auto message = [](const v1::JobSpec& s) {
+    return std::string(ConvertSpec(s, {}).status().message());
+  };
+  EXPECT_TRUE(ConvertSpec(spec, {}).ok()) << ConvertSpec(spec, {}).status();
+  palette->add_stops()->set_position(1);
+  EXPECT_EQ(message(spec),
+            "chaos_game.color.palette.stops: must have at most 4096 entries, got 4097");
+
+  spec = Valid();
+  auto* jelly = spec.mutable_jelly();
+  for (int i = 0; i < 65'537; ++i) jelly->add_start_points();
+  EXPECT_EQ(message(spec), "jelly.start_points: must have at most 65536 entries, got 65537");
+
+  spec = Valid();
+  auto* step = spec.mutable_chaos_game()->mutable_ifs()->mutable_maps(0)->mutable_steps(1);
+  step->GetReflection()->MutableUnknownFields(step)->AddFixed32(4242, 7);
+  EXPECT_THAT(message(spec),
+              ::testing::StartsWith("chaos_game.ifs.maps[0].steps[1]: has a field "
+                                    "this server does not know (field number 4242)"));
+}
+
 }  // namespace
 }  // namespace nimbus::spec

@@ -11,6 +11,7 @@
 #include <chrono>
 #include <cstdint>
 #include <filesystem>
+#include <fstream>
 #include <future>
 #include <memory>
 #include <mutex>
@@ -74,28 +75,32 @@ int64_t QueryInt(const std::string& path, const char* sql) {
 
 TEST_F(SqliteJobStoreTest, SchemaIsVersionedWalAndIndexed) {
   const std::string path = db_path().string();
-  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 5);
+  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 6);
   // WAL is persistent in the file header, so a fresh connection reports it.
   EXPECT_EQ(QueryInt(path, "SELECT journal_mode = 'wal' FROM pragma_journal_mode"), 1);
   EXPECT_EQ(QueryInt(path,
                      "SELECT count(*) FROM sqlite_master WHERE type = 'index' AND "
-                     "name = 'jobs_request_id' AND sql LIKE '%UNIQUE%WHERE%'"),
+                     "name = 'jobs_owner_request_id' AND sql LIKE '%UNIQUE%WHERE%'"),
             1);
+  EXPECT_EQ(QueryInt(path,
+                     "SELECT count(*) FROM pragma_index_info('jobs_owner_request_id') "
+                     "WHERE name IN ('owner', 'request_id')"),
+            2);
   EXPECT_EQ(QueryInt(path,
                      "SELECT count(*) FROM pragma_index_info('jobs_state_create') "
                      "WHERE name IN ('state', 'create_time')"),
             2);
 }
 
-// Closing does not checkpoint (no fsync at exit): the WAL stays beside the
-// file, and whatever opens the file next reads it.
-TEST_F(SqliteJobStoreTest, ClosingLeavesTheWalForTheNextOpen) {
+// A clean close folds the WAL into the file and removes it: jobs.db alone
+// holds every job, so a WAL damaged or lost after a clean stop loses none.
+TEST_F(SqliteJobStoreTest, ClosingCheckpointsTheWalIntoTheFile) {
   ASSERT_TRUE(store_->Create(MakeJob("j-wal"), 1000).ok());
   store_.reset();
   const std::filesystem::path wal = db_path().string() + "-wal";
-  ASSERT_TRUE(std::filesystem::exists(wal));
-  EXPECT_GT(std::filesystem::file_size(wal), 0u);
-  EXPECT_EQ(QueryInt(db_path().string(), "SELECT count(*) FROM jobs WHERE id = 'j-wal'"), 1);
+  EXPECT_FALSE(std::filesystem::exists(wal));
+  // Garbage where the WAL was, as a damaged disk or a bad copy would leave.
+  std::ofstream(wal, std::ios::binary) << std::string(4096, '\x5a');
   store_ = OpenOrDie(db_path());
   ASSERT_NE(store_, nullptr);
   EXPECT_TRUE(store_->Get("j-wal").ok());
@@ -169,7 +174,7 @@ TEST(SqliteJobStoreOpenTest, UpgradesAVersionOneFile) {
   ExecOnFile(path, kVersionOneSchema);
   std::unique_ptr<JobStore> store = OpenOrDie(path);
   ASSERT_NE(store, nullptr);
-  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 5);
+  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 6);
   // Old jobs keep everything and gain the code their end implies.
   const std::pair<const char*, int> expected[] = {{"queued", 0}, {"failed", 2}, {"cancelled", 1}};
   for (const auto& [id, code] : expected) {
@@ -189,7 +194,7 @@ TEST(SqliteJobStoreOpenTest, UpgradesAVersionOneFile) {
   store = OpenOrDie(path);
   ASSERT_NE(store, nullptr);
   EXPECT_EQ(store->Get("queued")->error_code, 8);
-  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 5);
+  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 6);
 }
 
 // Another connection holds the write lock, as a slow writer in another
@@ -237,7 +242,7 @@ TEST(SqliteJobStoreOpenTest, UpgradesAVersionTwoFileWithOwnersAndAPokesTable) {
                        "PRAGMA user_version=2;");
   std::unique_ptr<JobStore> store = OpenOrDie(path);
   ASSERT_NE(store, nullptr);
-  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 5);
+  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 6);
   EXPECT_EQ(QueryInt(path, "SELECT count(*) FROM pokes"), 0);
   // Version 5: old jobs are top-level, unsharded and not in the cache.
   EXPECT_EQ(QueryInt(path,

@@ -36,6 +36,8 @@ class NimbusdProcess {
   int Stop();
 
   bool running() const { return pid_ > 0; }
+  /// The running process's id, or -1.
+  pid_t pid() const { return pid_; }
   /// The port of the last successful Start.
   int port() const { return port_; }
   /// "127.0.0.1:PORT".
