@@ -72,7 +72,8 @@ def run_panel_job():
 
     spec = json.loads((REPO / "examples" / "tree.json").read_text())
     spec["grid"]["resolution"] = [16, 128, 120]
-    spec["chaos_game"]["iterations"] = "60000000"
+    # Seconds long, so the loop below sees previews even on a loaded machine.
+    spec["chaos_game"]["iterations"] = "300000000"
     spec_path = TMP / "tree_small.json"
     spec_path.write_text(json.dumps(spec))
     props.spec_path = str(spec_path)
