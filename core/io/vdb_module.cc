@@ -3,6 +3,7 @@
 #include "core/io/vdb_module.h"
 
 #include "absl/strings/str_cat.h"
+#include "core/base/file_digests.h"
 #include "core/base/module_loader.h"
 #include "core/base/status_macros.h"
 
@@ -19,6 +20,9 @@ absl::StatusOr<const VdbModule*> Load() {
     return absl::FailedPreconditionError(absl::StrCat(kVdbModuleName, ": table version ",
                                                       table ? table->abi : 0, ", expected ",
                                                       kVdbModuleAbi));
+  // The module's digests go to this program's memo, which the result store
+  // recalls instead of reading the file again.
+  table->set_digest_sink(&RememberFileSha256);
   return table;
 }
 

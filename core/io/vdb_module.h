@@ -36,7 +36,7 @@ inline constexpr char kVdbModuleName[] = "libnimbus_vdb.so";
 inline constexpr char kVdbModuleEntry[] = "NimbusVdbModule";
 /// Bumped whenever the table below changes, so a stale module is refused
 /// rather than called through the wrong slots.
-inline constexpr int kVdbModuleAbi = 1;
+inline constexpr int kVdbModuleAbi = 2;
 
 /// @brief The module's functions, each the OpenVDB implementation of the
 /// public function of the same name (vdb_io.h, component_grid.h,
@@ -60,6 +60,9 @@ struct VdbModule {
   absl::StatusOr<DenseVec3Volume> (*read_vec3_file)(const std::filesystem::path&,
                                                     const std::string&);
   absl::Status (*check_untrusted)(const std::filesystem::path&, const std::filesystem::path&);
+  /// Where the module's writers record the digests of the files they
+  /// write: the loader passes its own RememberFileSha256 (vdb_file.h).
+  void (*set_digest_sink)(void (*)(int fd, const std::string& sha256));
   // core/matrix/component_grid.h
   absl::Status (*write_density_and_component)(const std::filesystem::path&,
                                               const ComponentAccumulator&, const GridFrame&,

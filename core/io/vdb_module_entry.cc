@@ -5,6 +5,7 @@
 #include <string>
 #include <vector>
 
+#include "core/io/vdb_file.h"
 #include "core/io/vdb_impl.h"
 #include "core/io/vdb_module.h"
 #include "core/matrix/component_grid.h"
@@ -43,6 +44,7 @@ VdbModule MakeTable() {
   t.read_bytes = &ReadVdbBytes;
   t.read_vec3_file = &ReadVec3VdbFile;
   t.check_untrusted = &CheckUntrustedVdb;
+  t.set_digest_sink = &vdb_internal::SetDigestSink;
   t.write_density_and_component = &WriteDensityAndComponentVdb;
   t.read_component_grid = &ReadComponentGrid;
   t.voxelize_mesh = &VoxelizeMesh;
