@@ -1,10 +1,10 @@
-// PNG writing (docs/images.md, "PNG bytes"): the flam3 comparison's flame
-// picture (bench/flam3/flame6_2d_image.json, 10^8 points at 1024^2) is
-// drawn once, then written as the picture job wrote it before (develop
-// the whole picture, then libpng) and as it does now (WriteDevelopedImage:
-// bands developed and filtered in parallel while one thread deflates),
-// with the encoder's parts on their own. Every way must give the same
-// bytes; the bench says so. Prints figures, best of REPEAT; asserts nothing.
+// PNG writing (docs/images.md): the flam3 comparison's flame picture
+// (bench/flam3/flame6_2d_image.json, 10^8 points at 1024^2) is drawn once,
+// then written through libpng (WritePng) on one and on all threads, and as
+// the picture job writes it: developed whole then written, and developed in
+// bands while libpng encodes (WriteDevelopedImage), which must give the
+// same bytes; the bench says so. Prints figures, best of REPEAT; asserts
+// nothing.
 //
 // Usage: png_bench [THREADS [REPEAT]]   (default 2 and 7)
 #include <tbb/global_control.h>
@@ -21,10 +21,9 @@
 #include "core/chaos/chaos_game.h"
 #include "core/grid/image_look.h"
 #include "core/io/image_io.h"
-#include "core/io/png_encoder.h"
+#include "core/io/png_io.h"
 #include "proto/spec_convert.h"
 #include "proto/spec_io.h"
-#include "tests/support/libpng_writer.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus {
@@ -60,8 +59,7 @@ bool DrawFlame(CountGrid* counts, LookParams* look) {
   return true;
 }
 
-// Quantised 8- or 16-bit samples of `rgb`, host order: the encoder's rows
-// and libpng's input (std::lround, as the library's quantiser rounds).
+// Quantised 8- or 16-bit samples of `rgb`, host order (std::lround).
 std::vector<uint8_t> Samples(const RgbImage& rgb, int depth) {
   const double max = depth == 8 ? 255 : 65535;
   const size_t bytes = size_t(depth / 8);
@@ -102,42 +100,33 @@ int Main(int argc, char** argv) {
   for (int depth : {8, 16}) {
     const PngShape shape{density.width, density.height, depth, 3};
     const std::vector<uint8_t> samples = Samples(*rgb, depth);
-    std::string ref, ours;
+    std::string bytes;
     auto rows = [&](int first, int last, uint8_t* out) {
       std::copy_n(&samples[size_t(first) * shape.RowBytes()],
                   size_t(last - first) * shape.RowBytes(), out);
       return absl::OkStatus();
     };
     std::printf("-- %d-bit samples\n", depth);
-    Line("libpng, defaults (the writer before)",
-         BestMs(repeat, [&] { ref = testing::LibpngEncode(shape, samples); }));
-    Line("EncodePng, 1 thread", BestMs(repeat, [&] {
+    Line("WritePng (libpng), 1 thread", BestMs(repeat, [&] {
            tbb::task_arena one(1);
            one.execute([&] {
-             ours.clear();
-             (void)EncodePng(shape, rows, {nullptr, &ours});
+             bytes.clear();
+             (void)WritePng(shape, rows, {nullptr, &bytes});
            });
          }));
-    Line("EncodePng",
-         BestMs(repeat,
-                [&] {
-                  ours.clear();
-                  (void)EncodePng(shape, rows, {nullptr, &ours});
-                }),
-         ours == ref ? "(same bytes as libpng)" : "(BYTES DIFFER FROM LIBPNG)");
-    std::printf("   %zu bytes\n", ours.size());
+    Line("WritePng (libpng)", BestMs(repeat, [&] {
+           bytes.clear();
+           (void)WritePng(shape, rows, {nullptr, &bytes});
+         }));
+    std::printf("   %zu bytes\n", bytes.size());
   }
   const ImageFormat png8 = ImageFormat::kPng8;
   std::printf("-- the picture job's last step: box filter, develop and write the 8-bit PNG\n");
   Line("box filter, 1 sample per pixel", box_ms);
-  Line("develop, then write (the job before)",
-       BestMs(repeat,
-              [&] {
-                auto whole = DevelopImage(density, look, nullptr);
-                const std::vector<uint8_t> s = Samples(*whole, 8);
-                (void)testing::LibpngEncode({density.width, density.height, 8, 3}, s);
-              }),
-       "(quantised with std::lround)");
+  Line("develop the whole picture, then WriteImage", BestMs(repeat, [&] {
+         auto whole = DevelopImage(density, look, nullptr);
+         (void)WriteImage(dir / "c.png", *whole, png8);
+       }));
   Line("develop the whole picture alone",
        BestMs(repeat, [&] { (void)DevelopImage(density, look, nullptr); }));
   Line("WriteDevelopedImage (the job now)", BestMs(repeat, [&] {

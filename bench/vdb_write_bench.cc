@@ -1,15 +1,9 @@
-// Writing results: the native writer (WriteDensityVdb: no OpenVDB, leaves
-// encoded in parallel, one grid at a time), the module's streamed writer
-// (the same through OpenVDB's leaf encoder) and building every grid whole
-// and writing it with OpenVDB's writer (still the path of downsampled
-// results). Prints wall and process CPU time and the peak-RSS growth of
-// each, for a 2D flame-like grid with colour and a dense cloud. All three
-// write the same bytes (tests/core/vdb_native_test.cc, vdb_stream_test.cc).
-// First, one leaf's Blosc call: libblosc's against core/io/blosc_lz4.h's,
-// which gives the same bytes (tests/core/blosc_lz4_test.cc), in ns a call.
+// Writing results with OpenVDB (WriteDensityVdb: every grid built from the
+// counts, then OpenVDB's archive writer). Prints wall and process CPU time
+// and the peak-RSS growth, for a 2D flame-like grid with colour and a dense
+// cloud.
 //
 //   build/bin/vdb_write_bench [repeats]
-#include <blosc.h>
 #include <sys/resource.h>
 #include <tbb/global_control.h>
 #include <time.h>
@@ -23,9 +17,6 @@
 #include <string>
 #include <vector>
 
-#include "core/io/blosc_lz4.h"
-#include "core/io/vdb_impl.h"
-#include "core/io/vdb_internal.h"
 #include "core/io/vdb_io.h"
 #include "tests/support/test_util.h"
 
@@ -89,46 +80,9 @@ void Case(const char* name, const CountGrid& counts, const DensityOptions& o, in
   f.resolution = counts.resolution();
   f.bounds = {{-1, -1, -1}, {1, 1, 1}};
   std::printf("%s (%zu MB of counters):\n", name, counts.MemoryBytes() >> 20);
-  // Streamed first: the peak-RSS column only grows, so the whole-grid
-  // writer's figure is what it adds on top.
-  Time("native (WriteDensityVdb)", repeats, [&] {
+  Time("WriteDensityVdb (OpenVDB)", repeats, [&] {
     if (!WriteDensityVdb(dir / "s.vdb", counts, f, o, {}).ok()) std::exit(1);
   });
-  Time("module's streamed writer", repeats, [&] {
-    if (!vdb_impl::WriteDensityVdb(dir / "m.vdb", counts, f, o, {}, {}).ok()) std::exit(1);
-  });
-  Time("whole grids + OpenVDB's writer", repeats, [&] {
-    if (!vdb_internal::WriteBuiltDensityVdb(dir / "w.vdb", counts, f, o, {}).ok()) std::exit(1);
-  });
-}
-
-// ns per call of `compress` on one buffer of `floats` small counts.
-template <typename F>
-double NsPerCall(size_t floats, F compress) {
-  std::mt19937 rng(1);
-  std::vector<float> v(floats);
-  for (float& f : v) f = float(1 + rng() % 4);
-  std::string out(floats * 4 + vdb_native::kBloscOverhead, '\0');
-  constexpr int kCalls = 100000;
-  const auto t0 = std::chrono::steady_clock::now();
-  for (int i = 0; i < kCalls; ++i)
-    compress(reinterpret_cast<const char*>(v.data()), floats * 4, out.data(), out.size());
-  const auto t1 = std::chrono::steady_clock::now();
-  return std::chrono::duration<double, std::nano>(t1 - t0).count() / kCalls;
-}
-
-// A 64-voxel density leaf, its colours, and a full leaf.
-void BloscCalls() {
-  std::printf("one Blosc call (LZ4, shuffle, one block), ns:\n");
-  for (size_t floats : {64, 192, 512}) {
-    const double lib = NsPerCall(floats, [](const char* in, size_t n, char* out, size_t room) {
-      blosc_compress_ctx(9, BLOSC_SHUFFLE, 4, n, in, out, room, BLOSC_LZ4_COMPNAME, n, 1);
-    });
-    const double ours = NsPerCall(floats, [](const char* in, size_t n, char* out, size_t room) {
-      vdb_native::BloscLz4(in, n, out, room);
-    });
-    std::printf("  %3zu floats: libblosc %6.0f  blosc_lz4.h %6.0f\n", floats, lib, ours);
-  }
 }
 
 }  // namespace
@@ -138,7 +92,6 @@ int main(int argc, char** argv) {
   using namespace nimbus;
   const int repeats = argc > 1 ? std::max(1, std::atoi(argv[1])) : 3;
   tbb::global_control threads(tbb::global_control::max_allowed_parallelism, 2);
-  BloscCalls();
   testing::TempDir dir;
   DensityOptions color;
   color.color = true;

@@ -61,17 +61,26 @@ absl::StatusOr<MemoryAdmission> CheckChaos(const ChaosEstimate& e, uint64_t extr
   return MemoryAdmission{peak, e.pilot_samples};
 }
 
+// The result grids OpenVDB holds while it writes them: whole 8^3 leaves
+// (512 voxels each) over at most `voxels` voxels of the grid, with ~15 %
+// tree overhead, `per_voxel` bytes a voxel over all grids.
+uint64_t BuiltGridBytes(uint64_t voxels, uint64_t per_voxel) {
+  return voxels * per_voxel * 115 / 100;
+}
+
 // Per median map: its set and its closest-point field; per step: the
 // current and next sets, a field over the moving set and image scratch;
-// the output counts; the book's page cache.
-uint64_t SetIfsBytes(const SetIfsPlan& plan, Int3 r) {
+// the output counts and the grids written from them (at worst every voxel
+// of the grid); the book's page cache.
+uint64_t SetIfsBytes(const SetIfsPlan& plan, Int3 r, uint64_t out_per_voxel) {
   uint64_t field_maps = 0;
   for (const SetMapPlan& m : plan.maps)
     field_maps += m.kind == SetMapKind::kMedian || m.kind == SetMapKind::kRotatedMedian;
   const uint64_t voxels = uint64_t(r.Volume());
   const uint64_t set_bytes = (uint64_t(r.x + 63) / 64) * 8 * uint64_t(r.y) * uint64_t(r.z);
   uint64_t bytes = field_maps * (voxels * 4 + set_bytes) + plan.maps.size() * set_bytes +
-                   voxels * 8 + set_bytes * 6 + CountGrid::MaxMemoryBytes(r);
+                   voxels * 8 + set_bytes * 6 + CountGrid::MaxMemoryBytes(r) +
+                   BuiltGridBytes(voxels, out_per_voxel);
   if (plan.book) bytes += plan.book_cache_bytes;
   return bytes;
 }
@@ -119,7 +128,8 @@ absl::StatusOr<MemoryAdmission> AdmitSetIfs(const JobPlan& plan, const SetIfsPla
   for (const SetMapPlan& m : s.maps)
     if (m.condensation) sources.push_back(&*m.condensation);
   const MeshPrice mesh = PriceMeshes(sources, plan.frame, threads);
-  const uint64_t bytes = mesh.Plus(SetIfsBytes(s, plan.frame.resolution));
+  const uint64_t bytes = mesh.Plus(
+      SetIfsBytes(s, plan.frame.resolution, OutputBytesPerVoxel(plan.density)));
   if (bytes > limits.max_memory_bytes)
     return OverLimit("grid.resolution", "the job", bytes, mesh, limits);
   return MemoryAdmission{bytes, 0};
@@ -151,7 +161,8 @@ absl::StatusOr<MemoryAdmission> AdmitFractalField(const JobPlan& plan, const Fra
 
 // A jelly frame: the leaf buffers (VRR levels, this frame's and the last
 // frame's leaves), the voxel order for velocities, the counts, and the
-// written grids (density and v) on at most one voxel per leaf.
+// written grids (density and v, 12 bytes a voxel) on at most one voxel per
+// leaf, each in an 8^3 grid leaf of its own at worst.
 absl::StatusOr<MemoryAdmission> AdmitJelly(const JobPlan& plan, const JellyPlan& k,
                                            const spec::Limits& limits) {
   const Int3 r = plan.frame.resolution;
@@ -160,8 +171,10 @@ absl::StatusOr<MemoryAdmission> AdmitJelly(const JobPlan& plan, const JellyPlan&
                                              k.render.start_points.size())
                               : k.render.points;
   const uint64_t voxels = std::min<uint64_t>(leaves, uint64_t(r.Volume()));
-  const uint64_t bytes = leaves * (4 * sizeof(Vec3) + 16) + CountGrid::MaxMemoryBytes(r) +
-                         voxels * (OutputBytesPerVoxel(plan.density) + 3 * sizeof(float) + 32);
+  const uint64_t grid_voxels = std::min<uint64_t>(voxels * 512, uint64_t(r.Volume()));
+  const uint64_t bytes =
+      leaves * (4 * sizeof(Vec3) + 16) + CountGrid::MaxMemoryBytes(r) + voxels * 32 +
+      BuiltGridBytes(grid_voxels, OutputBytesPerVoxel(plan.density) + 3 * sizeof(float));
   if (bytes > limits.max_memory_bytes)
     return absl::ResourceExhaustedError(StrCat("jelly.depth: the job needs up to ", GiB(bytes),
                                                " of memory for ", leaves,

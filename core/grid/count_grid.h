@@ -273,38 +273,6 @@ class CountGrid {
       }
     });
   }
-  /// Calls f(Int3 leaf_origin, const uint64_t* mask) for the leaves
-  /// ForEachLeafInTiles visits, with their 512-bit masks of non-zero
-  /// counters (bit i of word i >> 6 for counter i): the topology alone,
-  /// without gathering a folded grid's counters.
-  template <typename F>
-  void ForEachLeafMaskInTiles(size_t begin, size_t end, F&& f) const {
-    uint64_t mask[8];
-    if (!folded()) {
-      ForEachLeafInTiles(begin, end, [&](Int3 o, const uint32_t* v, const uint64_t*) {
-        for (int w = 0; w < 8; ++w) mask[w] = NonZeroBits(v + w * 64, 1);
-        f(o, mask);
-      });
-      return;
-    }
-    for (size_t t = begin; t < end; ++t) {
-      if (!table_[t]) continue;
-      const Int3 o = TileOrigin(t);
-      for (int leaf = 0; leaf < 64; ++leaf) {
-        const uint32_t* lv = table_[t] + leaf * 512;
-        for (int j = 0; j < 8; ++j) {
-          // Voxel (i, k, 0) of the voxel leaf is stored at i << 6 | j << 3 | k
-          // and is bit k << 3 of mask word i.
-          uint64_t any = 0;
-          for (int i = 0; i < 8; ++i) any |= mask[i] = NonZeroBits(lv + (i << 6) + (j << 3), 8);
-          if (!any) continue;
-          f(Int3{o.x + ((leaf >> 4) & 3) * 8,
-                 ((o.y + ((leaf >> 2) & 3) * 8 + j) << kTileLog2) + o.z + (leaf & 3) * 8, 0},
-            mask);
-        }
-      }
-    }
-  }
   /// Voxel coordinates (relative to its tile's origin) of a local offset.
   static Int3 LocalCoord(uint32_t offset) {
     const uint32_t leaf = offset >> 9, v = offset & 511;
@@ -325,12 +293,6 @@ class CountGrid {
   }
   // Allocates the tile, or returns the scratch tile past the limit.
   uint32_t* Allocate(uint64_t tile);
-  // Bit k * stride set where v[k] != 0, for the 64 / stride counters v[0..).
-  static uint64_t NonZeroBits(const uint32_t* v, int stride) {
-    uint64_t bits = 0;
-    for (int k = 0; k < 64 / stride; ++k) bits |= uint64_t(v[k] != 0) << (k * stride);
-    return bits;
-  }
   static bool AllZero(const uint32_t* v, int n) {
     for (int i = 0; i < n; ++i)
       if (v[i]) return false;

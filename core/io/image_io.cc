@@ -17,7 +17,7 @@
 #include "absl/strings/str_cat.h"
 #include "core/base/status_macros.h"
 #include "core/io/file_ptr.h"
-#include "core/io/png_encoder.h"
+#include "core/io/png_io.h"
 
 namespace nimbus {
 
@@ -91,12 +91,11 @@ const char* ImageExtension(ImageFormat format) {
 absl::Status WriteImage(const std::filesystem::path& path, const RgbImage& image,
                         ImageFormat format) {
   NIMBUS_RETURN_IF_ERROR(CheckImage(image));
-  return WriteThroughTemp(path, [&](const std::filesystem::path& tmp) {
-    if (format == ImageFormat::kExr) return WriteExr(tmp, image);
-    const int depth = PngDepth(format);
-    return EncodePngFile(tmp, {image.width, image.height, depth, 3}, QuantisedRows(image, depth),
-                         nullptr);
-  });
+  if (format == ImageFormat::kExr)
+    return WriteThroughTemp(path,
+                            [&](const std::filesystem::path& tmp) { return WriteExr(tmp, image); });
+  const int depth = PngDepth(format);
+  return WritePngFile(path, {image.width, image.height, depth, 3}, QuantisedRows(image, depth));
 }
 
 absl::Status WriteDevelopedImage(const std::filesystem::path& path, const ImageDensity& density,
@@ -115,16 +114,14 @@ absl::Status WriteDevelopedImage(const std::filesystem::path& path, const ImageD
     QuantiseRgb(rgb.data(), n, depth, out);
     return absl::OkStatus();
   };
-  return WriteThroughTemp(path, [&](const std::filesystem::path& tmp) {
-    return EncodePngFile(tmp, {density.width, density.height, depth, 3}, rows, interrupter);
-  });
+  return WritePngFile(path, {density.width, density.height, depth, 3}, rows, interrupter);
 }
 
 absl::StatusOr<std::string> EncodePng8(const RgbImage& image) {
   NIMBUS_RETURN_IF_ERROR(CheckImage(image));
   std::string bytes;
   NIMBUS_RETURN_IF_ERROR(
-      EncodePng({image.width, image.height, 8, 3}, QuantisedRows(image, 8), {nullptr, &bytes}));
+      WritePng({image.width, image.height, 8, 3}, QuantisedRows(image, 8), {nullptr, &bytes}));
   return bytes;
 }
 

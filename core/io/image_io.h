@@ -1,5 +1,5 @@
-// @brief Colour picture files: 8- and 16-bit RGB PNG (written by
-// png_encoder.h, read with libpng) and float RGB OpenEXR. The libraries stay
+// @brief Colour picture files: 8- and 16-bit RGB PNG (through libpng,
+// png_io.h) and float RGB OpenEXR. The libraries stay
 // behind this header.
 #pragma once
 
@@ -26,7 +26,7 @@ absl::Status WriteImage(const std::filesystem::path& path, const RgbImage& image
 
 /// Develops `density` with `look` (DevelopImage) and writes it as
 /// WriteImage does. A PNG without glow is developed a band of rows at a
-/// time while it is encoded (png_encoder.h), so the float picture never
+/// time while libpng encodes it (WritePng), so the float picture never
 /// exists whole; the bytes are the same either way.
 absl::Status WriteDevelopedImage(const std::filesystem::path& path, const ImageDensity& density,
                                  const LookParams& look, ImageFormat format,

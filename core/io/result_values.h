@@ -1,14 +1,10 @@
-// How a result's voxel values come from its counts, shared by the OpenVDB
-// module's writers (vdb_io.cc) and the native one (vdb_native_result.cc) so
-// both compute the same floats: the density mapping and the gathering of
-// one 8^3 leaf's counters.
+// How a result's densities come from its counts (vdb_io.cc): the density
+// mapping's name and the normaliser.
 #pragma once
 
 #include <algorithm>
-#include <bit>
 #include <cmath>
 #include <cstdint>
-#include <cstring>
 #include <vector>
 
 #include "core/grid/count_grid.h"
@@ -65,74 +61,5 @@ struct Normaliser {
     return 0.f;
   }
 };
-
-// What both writers of a result take from its counts, computed once: the
-// largest and total count (recorded as metadata), the density's
-// normaliser, and whether colour is written.
-struct CountedResult {
-  const CountGrid& counts;
-  const DensityOptions& options;
-  const Metadata& metadata;
-  CountGrid::Sums sums;
-  Normaliser norm;
-  bool color;
-
-  CountedResult(const CountGrid& c, const DensityOptions& o, const Metadata& m)
-      : counts(c),
-        options(o),
-        metadata(m),
-        sums(c.MaxAndTotal()),
-        norm(o, sums.max),
-        color(o.color && c.has_color()) {}
-};
-
-// The 512 counters (and colour sums, when `cs`) of the voxel leaf at `o`,
-// in LeafNode order, as CountGrid::ForEachLeaf hands them out.
-inline void GatherCountLeaf(const CountGrid& counts, Int3 o, uint32_t* v, uint64_t* cs) {
-  if (!counts.folded()) {
-    // Unfolded, a voxel leaf is 512 consecutive counters of one tile.
-    const uint64_t key = counts.Key(o.x, o.y, o.z);
-    const uint64_t tile = key >> 15, off = key & 0x7fff;
-    std::memcpy(v, counts.TileOrNull(tile) + off, 512 * sizeof(uint32_t));
-    if (cs) std::memcpy(cs, counts.ColorTileOrNull(tile) + off, 512 * sizeof(uint64_t));
-    return;
-  }
-  // Folded, only the z = 0 slice exists, scattered over a tile's rows.
-  std::memset(v, 0, 512 * sizeof(uint32_t));
-  if (cs) std::memset(cs, 0, 512 * sizeof(uint64_t));
-  for (int i = 0; i < 8; ++i)
-    for (int k = 0; k < 8; ++k) {
-      const uint64_t key = counts.Key(o.x + i, o.y + k, 0);
-      const uint64_t tile = key >> 15, off = key & 0x7fff;
-      v[(i << 6) | (k << 3)] = counts.TileOrNull(tile)[off];
-      if (cs) cs[(i << 6) | (k << 3)] = counts.ColorTileOrNull(tile)[off];
-    }
-}
-
-/// The counters (and colour sums, when `cs`) of the voxels of the leaf at
-/// `o` that `active` marks, packed in voxel order, with each one's index in
-/// the leaf in `at`; returns how many. The writers' inner loop: it finds
-/// the leaf's stored block once rather than each voxel's key.
-inline size_t GatherActiveCounts(const CountGrid& counts, Int3 o, const uint64_t* active,
-                                 uint16_t* at, uint32_t* v, uint64_t* cs) {
-  const uint64_t key = counts.Key(o.x, o.y, o.z);
-  const uint64_t tile = key >> 15, off = key & 0x7fff;
-  const uint32_t* t = counts.TileOrNull(tile) + off;
-  const uint64_t* c = cs ? counts.ColorTileOrNull(tile) + off : nullptr;
-  // Voxel i of the leaf lies at t[i] unfolded. Folded only z = 0 exists and
-  // voxel (a, b, 0), i = a << 6 | b << 3, lies at t[a << 6 | b].
-  const int shift = counts.folded() ? 3 : 0;
-  size_t n = 0;
-  for (int w = 0; w < 8; ++w)
-    for (uint64_t bits = active[w]; bits; bits &= bits - 1) {
-      const int i = w * 64 + std::countr_zero(bits);
-      const int s = (w << 6) | ((i & 63) >> shift);
-      at[n] = uint16_t(i);
-      v[n] = t[s];
-      if (c) cs[n] = c[s];
-      ++n;
-    }
-  return n;
-}
 
 }  // namespace nimbus

@@ -9,7 +9,6 @@
 #include "core/base/status_macros.h"
 #include "core/io/vdb_io.h"
 #include "core/io/vdb_module.h"
-#include "core/io/vdb_native_result.h"
 
 namespace nimbus {
 
@@ -135,7 +134,7 @@ CountGrid DownsampleCounts(const std::vector<const CountGrid*>& parts, int facto
   return out;
 }
 
-// ---- Forwarders to the native writer or the module ----
+// ---- Forwarders to the module ----
 
 absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid& counts,
                              const GridFrame& frame, const DensityOptions& options,
@@ -146,9 +145,6 @@ absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid&
 absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid& counts,
                              const GridFrame& frame, const DensityOptions& options,
                              const Metadata& metadata, const std::vector<Vec3Field>& fields) {
-  // Full-resolution results need no OpenVDB (vdb_native_result.h).
-  if (vdb_native::CanWriteResult(counts, options, fields))
-    return vdb_native::WriteDensityVdb(path, counts, frame, options, metadata, fields);
   NIMBUS_ASSIGN_OR_RETURN(const VdbModule* vdb, LoadVdbModule());
   return vdb->write_density(path, counts, frame, options, metadata, fields);
 }
@@ -156,8 +152,6 @@ absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid&
 absl::Status WriteIntegerCountsVdb(const std::filesystem::path& path, const CountGrid& counts,
                                    const GridFrame& frame, const DensityOptions& options,
                                    const Metadata& metadata) {
-  if (vdb_native::CanWriteResult(counts, vdb_native::IntegerCountsOptions(options)))
-    return vdb_native::WriteIntegerCountsVdb(path, counts, frame, options, metadata);
   NIMBUS_ASSIGN_OR_RETURN(const VdbModule* vdb, LoadVdbModule());
   return vdb->write_integer_counts(path, counts, frame, options, metadata);
 }

@@ -8,7 +8,6 @@
 #include <atomic>
 #include <cerrno>
 #include <cstring>
-#include <fstream>
 #include <new>
 #include <string_view>
 #include <system_error>
@@ -18,7 +17,6 @@
 #include "absl/strings/str_cat.h"
 #include "core/base/file_digests.h"
 #include "core/base/sha256.h"
-#include "core/io/leaf_runs.h"
 
 namespace nimbus::vdb_internal {
 
@@ -62,9 +60,10 @@ std::atomic<int> g_fail_errno{0};
 
 // The status of a failed write: a full disk or quota is the client's
 // RESOURCE_EXHAUSTED (retry later, or somewhere else), anything else an
-// internal error; both name the file.
+// internal error; both name the file, never its folder.
 absl::Status WriteError(const std::filesystem::path& path, int err, const std::string& what) {
-  const std::string detail = absl::StrCat(path.string(), ": ", what, ": ", std::strerror(err));
+  const std::string detail =
+      absl::StrCat(path.filename().string(), ": ", what, ": ", std::strerror(err));
   if (err == ENOSPC || err == EDQUOT)
     return absl::ResourceExhaustedError(
         absl::StrCat("disk full while writing the result: ", detail));
@@ -73,10 +72,8 @@ absl::Status WriteError(const std::filesystem::path& path, int err, const std::s
 
 // A seekable output buffer over a file descriptor that keeps the first
 // write error: std::ofstream (and so openvdb::io::File) loses errno and
-// OpenVDB never checks the stream, so a full disk left a short file that
-// looked written. While the file is written front to back (the native
-// writer) it also hashes the content for the UUID as the bytes pass, so
-// the file need not be read again to stamp it.
+// OpenVDB never checks the stream, so a full disk would leave a short file
+// that looked written.
 class CheckedFileBuf : public std::streambuf {
  public:
   explicit CheckedFileBuf(int fd) : fd_(fd), buf_(size_t{1} << 16) {
@@ -88,7 +85,6 @@ class CheckedFileBuf : public std::streambuf {
     const char* p = pbase();
     size_t n = size_t(pptr() - pbase());
     setp(buf_.data(), buf_.data() + buf_.size());
-    Hash(p, n);
     while (n > 0 && error_ == 0) {
       const int64_t limit = g_fail_after.load();
       if (limit >= 0 && pos_ + n > uint64_t(limit)) {
@@ -106,12 +102,6 @@ class CheckedFileBuf : public std::streambuf {
     }
     StartWriteback();
     return error_ == 0;
-  }
-  /// The content UUID of a file written front to back with a VDB header;
-  /// empty when it was not (then the file must be read to stamp it).
-  std::string ContentUuid() {
-    if (!sequential_ || hashed_ != end_ || !LooksLikeHeader(head_)) return "";
-    return UuidFromDigest(content_.HexDigest());
   }
 
  protected:
@@ -138,29 +128,12 @@ class CheckedFileBuf : public std::streambuf {
   }
 
  private:
-  // Feeds bytes about to be written at pos_ to the content hash, all but
-  // the UUID's; any write not at the hashed end (a back-patch) ends it.
-  void Hash(const char* p, size_t n) {
-    if (!sequential_ || n == 0) return;
-    if (pos_ != hashed_) {
-      sequential_ = false;
-      return;
-    }
-    const uint64_t a = pos_, b = pos_ + n;
-    if (a < kUuidOffset + kUuidSize)
-      head_.append(p, size_t(std::min<uint64_t>(b, kUuidOffset + kUuidSize) - a));
-    if (a < kUuidOffset) content_.Update({p, size_t(std::min<uint64_t>(b, kUuidOffset) - a)});
-    const uint64_t from = std::max<uint64_t>(a, kUuidOffset + kUuidSize);
-    if (from < b) content_.Update({p + (from - a), size_t(b - from)});
-    hashed_ = b;
-  }
-
   // Asks the kernel to start writing each few MiB out while the rest is
   // still being encoded, so the final fsync waits for the last of them
   // only. Advice: a failure here shows in the fsync.
   void StartWriteback() {
     constexpr uint64_t kStep = uint64_t{4} << 20;
-    if (!sequential_ || pos_ < started_ + kStep) return;
+    if (pos_ < started_ + kStep) return;
     ::sync_file_range(fd_, off_t(started_), off_t(pos_ - started_), SYNC_FILE_RANGE_WRITE);
     started_ = pos_;
   }
@@ -170,11 +143,32 @@ class CheckedFileBuf : public std::streambuf {
   std::vector<char> buf_;
   int error_ = 0;
   uint64_t pos_ = 0, end_ = 0;
-  Sha256 content_;
-  std::string head_;  // the first bytes, up to the UUID's end
-  uint64_t hashed_ = 0;
-  bool sequential_ = true;
 };
+
+// Replaces the UUID of the VDB file open as `fd` with its content UUID.
+// Returns errno on failure (EINVAL: no VDB header).
+int StampUuid(int fd) {
+  std::string head(kUuidOffset + kUuidSize, '\0');
+  if (::pread(fd, head.data(), head.size(), 0) != ssize_t(head.size()) || !LooksLikeHeader(head))
+    return EINVAL;
+  Sha256 h;
+  h.Update(std::string_view(head).substr(0, kUuidOffset));
+  std::vector<char> buf(size_t{1} << 20);
+  for (off_t at = off_t(head.size());;) {
+    const ssize_t n = ::pread(fd, buf.data(), buf.size(), at);
+    if (n < 0 && errno == EINTR) continue;
+    if (n < 0) return errno;
+    if (n == 0) break;
+    h.Update(std::string_view(buf.data(), size_t(n)));
+    at += n;
+  }
+  const std::string uuid = UuidFromDigest(h.HexDigest());
+  if (::pwrite(fd, uuid.data(), uuid.size(), off_t(kUuidOffset)) != ssize_t(uuid.size()))
+    return errno != 0 ? errno : EIO;
+  return 0;
+}
+
+std::atomic<DigestSink> g_digest_sink{&RememberFileSha256};
 
 absl::Status SyncFile(int fd, const std::filesystem::path& path) {
   if (::fsync(fd) != 0) return WriteError(path, errno, "fsync failed");
@@ -203,15 +197,15 @@ absl::Status SyncWhileHashing(int fd, const std::filesystem::path& tmp,
   }
   sync.join();
   if (sync_errno != 0) return WriteError(path, sync_errno, "fsync failed");
-  if (sha.ok()) RememberFileSha256(fd, *sha);
+  if (sha.ok()) g_digest_sink.load()(fd, *sha);
   return absl::OkStatus();
 }
 
-// Writes the archive to `tmp`, stamps its UUID when it could hash the
-// content on the way (`stamped`), fsyncs it and checks its size on disk.
+// Writes the archive to `tmp`, stamps its content UUID, fsyncs it (while
+// hashing it for the result store) and checks its size on disk.
 absl::Status WriteChecked(const std::filesystem::path& path, const std::filesystem::path& tmp,
-                          const ArchiveFn& write_archive, bool& stamped) {
-  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+                          const ArchiveFn& write_archive) {
+  const int fd = ::open(tmp.c_str(), O_RDWR | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   if (fd < 0) return WriteError(path, errno, "cannot create " + tmp.filename().string());
   CheckedFileBuf buf(fd);
   std::ostream os(&buf);
@@ -219,27 +213,19 @@ absl::Status WriteChecked(const std::filesystem::path& path, const std::filesyst
   try {
     write_archive(os);
     os.flush();
-  } catch (const SpillFileError& e) {
-    // The leaves waiting on the result's disk: the same disk, the same
-    // error. A spill folder of the caller's own choosing is named too.
-    const bool elsewhere = !e.dir().empty() && e.dir() != path.parent_path();
-    st = WriteError(path, e.error(),
-                    absl::StrCat(e.what(), elsewhere ? " in " + e.dir().string() : ""));
   } catch (const std::exception& e) {
     if (buf.error() == 0)
-      st = absl::InternalError(absl::StrCat("writing ", path.string(), ": ", e.what()));
+      st = absl::InternalError(absl::StrCat("writing ", path.filename().string(), ": ", e.what()));
   }
   buf.Flush();
   if (st.ok() && buf.error() != 0) st = WriteError(path, buf.error(), "write failed");
-  const std::string uuid = st.ok() ? buf.ContentUuid() : "";
-  if (!uuid.empty()) {
-    stamped = ::pwrite(fd, uuid.data(), uuid.size(), off_t(kUuidOffset)) == ssize_t(uuid.size());
-    if (!stamped) st = WriteError(path, errno, "cannot stamp the UUID");
+  if (st.ok()) {
+    if (const int err = StampUuid(fd); err != 0) st = WriteError(path, err, "cannot stamp the UUID");
   }
-  if (st.ok()) st = stamped ? SyncWhileHashing(fd, tmp, path) : SyncFile(fd, path);
+  if (st.ok()) st = SyncWhileHashing(fd, tmp, path);
   struct stat sb {};
   if (st.ok() && (::fstat(fd, &sb) != 0 || uint64_t(sb.st_size) != buf.end()))
-    st = absl::InternalError(absl::StrCat("writing ", path.string(), ": ", buf.end(),
+    st = absl::InternalError(absl::StrCat("writing ", path.filename().string(), ": ", buf.end(),
                                           " bytes written but the file holds ", sb.st_size));
   if (::close(fd) != 0 && st.ok()) st = WriteError(path, errno, "close failed");
   return st;
@@ -260,21 +246,13 @@ void SetWriteFaultForTesting(int64_t fail_after_bytes, int error) {
   g_fail_after = fail_after_bytes;
 }
 
+void SetDigestSink(DigestSink sink) { g_digest_sink = sink ? sink : &RememberFileSha256; }
+
 absl::Status WriteArchiveAtomically(const std::filesystem::path& path,
                                     const ArchiveFn& write_archive) {
   const std::filesystem::path tmp = path.string() + ".partial";
   std::error_code ec;
-  bool stamped = false;
-  absl::Status st = WriteChecked(path, tmp, write_archive, stamped);
-  // A file written out of order (OpenVDB's writer seeks back to patch
-  // offsets) is read again to stamp its UUID in place (36 bytes, no new
-  // blocks), then synced again.
-  if (st.ok() && !stamped) st = StampContentUuid(tmp);
-  if (st.ok() && !stamped) {
-    const int fd = ::open(tmp.c_str(), O_WRONLY | O_CLOEXEC);
-    if (fd < 0 || ::fsync(fd) != 0) st = WriteError(path, errno, "fsync failed");
-    if (fd >= 0) ::close(fd);
-  }
+  absl::Status st = WriteChecked(path, tmp, write_archive);
   if (st.ok()) {
     std::filesystem::rename(tmp, path, ec);
     if (ec) st = WriteError(path, ec.value(), "rename failed");
@@ -288,24 +266,14 @@ absl::Status WriteArchiveAtomically(const std::filesystem::path& path,
 }
 
 absl::Status StampContentUuid(const std::filesystem::path& path) {
-  std::fstream f(path, std::ios::in | std::ios::out | std::ios::binary);
-  std::string head(kUuidOffset + kUuidSize, '\0');
-  if (!f || !f.read(head.data(), std::streamsize(head.size())) || !LooksLikeHeader(head))
-    return absl::InternalError(absl::StrCat(path.string(), ": not a VDB file header"));
-  Sha256 h;
-  h.Update(std::string_view(head).substr(0, kUuidOffset));
-  std::string buf(size_t{1} << 20, '\0');
-  while (f.read(buf.data(), std::streamsize(buf.size())) || f.gcount() > 0)
-    h.Update(std::string_view(buf.data(), size_t(f.gcount())));
-  f.clear();
-  const std::string uuid = UuidFromDigest(h.HexDigest());
-  f.seekp(std::streamoff(kUuidOffset));
-  f.write(uuid.data(), std::streamsize(uuid.size()));
-  f.close();
-  if (!f) return absl::InternalError(absl::StrCat(path.string(), ": cannot stamp the UUID"));
+  const int fd = ::open(path.c_str(), O_RDWR | O_CLOEXEC);
+  const int err = fd < 0 ? errno : StampUuid(fd);
+  if (fd >= 0) ::close(fd);
+  if (err != 0)
+    return absl::InternalError(absl::StrCat(path.filename().string(), ": cannot stamp the UUID: ",
+                                            err == EINVAL ? "not a VDB file header"
+                                                          : std::strerror(err)));
   return absl::OkStatus();
 }
-
-
 
 }  // namespace nimbus::vdb_internal

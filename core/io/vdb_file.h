@@ -1,7 +1,6 @@
-// Writing a .vdb file safely, with no OpenVDB: every write checked, the
-// file fsynced, its UUID derived from its content, and renamed into place
-// only when whole. Shared by the OpenVDB module's writers and the native
-// result writer (vdb_native.h).
+// Writing a .vdb file safely: every write checked, the file fsynced, its
+// UUID derived from its content, and renamed into place only when whole.
+// Part of the OpenVDB module (vdb_module.h), under every writer of it.
 #pragma once
 
 #include <cstdint>
@@ -21,17 +20,25 @@ inline constexpr int64_t kVdbMagic = 0x56444220;
 using ArchiveFn = std::function<void(std::ostream&)>;
 
 /// Writes `path` + ".partial" with `write_archive`, checking every write,
-/// fsyncs it, checks its size, stamps the content UUID and renames it into
-/// place, so readers never see a half-written file. A full disk (ENOSPC,
-/// EDQUOT) is RESOURCE_EXHAUSTED "disk full while writing the result: …";
-/// other failures INTERNAL. Removes the partial file on failure.
+/// stamps the content UUID, fsyncs it (handing its SHA-256 to the digest
+/// sink), checks its size and renames it into place, so readers never see a
+/// half-written file. A full disk (ENOSPC, EDQUOT) is RESOURCE_EXHAUSTED
+/// "disk full while writing the result: NAME: …"; other failures INTERNAL.
+/// Messages name the file, never its folder. Removes the partial file on
+/// failure.
 absl::Status WriteArchiveAtomically(const std::filesystem::path& path,
                                     const ArchiveFn& write_archive);
 
 /// Tests only: every later write fails with `error` (errno) once a file
-/// would grow past `fail_after_bytes`; -1 turns the fault off. (The module
-/// keeps its own copy: this one reaches the writers outside it.)
+/// would grow past `fail_after_bytes`; -1 turns the fault off.
 void SetWriteFaultForTesting(int64_t fail_after_bytes, int error);
+
+/// Where WriteArchiveAtomically records the digest of each file it wrote:
+/// RememberFileSha256 (core/base/file_digests.h) of the program that
+/// loaded the module, which LoadVdbModule installs, since the module holds
+/// a copy of core/base of its own. Null restores the module's copy.
+using DigestSink = void (*)(int fd, const std::string& sha256);
+void SetDigestSink(DigestSink sink);
 
 /// OpenVDB writes a random UUID into every file; these replace it with one
 /// derived from the SHA-256 of the rest of the file, so the same grids give

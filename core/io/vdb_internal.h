@@ -29,23 +29,13 @@ void SetFrameMetadata(openvdb::GridBase& grid, const GridFrame& frame);
 /// Every grid of a .vdb file. Throws OpenVDB's exceptions; callers turn
 /// them into statuses.
 openvdb::GridPtrVecPtr ReadAllGrids(const std::filesystem::path& path);
-/// Writes `grids` (Blosc) to `path` + ".partial", checking every write,
+/// Writes `grids` with OpenVDB's archive writer (Blosc and active-mask
+/// compression) to `path` + ".partial", checking every write,
 /// fsyncs it, checks its size, stamps the content UUID and renames it into
 /// place, so readers never see a half-written file. A full disk (ENOSPC,
 /// EDQUOT) is RESOURCE_EXHAUSTED "disk full while writing the result: …";
 /// other failures INTERNAL. Removes the partial file on failure.
 absl::Status WriteGridsAtomically(const std::filesystem::path& path,
                                   const openvdb::GridPtrVec& grids);
-/// WriteDensityVdb and WriteIntegerCountsVdb by building every grid whole
-/// and writing them with OpenVDB's own writer: the path of downsampled
-/// results, and the reference the streamed writer (vdb_stream.h) must match
-/// byte for byte.
-absl::Status WriteBuiltDensityVdb(const std::filesystem::path& path, const CountGrid& counts,
-                                  const GridFrame& frame, const DensityOptions& options,
-                                  const Metadata& metadata,
-                                  const std::vector<Vec3Field>& fields = {});
-absl::Status WriteBuiltIntegerCountsVdb(const std::filesystem::path& path,
-                                        const CountGrid& counts, const GridFrame& frame,
-                                        const DensityOptions& options, const Metadata& metadata);
 
 }  // namespace nimbus::vdb_internal

@@ -2,32 +2,23 @@
 // (vdb_module.h), where vdb_module_entry.cc puts these functions in its table.
 #include "core/io/vdb_io.h"
 
+#include <openvdb/io/Compression.h>
 #include <openvdb/io/Stream.h>
 #include <openvdb/tools/SignedFloodFill.h>
 #include <openvdb/openvdb.h>
-
-#include <fcntl.h>
-#include <sys/stat.h>
-#include <unistd.h>
+#include <tbb/parallel_for.h>
 
 #include <algorithm>
-#include <atomic>
-#include <cerrno>
 #include <cmath>
-#include <cstring>
-#include <fstream>
+#include <memory>
 #include <mutex>
-#include <optional>
 #include <sstream>
 #include <vector>
 
 #include "absl/strings/str_cat.h"
-#include "core/base/sha256.h"
 #include "core/io/metadata_keys.h"
 #include "core/io/vdb_impl.h"
 #include "core/io/vdb_internal.h"
-#include "core/io/vdb_native_result.h"
-#include "core/io/vdb_stream.h"
 #include "core/io/result_values.h"
 
 namespace nimbus {
@@ -79,8 +70,14 @@ openvdb::GridPtrVecPtr ReadAllGrids(const std::filesystem::path& path) {
 
 namespace {
 
-// openvdb::io::File::write, byte for byte, into a stream of ours: the
-// archive's stream writer is protected.
+// The archive compression of every Nimbus file.
+constexpr uint32_t kArchiveCompression =
+    openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK;
+
+// OpenVDB's own archive writer (what io::File::write calls), into a stream
+// of ours: io::File writes through a std::ofstream it never checks, so a
+// full disk would leave a short file that looks whole. Archive's stream
+// writer is protected, hence the subclass; it adds nothing else.
 class ArchiveWriter : public openvdb::io::Archive {
  public:
   void WriteTo(std::ostream& os, const openvdb::GridPtrVec& grids) const {
@@ -97,16 +94,6 @@ absl::Status WriteGridsAtomically(const std::filesystem::path& path,
     archive.setCompression(kArchiveCompression);
     archive.WriteTo(os, grids);
   });
-}
-
-absl::Status WriteStreamedAtomically(const std::filesystem::path& path,
-                                     const std::vector<GridProducer>& grids) {
-  // Large grids' encoded leaves wait on the result's own disk, not in RAM
-  // (unless the caller named another place).
-  std::optional<SpillScope> spill;
-  if (SpillScope::Current() == nullptr)
-    spill.emplace(path.parent_path().empty() ? "." : path.parent_path(), kSpillKeepBytes);
-  return WriteArchiveAtomically(path, [&](std::ostream& os) { WriteStreamedArchive(os, grids); });
 }
 
 }  // namespace vdb_internal
@@ -151,8 +138,63 @@ struct ResultGrids {
   openvdb::Int64Grid::Ptr raw_i;
 };
 
-// Built leaf by leaf straight from the count tiles (CountGrid::ForEachLeaf),
-// in the spec's frame.
+// A grid's leaves built apart from its tree (on any thread), added later.
+template <typename LeafT>
+using LeafBatch = std::vector<std::unique_ptr<LeafT>>;
+using FloatLeaf = openvdb::FloatTree::LeafNodeType;
+
+template <typename GridT>
+void AddLeaves(LeafBatch<typename GridT::TreeType::LeafNodeType>& leaves, GridT& grid) {
+  for (auto& leaf : leaves) grid.tree().addLeaf(leaf.release());
+  leaves.clear();
+  leaves.shrink_to_fit();
+}
+
+// The leaves of one chunk of count tiles, one batch per grid of a result.
+struct ResultLeaves {
+  LeafBatch<FloatLeaf> density, addr, raw_f;
+  LeafBatch<openvdb::Vec3STree::LeafNodeType> cd;
+  LeafBatch<openvdb::Int64Tree::LeafNodeType> raw_i;
+};
+
+// Makes the leaves of every grid of a result at one 8^3 leaf of counts.
+struct ResultLeafMaker {
+  const DensityOptions& options;
+  const GridFrame& frame;
+  const Normaliser& norm;
+  bool color, address, raw_f, raw_i;
+
+  // A leaf at `c` whose voxels with a count are active, set to value(i).
+  template <typename LeafT, typename Value>
+  static void Add(LeafBatch<LeafT>& to, const openvdb::Coord& c, const uint32_t* v,
+                  const Value& value) {
+    auto leaf = std::make_unique<LeafT>(c, openvdb::zeroVal<typename LeafT::ValueType>());
+    for (int i = 0; i < 512; ++i)
+      if (v[i]) leaf->setValueOn(i, value(i));
+    to.push_back(std::move(leaf));
+  }
+
+  void operator()(Int3 o, const uint32_t* v, const uint64_t* cs, ResultLeaves& out) const {
+    const openvdb::Coord c(o.x, o.y, o.z);
+    Add(out.density, c, v, [&](int i) { return norm(v[i]); });
+    if (options.modulation) Modulate(options.modulation, frame, *out.density.back());
+    // The mean colour coordinate of a voxel's visits.
+    const double inv_scale = 1.0 / CountGrid::kColorScale;
+    auto coord = [&](int i) { return double(cs[i]) * inv_scale / double(v[i]); };
+    if (color)
+      Add(out.cd, c, v, [&](int i) {
+        const Vec3 rgb = options.palette.Eval(coord(i));
+        return openvdb::Vec3s(float(rgb.x), float(rgb.y), float(rgb.z));
+      });
+    if (address) Add(out.addr, c, v, [&](int i) { return float(coord(i)); });
+    if (raw_f) Add(out.raw_f, c, v, [&](int i) { return float(v[i]); });
+    if (raw_i) Add(out.raw_i, c, v, [&](int i) { return int64_t(v[i]); });
+  }
+};
+
+// Built straight from the count tiles, in the spec's frame: the leaves of
+// each chunk of tiles in parallel, then added to the trees (a tree does not
+// depend on the order its leaves come in).
 ResultGrids BuildFineGrids(const CountGrid& counts, uint32_t max_count, const GridFrame& frame,
                            const DensityOptions& options, bool int64_counts) {
   ResultGrids g;
@@ -167,38 +209,23 @@ ResultGrids BuildFineGrids(const CountGrid& counts, uint32_t max_count, const Gr
     g.raw_f = NewGrid<openvdb::FloatGrid>("counts", frame, openvdb::GRID_UNKNOWN);
   if (int64_counts) g.raw_i = NewGrid<openvdb::Int64Grid>("counts", frame, openvdb::GRID_UNKNOWN);
   const Normaliser norm(options, max_count);
-  auto& tree = g.density->tree();
-  const double inv_scale = 1.0 / CountGrid::kColorScale;
-  counts.ForEachLeaf([&](Int3 origin, const uint32_t* v, const uint64_t* cs) {
-    const openvdb::Coord c(origin.x, origin.y, origin.z);
-    auto* node = tree.touchLeaf(c);
-    for (int i = 0; i < 512; ++i)
-      if (v[i]) node->setValueOn(i, norm(v[i]));
-    if (options.modulation) Modulate(options.modulation, frame, *node);
-    if (color || address) {
-      auto* cd_node = color ? g.cd->tree().touchLeaf(c) : nullptr;
-      auto* a_node = address ? g.addr->tree().touchLeaf(c) : nullptr;
-      for (int i = 0; i < 512; ++i) {
-        if (!v[i]) continue;
-        const double t = double(cs[i]) * inv_scale / double(v[i]);
-        if (cd_node) {
-          const Vec3 rgb = options.palette.Eval(t);
-          cd_node->setValueOn(i, openvdb::Vec3s(float(rgb.x), float(rgb.y), float(rgb.z)));
-        }
-        if (a_node) a_node->setValueOn(i, float(t));
-      }
-    }
-    if (g.raw_f) {
-      auto* n = g.raw_f->tree().touchLeaf(c);
-      for (int i = 0; i < 512; ++i)
-        if (v[i]) n->setValueOn(i, float(v[i]));
-    }
-    if (g.raw_i) {
-      auto* n = g.raw_i->tree().touchLeaf(c);
-      for (int i = 0; i < 512; ++i)
-        if (v[i]) n->setValueOn(i, int64_t(v[i]));
-    }
+  const ResultLeafMaker make{options, frame, norm, color, address, bool(g.raw_f), bool(g.raw_i)};
+  constexpr size_t kTilesPerTask = 4;
+  const size_t tiles = counts.TileCount();
+  std::vector<ResultLeaves> chunks((tiles + kTilesPerTask - 1) / kTilesPerTask);
+  tbb::parallel_for(size_t{0}, chunks.size(), [&](size_t k) {
+    counts.ForEachLeafInTiles(k * kTilesPerTask, std::min(tiles, (k + 1) * kTilesPerTask),
+                              [&](Int3 o, const uint32_t* v, const uint64_t* cs) {
+                                make(o, v, cs, chunks[k]);
+                              });
   });
+  for (ResultLeaves& chunk : chunks) {
+    AddLeaves(chunk.density, *g.density);
+    if (g.cd) AddLeaves(chunk.cd, *g.cd);
+    if (g.addr) AddLeaves(chunk.addr, *g.addr);
+    if (g.raw_f) AddLeaves(chunk.raw_f, *g.raw_f);
+    if (g.raw_i) AddLeaves(chunk.raw_i, *g.raw_i);
+  }
   return g;
 }
 
@@ -317,168 +344,6 @@ openvdb::GridPtrVec BuildGrids(const CountGrid& counts, const GridFrame& fine_fr
   return out;
 }
 
-// ---- Results written leaf by leaf (no downsampling) ----
-//
-// The grids of a result are never built: each is a tree of buffer-less
-// leaves (the counts' topology) whose values are computed from the count
-// tiles leaf by leaf as the file is written, one grid after another
-// (vdb_stream.h). The bytes are those of BuildGrids' grids written whole.
-
-using vdb_internal::EncodedGrid;
-using vdb_internal::EncodeLeaves;
-using vdb_internal::GridProducer;
-
-void GatherLeaf(const CountGrid& counts, const openvdb::Coord& o, uint32_t* v, uint64_t* cs) {
-  GatherCountLeaf(counts, {o.x(), o.y(), o.z()}, v, cs);
-}
-
-// A tree of buffer-less leaves, one per leaf of counts, active where counted.
-template <typename TreeT>
-void AddCountLeaves(const CountGrid& counts, TreeT& tree) {
-  using LeafT = typename TreeT::LeafNodeType;
-  counts.ForEachLeaf([&](Int3 o, const uint32_t* v, const uint64_t*) {
-    typename LeafT::NodeMaskType mask;
-    for (int i = 0; i < 512; ++i)
-      if (v[i]) mask.setOn(i);
-    auto* leaf = new LeafT(openvdb::PartialCreate(), openvdb::Coord(o.x, o.y, o.z));
-    leaf->setValueMask(mask);
-    tree.addLeaf(leaf);
-  });
-}
-
-// A buffer-less copy of `from`'s leaves in another value type.
-template <typename TreeT>
-void CopyLeafMasks(const openvdb::FloatTree& from, TreeT& tree) {
-  using LeafT = typename TreeT::LeafNodeType;
-  for (auto it = from.cbeginLeaf(); it; ++it) {
-    auto* leaf = new LeafT(openvdb::PartialCreate(), it->origin());
-    leaf->setValueMask(it->getValueMask());
-    tree.addLeaf(leaf);
-  }
-}
-
-// What a streamed result writes, shared by its grid producers.
-struct StreamedResult : CountedResult {
-  GridFrame frame;
-  openvdb::FloatTree::Ptr topology;  // buffer-less, the density's leaves
-
-  StreamedResult(const CountGrid& c, const GridFrame& f, const DensityOptions& o, const Metadata& m)
-      : CountedResult(c, o, m), frame(f), topology(std::make_shared<openvdb::FloatTree>()) {
-    AddCountLeaves(counts, *topology);
-  }
-
-  // An empty grid of the result on the counts' topology, conventions applied.
-  template <typename GridT>
-  typename GridT::Ptr Grid(const std::string& name, openvdb::GridClass cls) const {
-    auto grid = NewGrid<GridT>(name, frame, cls);
-    CopyLeafMasks(*topology, grid->tree());
-    FinishGrid(*grid, frame, options.conventions, 1);
-    return grid;
-  }
-
-  // Encodes `grid` with value(count, colour sum) on each counted voxel,
-  // then finish(leaf) and chunk(leaves, n) as EncodeLeaves takes them.
-  template <typename GridT, typename Value, typename Finish, typename Chunk>
-  EncodedGrid Encode(typename GridT::Ptr grid, bool colors, const Value& value,
-                     const Finish& finish, const Chunk& chunk) const {
-    using LeafT = typename GridT::TreeType::LeafNodeType;
-    auto fill = [&](const LeafT&, LeafT& leaf) {
-      uint32_t v[512];
-      uint64_t cs[512];
-      GatherLeaf(counts, leaf.origin(), v, colors ? cs : nullptr);
-      for (int i = 0; i < 512; ++i)
-        if (v[i]) leaf.setValueOnly(i, value(v[i], colors ? cs[i] : 0));
-      finish(leaf);
-    };
-    return EncodeLeaves<GridT>(grid, fill, chunk);
-  }
-  template <typename GridT, typename Value>
-  EncodedGrid Encode(typename GridT::Ptr grid, bool colors, const Value& value) const {
-    return Encode<GridT>(grid, colors, value, [](auto&) {}, [](const auto*, size_t) {});
-  }
-
-  EncodedGrid Density() const;
-  std::vector<GridProducer> Producers(bool int64_counts) const;
-};
-
-EncodedGrid StreamedResult::Density() const {
-  auto grid = Grid<openvdb::FloatGrid>(options.grid_name, openvdb::GRID_FOG_VOLUME);
-  // nimbus_suggested_density sums the written densities in tree order,
-  // as SuggestedDensityOf reads them from a built grid.
-  double sum = 0;
-  auto modulate = [&](openvdb::FloatTree::LeafNodeType& leaf) {
-    if (options.modulation) Modulate(options.modulation, frame, leaf);
-  };
-  auto add = [&](const openvdb::FloatTree::LeafNodeType* leaves, size_t n) {
-    for (size_t j = 0; j < n; ++j)
-      for (auto it = leaves[j].cbeginValueOn(); it; ++it) sum += *it;
-  };
-  EncodedGrid out = Encode<openvdb::FloatGrid>(
-      grid, false, [&](uint32_t c, uint64_t) { return norm(c); }, modulate, add);
-  AddCountMeta(*grid, sums);
-  grid->insertMeta("nimbus_density_mapping", openvdb::StringMetadata(MappingName(options.mapping)));
-  if (options.mapping == DensityMapping::kGamma)
-    grid->insertMeta("nimbus_density_gamma", openvdb::DoubleMetadata(options.gamma));
-  if (color)
-    grid->insertMeta("nimbus_palette",
-                     openvdb::StringMetadata(options.palette.is_sine() ? "sine" : "stops"));
-  const uint64_t n = grid->activeVoxelCount();
-  const openvdb::Vec3d h = grid->voxelSize();
-  grid->insertMeta(meta_key::kSuggestedDensity,
-                   openvdb::DoubleMetadata(SuggestedDensity(
-                       n, n ? sum / double(n) : 0.0, std::cbrt(h.x() * h.y() * h.z()))));
-  for (const auto& [k, v] : metadata) AddMeta(*grid, k, v);
-  return out;
-}
-
-// The producers of BuildGrids' grids, in its order.
-std::vector<GridProducer> StreamedResult::Producers(bool int64_counts) const {
-  std::vector<GridProducer> out;
-  const double inv_scale = 1.0 / CountGrid::kColorScale;
-  auto coord = [inv_scale](uint32_t c, uint64_t cs) { return double(cs) * inv_scale / double(c); };
-  if (!int64_counts) out.push_back({options.grid_name, [this] { return Density(); }});
-  if (color && !int64_counts)
-    out.push_back({"Cd", [this, coord] {
-      auto g = Grid<openvdb::Vec3SGrid>("Cd", openvdb::GRID_UNKNOWN);
-      return Encode<openvdb::Vec3SGrid>(g, true, [&](uint32_t c, uint64_t cs) {
-        const Vec3 rgb = options.palette.Eval(coord(c, cs));
-        return openvdb::Vec3s(float(rgb.x), float(rgb.y), float(rgb.z));
-      });
-    }});
-  if (options.address_grid && counts.has_color() && !int64_counts)
-    out.push_back({"address", [this, coord] {
-      auto g = Grid<openvdb::FloatGrid>("address", openvdb::GRID_UNKNOWN);
-      return Encode<openvdb::FloatGrid>(
-          g, true, [&](uint32_t c, uint64_t cs) { return float(coord(c, cs)); });
-    }});
-  if (options.raw_counts != RawCounts::kNone && !int64_counts)
-    out.push_back({"counts", [this] {
-      auto g = Grid<openvdb::FloatGrid>("counts", openvdb::GRID_UNKNOWN);
-      return Encode<openvdb::FloatGrid>(g, false, [](uint32_t c, uint64_t) { return float(c); });
-    }});
-  if (int64_counts)
-    out.push_back({"counts", [this] {
-      auto g = Grid<openvdb::Int64Grid>("counts", openvdb::GRID_UNKNOWN);
-      AddCountMeta(*g, sums);
-      for (const auto& [k, v] : metadata) AddMeta(*g, k, v);
-      return Encode<openvdb::Int64Grid>(g, false,
-                                        [](uint32_t c, uint64_t) { return int64_t(c); });
-    }});
-  return out;
-}
-
-// An in-memory grid as a producer's output: its leaves copied as they are.
-template <typename GridT>
-EncodedGrid EncodeBuilt(typename GridT::Ptr grid) {
-  using LeafT = typename GridT::TreeType::LeafNodeType;
-  return EncodeLeaves<GridT>(
-      grid,
-      [](const LeafT& topo, LeafT& leaf) {
-        std::copy(topo.buffer().data(), topo.buffer().data() + LeafT::SIZE, leaf.buffer().data());
-      },
-      [](const LeafT*, size_t) {});
-}
-
 // Calls f(offset, value) for every voxel of the 8^3 leaf at `o` inside
 // the volume, offset in LeafNode order.
 template <typename F>
@@ -493,38 +358,43 @@ void ForEachLeafVoxel(const FloatVolume& volume, const openvdb::Coord& o, F&& f)
     }
 }
 
-// A fog volume written leaf by leaf: the grid WriteFloatVolumeVdb builds
-// (non-zero voxels active), never held whole.
-absl::Status WriteStreamedFogVolume(const std::filesystem::path& path, const FloatVolume& volume,
-                                    const Metadata& metadata,
-                                    const OutputConventions& conventions) {
-  using LeafT = openvdb::FloatTree::LeafNodeType;
-  auto produce = [&] {
-    auto grid = NewGrid<openvdb::FloatGrid>(volume.grid_name, volume.frame,
-                                            openvdb::GRID_FOG_VOLUME);
-    const Int3 r = volume.frame.resolution;
-    for (int x = 0; x < r.x; x += 8)
-      for (int y = 0; y < r.y; y += 8)
-        for (int z = 0; z < r.z; z += 8) {
-          LeafT::NodeMaskType mask;
-          ForEachLeafVoxel(volume, openvdb::Coord(x, y, z), [&](int i, float v) {
-            if (v != 0.f) mask.setOn(i);
-          });
-          if (mask.isOff()) continue;
-          auto* leaf = new LeafT(openvdb::PartialCreate(), openvdb::Coord(x, y, z));
-          leaf->setValueMask(mask);
-          grid->tree().addLeaf(leaf);
-        }
-    FinishGrid(*grid, volume.frame, conventions, 1);
-    for (const auto& [k, v] : metadata) AddMeta(*grid, k, v);
-    auto fill = [&](const LeafT&, LeafT& leaf) {
-      ForEachLeafVoxel(volume, leaf.origin(), [&](int i, float v) {
-        if (v != 0.f) leaf.setValueOnly(i, v);
-      });
-    };
-    return EncodeLeaves<openvdb::FloatGrid>(grid, fill, [](const LeafT*, size_t) {});
-  };
-  return vdb_internal::WriteStreamedAtomically(path, {{volume.grid_name, produce}});
+// A fog volume's grid (non-zero voxels active), its leaves built in
+// parallel, one slab of leaves per task.
+openvdb::FloatGrid::Ptr BuildFogVolume(const FloatVolume& volume) {
+  auto grid =
+      NewGrid<openvdb::FloatGrid>(volume.grid_name, volume.frame, openvdb::GRID_FOG_VOLUME);
+  const Int3 r = volume.frame.resolution;
+  std::vector<LeafBatch<FloatLeaf>> slabs(size_t(r.x + 7) / 8);
+  tbb::parallel_for(size_t{0}, slabs.size(), [&](size_t s) {
+    for (int y = 0; y < r.y; y += 8)
+      for (int z = 0; z < r.z; z += 8) {
+        auto leaf = std::make_unique<FloatLeaf>(openvdb::Coord(int(8 * s), y, z), 0.f);
+        ForEachLeafVoxel(volume, leaf->origin(), [&](int i, float v) {
+          if (v != 0.f) leaf->setValueOn(i, v);
+        });
+        if (!leaf->isEmpty()) slabs[s].push_back(std::move(leaf));
+      }
+  });
+  for (auto& slab : slabs) AddLeaves(slab, *grid);
+  return grid;
+}
+
+// A level set's grid: values with |v| < background active, the rest
+// ±background by sign (signed flood fill).
+openvdb::FloatGrid::Ptr BuildLevelSet(const FloatVolume& volume) {
+  auto grid = NewGrid<openvdb::FloatGrid>(volume.grid_name, volume.frame, openvdb::GRID_LEVEL_SET);
+  grid->tree().root().setBackground(volume.background, false);
+  auto acc = grid->getAccessor();
+  const Int3 r = volume.frame.resolution;
+  size_t i = 0;
+  for (int x = 0; x < r.x; ++x)
+    for (int y = 0; y < r.y; ++y)
+      for (int z = 0; z < r.z; ++z, ++i) {
+        const float v = volume.values[i];
+        if (std::abs(v) < volume.background) acc.setValue(openvdb::Coord(x, y, z), v);
+      }
+  openvdb::tools::signedFloodFill(grid->tree());
+  return grid;
 }
 
 // Vectors are world-space quantities: a Z-up file turns them with the grid.
@@ -590,6 +460,15 @@ absl::StatusOr<DenseVolume> ToDense(const openvdb::GridPtrVecPtr& grids, const s
   return out;
 }
 
+// The options a result's exact counts are written with: its conventions
+// (so both files share the downsampling factor), without its other grids.
+DensityOptions IntegerCountsOptions(const DensityOptions& options) {
+  DensityOptions o = options;
+  o.color = o.address_grid = false;
+  o.raw_counts = RawCounts::kInteger;
+  return o;
+}
+
 }  // namespace
 
 // The OpenVDB side of vdb_io.h, reached through the module table
@@ -599,33 +478,6 @@ namespace vdb_impl {
 absl::Status WriteDensityVdb(const std::filesystem::path& path, const CountGrid& counts,
                              const GridFrame& frame, const DensityOptions& options,
                              const Metadata& metadata, const std::vector<Vec3Field>& fields) {
-  InitOpenVdb();
-  if (OutputDownsampleFactor(counts, options) == 1) {
-    // Leaf by leaf, one grid at a time: no grid is ever held whole.
-    std::optional<StreamedResult> result;
-    try {
-      result.emplace(counts, frame, options, metadata);
-    } catch (const std::exception& e) {
-      return absl::InternalError(
-          absl::StrCat("building the grids of ", path.string(), ": ", e.what()));
-    }
-    std::vector<GridProducer> producers = result->Producers(false);
-    for (const Vec3Field& f : fields)
-      producers.push_back({f.name, [&] {
-        return EncodeBuilt<openvdb::Vec3SGrid>(BuildVec3Grid(f, frame, options.conventions));
-      }});
-    return vdb_internal::WriteStreamedAtomically(path, producers);
-  }
-  return vdb_internal::WriteBuiltDensityVdb(path, counts, frame, options, metadata, fields);
-}
-
-}  // namespace vdb_impl
-
-namespace vdb_internal {
-
-absl::Status WriteBuiltDensityVdb(const std::filesystem::path& path, const CountGrid& counts,
-                                  const GridFrame& frame, const DensityOptions& options,
-                                  const Metadata& metadata, const std::vector<Vec3Field>& fields) {
   InitOpenVdb();
   openvdb::GridPtrVec grids;
   try {
@@ -640,10 +492,6 @@ absl::Status WriteBuiltDensityVdb(const std::filesystem::path& path, const Count
   return vdb_internal::WriteGridsAtomically(path, grids);
 }
 
-}  // namespace vdb_internal
-
-namespace vdb_impl {
-
 absl::Status WriteFloatVolumeVdb(const std::filesystem::path& path, const FloatVolume& volume,
                                  const Metadata& metadata, const OutputConventions& conventions) {
   InitOpenVdb();
@@ -651,23 +499,9 @@ absl::Status WriteFloatVolumeVdb(const std::filesystem::path& path, const FloatV
   if (volume.values.size() != size_t(r.Volume()))
     return absl::InvalidArgumentError(absl::StrCat("float volume: ", volume.values.size(),
                                                    " values for ", r.Volume(), " voxels"));
-  if (!volume.level_set) return WriteStreamedFogVolume(path, volume, metadata, conventions);
   openvdb::GridPtrVec grids;
   try {
-    auto grid = NewGrid<openvdb::FloatGrid>(
-        volume.grid_name, volume.frame,
-        volume.level_set ? openvdb::GRID_LEVEL_SET : openvdb::GRID_FOG_VOLUME);
-    if (volume.level_set) grid->tree().root().setBackground(volume.background, false);
-    auto acc = grid->getAccessor();
-    size_t i = 0;
-    for (int x = 0; x < r.x; ++x)
-      for (int y = 0; y < r.y; ++y)
-        for (int z = 0; z < r.z; ++z, ++i) {
-          const float v = volume.values[i];
-          const bool on = volume.level_set ? std::abs(v) < volume.background : v != 0.f;
-          if (on) acc.setValue(openvdb::Coord(x, y, z), v);
-        }
-    if (volume.level_set) openvdb::tools::signedFloodFill(grid->tree());
+    auto grid = volume.level_set ? BuildLevelSet(volume) : BuildFogVolume(volume);
     FinishGrid(*grid, volume.frame, conventions, 1);
     for (const auto& [k, v] : metadata) AddMeta(*grid, k, v);
     grids.push_back(grid);
@@ -681,30 +515,7 @@ absl::Status WriteIntegerCountsVdb(const std::filesystem::path& path, const Coun
                                    const GridFrame& frame, const DensityOptions& options,
                                    const Metadata& metadata) {
   InitOpenVdb();
-  // The result's options (its downsampling factor), without its grids.
-  const DensityOptions o = vdb_native::IntegerCountsOptions(options);
-  if (OutputDownsampleFactor(counts, o) == 1) {
-    std::optional<StreamedResult> result;
-    try {
-      result.emplace(counts, frame, o, metadata);
-    } catch (const std::exception& e) {
-      return absl::InternalError(absl::StrCat("building the counts grid of ", path.string(),
-                                              ": ", e.what()));
-    }
-    return vdb_internal::WriteStreamedAtomically(path, result->Producers(true));
-  }
-  return vdb_internal::WriteBuiltIntegerCountsVdb(path, counts, frame, options, metadata);
-}
-
-}  // namespace vdb_impl
-
-namespace vdb_internal {
-
-absl::Status WriteBuiltIntegerCountsVdb(const std::filesystem::path& path,
-                                        const CountGrid& counts, const GridFrame& frame,
-                                        const DensityOptions& options, const Metadata& metadata) {
-  InitOpenVdb();
-  const DensityOptions o = vdb_native::IntegerCountsOptions(options);
+  const DensityOptions o = IntegerCountsOptions(options);
   openvdb::GridPtrVec grids;
   try {
     grids = BuildGrids(counts, frame, o, metadata, true);
@@ -718,9 +529,6 @@ absl::Status WriteBuiltIntegerCountsVdb(const std::filesystem::path& path,
   return vdb_internal::WriteGridsAtomically(path, grids);
 }
 
-}  // namespace vdb_internal
-
-namespace vdb_impl {
 
 absl::StatusOr<std::vector<int64_t>> ReadIntegerCountsVdb(const std::filesystem::path& path,
                                                           Int3 resolution) {
@@ -754,7 +562,7 @@ absl::StatusOr<std::string> DensityVdbBytes(const CountGrid& counts, const GridF
     std::ostringstream os(std::ios_base::binary);
     openvdb::GridPtrVec grids = BuildGrids(counts, frame, options, metadata);
     openvdb::io::Stream stream(os);
-    stream.setCompression(openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK);
+    stream.setCompression(vdb_internal::kArchiveCompression);
     stream.write(grids);
     std::string bytes = os.str();
     vdb_internal::StampContentUuid(bytes);

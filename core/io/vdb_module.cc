@@ -2,6 +2,7 @@
 // vdb_module.h for why OpenVDB is a module).
 #include "core/io/vdb_module.h"
 
+#include "core/base/file_digests.h"
 #include "core/base/module_loader.h"
 
 namespace nimbus {
@@ -9,7 +10,13 @@ namespace nimbus {
 namespace {
 
 absl::StatusOr<const VdbModule*> Load() {
-  return LoadVdbModuleTable<VdbModule>(kVdbModuleEntry, kVdbModuleAbi);
+  absl::StatusOr<const VdbModule*> table =
+      LoadVdbModuleTable<VdbModule>(kVdbModuleEntry, kVdbModuleAbi);
+  if (!table.ok()) return table.status();
+  // The module's digests go to this program's memo, which the result store
+  // recalls instead of reading the file again.
+  (*table)->set_digest_sink(&RememberFileSha256);
+  return table;
 }
 
 }  // namespace

@@ -52,6 +52,9 @@ struct VdbModule {
   absl::StatusOr<DenseVec3Volume> (*read_vec3_file)(const std::filesystem::path&,
                                                     const std::string&);
   absl::Status (*check_untrusted)(const std::filesystem::path&, const std::filesystem::path&);
+  /// Where the module's writers record the digests of the files they
+  /// write: the loader passes its own RememberFileSha256 (vdb_file.h).
+  void (*set_digest_sink)(void (*)(int fd, const std::string& sha256));
 };
 
 /// The entry's type: returns the module's table (static, never freed).

@@ -5,6 +5,7 @@
 #include <string>
 #include <vector>
 
+#include "core/io/vdb_file.h"
 #include "core/io/vdb_impl.h"
 #include "core/io/vdb_module.h"
 
@@ -24,6 +25,7 @@ VdbModule MakeTable() {
   t.read_bytes = &ReadVdbBytes;
   t.read_vec3_file = &ReadVec3VdbFile;
   t.check_untrusted = &CheckUntrustedVdb;
+  t.set_digest_sink = &vdb_internal::SetDigestSink;
   return t;
 }
 

@@ -11,6 +11,7 @@
 
 #include "core/base/sha256.h"
 #include "core/io/vdb_file.h"
+#include "core/io/vdb_module.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus {
@@ -62,7 +63,10 @@ TEST(FileDigests, ForgetsAFileChangedSince) {
   EXPECT_EQ(RecallFileSha256(p), std::nullopt);
 }
 
+// The writer lives in the OpenVDB module, which has a core/base of its own:
+// once loaded, it remembers into this program's memo.
 TEST(FileDigests, TheVdbWriterRemembersWhatItWrote) {
+  ASSERT_TRUE(LoadVdbModule().ok());
   const testing::TempDir tmp;
   const std::filesystem::path p = tmp / "x.vdb";
   // A minimal archive: the header the UUID stamp looks for, then a body.

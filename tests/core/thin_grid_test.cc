@@ -15,7 +15,6 @@
 #include "core/chaos/chaos_game.h"
 #include "core/chaos/chaos_partial.h"
 #include "core/chaos/key_bins.h"
-#include "core/io/result_values.h"
 #include "core/io/vdb_io.h"
 #include "tests/support/count_scatter.h"
 #include "tests/support/test_util.h"
@@ -148,46 +147,6 @@ TEST(ThinGrid, FoldedCountGridRoundTripsEveryVoxel) {
   EXPECT_EQ(g.AllocatedTiles(), 3u);
   EXPECT_EQ(CountGrid::TileCountFor(r), 3u);
   EXPECT_FALSE(CountGrid::Folds({64, 64, 2}));
-}
-
-// The writers' shortcuts (core/io/result_values.h): a leaf's mask straight
-// from the stored counters, and its active counters gathered packed, agree
-// with the 512 counters ForEachLeaf gathers, folded or not.
-TEST(ThinGrid, LeafMasksAndPackedGathersMatchTheGatheredLeaves) {
-  for (const Int3 r : {Int3{77, 1000, 1}, Int3{300, 40, 1}, Int3{45, 70, 33}}) {
-    const CountGrid g = testing::ScatterColorCounts(r, 4000, 5);
-    std::vector<std::pair<Int3, std::array<uint64_t, 8>>> masks;
-    g.ForEachLeafMaskInTiles(0, g.TileCount(), [&](Int3 o, const uint64_t* m) {
-      masks.push_back({o, {m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7]}});
-    });
-    size_t leaf = 0, voxels = 0;
-    g.ForEachLeaf([&](Int3 o, const uint32_t* v, const uint64_t* c) {
-      ASSERT_LT(leaf, masks.size());
-      EXPECT_EQ(masks[leaf].first, o);
-      const uint64_t* mask = masks[leaf].second.data();
-      uint16_t at[512];
-      uint32_t packed[512];
-      uint64_t sums[512];
-      const size_t n = GatherActiveCounts(g, o, mask, at, packed, sums);
-      size_t k = 0;
-      for (int i = 0; i < 512; ++i) {
-        EXPECT_EQ((mask[i >> 6] >> (i & 63)) & 1, uint64_t(v[i] != 0)) << "voxel " << i;
-        if (!v[i]) continue;
-        ASSERT_LT(k, n);
-        EXPECT_EQ(at[k], i);
-        EXPECT_EQ(packed[k], v[i]);
-        EXPECT_EQ(sums[k], c[i]);
-        ++k;
-      }
-      EXPECT_EQ(k, n);
-      voxels += n;
-      ++leaf;
-    });
-    EXPECT_EQ(leaf, masks.size());
-    size_t want = 0;
-    g.ForEachVoxel([&](Int3, uint32_t) { ++want; });
-    EXPECT_EQ(voxels, want) << r.x << "x" << r.y << "x" << r.z;
-  }
 }
 
 TEST(ThinGrid, AffineKernelsCountAsUnfolded) {

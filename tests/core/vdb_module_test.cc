@@ -41,8 +41,7 @@ std::string Tail(const std::string& s) { return s.substr(s.size() > 4000 ? s.siz
 
 std::string Bin(const char* name) { return std::string(NIMBUS_BIN_DIR) + "/" + name; }
 
-// OpenVDB's own dependencies, which no other part of Nimbus needs (the
-// native result writer builds Blosc's buffers itself, core/io/blosc_lz4.h).
+// OpenVDB's own dependencies, which no other part of Nimbus needs.
 constexpr const char* kVdbOnly[] = {"libopenvdb", "liblog4cplus", "libboost_iostreams", "libblosc"};
 
 TEST(VdbModule, ProgramsDoNotLinkOpenVdb) {
@@ -88,41 +87,18 @@ TEST(VdbModule, PictureRenderRunsWithoutTheModule) {
   EXPECT_EQ(run.output.find("libopenvdb"), std::string::npos);
 }
 
-// A full-resolution volume result is written natively (vdb_native.h): the
-// render maps neither the module nor OpenVDB, even with no module to find.
-TEST(VdbModule, VolumeRenderRunsWithoutTheModule) {
+// A volume result is written through the module, loaded on demand.
+TEST(VdbModule, VolumeRenderLoadsTheModuleOnDemand) {
   testing::TempDir dir;
   const std::string spec = std::string(NIMBUS_SOURCE_DIR) + "/bench/flam3/sierpinski_2d.json";
   const std::string out = (dir.path() / "s.vdb").string();
-  const Outcome run = Shell("NIMBUS_VDB_MODULE=/nonexistent/libnimbus_vdb.so LD_DEBUG=files " +
-                            Bin("nimbus") + " --data-dir " + dir.path().string() +
-                            " --threads 2 render --no-cache " + spec + " -o " + out);
-  ASSERT_EQ(run.exit_code, 0) << Tail(run.output);
-  ASSERT_NE(run.output.find("libc.so"), std::string::npos) << Tail(run.output);
-  EXPECT_TRUE(std::filesystem::exists(out));
-  EXPECT_EQ(run.output.find("libnimbus_vdb"), std::string::npos);
-  EXPECT_EQ(run.output.find("libopenvdb"), std::string::npos);
-}
-
-// A downsampled result still goes through the module, loaded on demand.
-TEST(VdbModule, DownsampledVolumeLoadsTheModuleOnDemand) {
-  testing::TempDir dir;
-  const std::filesystem::path spec = dir.path() / "small.json";
-  std::ofstream(spec) << R"({"name": "small", "grid": {"resolution": [256, 256, 1],
-    "bounds_min": {"x": -0.1, "y": -0.1, "z": -0.5}, "bounds_max": {"x": 1.1, "y": 1.1, "z": 0.5}},
-    "chaos_game": {"ifs": {"maps": [
-      {"steps": [{"matrix": {"values": [0.5, 0, 0, 0, 0, 0.5, 0, 0, 0, 0, 0, 0]}}]},
-      {"steps": [{"matrix": {"values": [0.5, 0, 0, 0.5, 0, 0.5, 0, 0, 0, 0, 0, 0]}}]},
-      {"steps": [{"matrix": {"values": [0.5, 0, 0, 0.25, 0, 0.5, 0, 0.5, 0, 0, 0, 0]}}]}]},
-      "iterations": "1000000", "seed": "1"},
-    "output": {"max_voxels": "1000"}})";
-  const std::string out = (dir.path() / "s.vdb").string();
   const Outcome run = Shell("LD_DEBUG=files " + Bin("nimbus") + " --data-dir " +
-                            dir.path().string() + " --threads 2 render --no-cache " +
-                            spec.string() + " -o " + out);
+                            dir.path().string() + " --threads 2 render --no-cache " + spec +
+                            " -o " + out);
   ASSERT_EQ(run.exit_code, 0) << Tail(run.output);
   EXPECT_TRUE(std::filesystem::exists(out));
   EXPECT_NE(run.output.find("libnimbus_vdb.so"), std::string::npos);
+  EXPECT_NE(run.output.find("libopenvdb"), std::string::npos);
 }
 
 TEST(VdbModule, MissingModuleIsAStatusNamingThePaths) {
@@ -133,22 +109,20 @@ TEST(VdbModule, MissingModuleIsAStatusNamingThePaths) {
   EXPECT_NE(message.find("libnimbus_vdb.so"), std::string::npos) << message;
   EXPECT_NE(message.find("NIMBUS_VDB_MODULE"), std::string::npos) << message;
   EXPECT_NE(message.find("/nonexistent/libnimbus_vdb.so"), std::string::npos) << message;
-  // Every forwarder that needs the module reports the same, without
-  // throwing or exiting: here a result downsampled to fit max_voxels.
+  // Every forwarder reports the same, without throwing or exiting, and
+  // writes nothing.
   CountGrid counts(Int3{8, 8, 8});
   counts.Add(1, 2, 3, 5);
   counts.Add(6, 2, 3, 1);
   GridFrame frame;
   frame.resolution = {8, 8, 8};
   frame.bounds = {{0, 0, 0}, {1, 1, 1}};
-  DensityOptions coarse;
-  coarse.conventions.max_voxels = 1;
-  EXPECT_EQ(WriteDensityVdb("/nonexistent/y.vdb", counts, frame, coarse, {}).code(),
-            absl::StatusCode::kFailedPrecondition);
-  // A full-resolution result needs no module at all.
   testing::TempDir dir;
-  EXPECT_TRUE(WriteDensityVdb(dir.path() / "y.vdb", counts, frame, {}, {}).ok());
-  EXPECT_TRUE(WriteIntegerCountsVdb(dir.path() / "c.vdb", counts, frame, {}, {}).ok());
+  EXPECT_EQ(WriteDensityVdb(dir.path() / "y.vdb", counts, frame, {}, {}).code(),
+            absl::StatusCode::kFailedPrecondition);
+  EXPECT_EQ(WriteIntegerCountsVdb(dir.path() / "c.vdb", counts, frame, {}, {}).code(),
+            absl::StatusCode::kFailedPrecondition);
+  EXPECT_TRUE(std::filesystem::is_empty(dir.path()));
   EXPECT_EQ(DensityVdbBytes(counts, frame, {}, {}).status().code(),
             absl::StatusCode::kFailedPrecondition);
 }

@@ -333,11 +333,9 @@ TEST_F(FaultsE2E, DegenerateFieldsAndGridNamesAreRefusedByField) {
   EXPECT_THAT(st.message(), HasSubstr("output.grid_name: use letters, digits"));
 }
 
-// A result too big to keep its encoded leaves in memory (over 4 MiB) on a
-// 2 MiB results disk: the leaves' spill file fills it before the .vdb is
-// written. The client reads the documented code and message, and no
-// server path.
-TEST_F(FaultsE2E, FullDiskUnderASpillingResultIsResourceExhaustedWithoutPaths) {
+// A single-file result of several MiB on a 2 MiB results disk: the client
+// reads the documented code and message, and no server path.
+TEST_F(FaultsE2E, FullDiskUnderALargeResultIsResourceExhaustedWithoutPaths) {
   if (!ResultsOnTmpfs("2m"))
     GTEST_SKIP() << "cannot mount a tmpfs here (" << std::strerror(errno) << ")";
   Start({});
