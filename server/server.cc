@@ -267,6 +267,7 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
       limits);
   impl->service->set_cancel_wait_ms(options.cancel_wait_ms);
   impl->service->set_auto_shard_iterations(options.auto_shard_iterations);
+  impl->service->set_lease_ms(options.lease_ms);
   const bool auth = !tokens->empty();
   const size_t principals = tokens->size();
   impl->service->set_security(
