@@ -25,6 +25,7 @@
 #include "server/result_export.h"
 #include "server/result_store.h"
 #include "server/retention.h"
+#include "server/store_probe.h"
 #include "server/tls_files.h"
 #include "server/worker_pool.h"
 
@@ -40,6 +41,7 @@ struct NimbusServer::Impl {
   std::unique_ptr<NimbusServiceImpl> service;
   std::unique_ptr<RetentionSweeper> sweeper;
   std::unique_ptr<grpc::Server> server;
+  std::unique_ptr<StoreProbe> store_probe;  // destroyed before the server and store
   int port = 0;
   std::string address;
   std::mutex mu;
@@ -149,6 +151,30 @@ void ReportUnknownResults(JobStore& store, const std::filesystem::path& results_
 }
 
 }  // namespace
+
+// Readiness follows the shared store: the service's health status is
+// NOT_SERVING while the store does not answer, SERVING again once it does.
+// The overall status (liveness) stays SERVING, so an orchestrator does not
+// restart every replica during a database outage.
+void NimbusServer::FollowStoreHealth(Impl& impl) {
+  grpc::HealthCheckServiceInterface* health = impl.server->GetHealthCheckService();
+  if (health == nullptr) return;
+  JobStore* store = impl.store.get();
+  constexpr int64_t kProbeMs = 1'000;
+  impl.store_probe = std::make_unique<StoreProbe>(
+      // A job id that never exists: NOT_FOUND is the store's answer.
+      [store] { return store->Get("~store-probe").status(); },
+      [health](bool up) {
+        health->SetServingStatus("nimbus.v1.NimbusService", up);
+        if (up) {
+          spdlog::info("event=store_reachable");
+        } else {
+          spdlog::warn("event=store_unreachable");
+        }
+      },
+      kProbeMs);
+  impl.store_probe->Start();
+}
 
 // The shared store's change feed: a submit on any replica wakes an idle
 // worker here at once, and watchers here of a job another replica runs get
@@ -300,7 +326,10 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
     const size_t colon = options.listen.rfind(':');
     impl->address = absl::StrCat(options.listen.substr(0, colon), ":", impl->port);
   }
-  if (shared_store) FollowOtherReplicas(*impl);
+  if (shared_store) {
+    FollowOtherReplicas(*impl);
+    FollowStoreHealth(*impl);
+  }
   impl->pool->Start();
   impl->sweeper->Start();
   spdlog::info(
@@ -336,6 +365,7 @@ void NimbusServer::Shutdown() {
     if (impl_->shut_down) return;
     impl_->shut_down = true;
   }
+  if (impl_->store_probe) impl_->store_probe->Stop();
   if (auto* health = impl_->server->GetHealthCheckService()) health->SetServingStatus(false);
   // Stop workers first so watchers see jobs go back to the queue, then
   // close the streams.
