@@ -19,9 +19,9 @@ inline constexpr int64_t kMaxEventsPerJob = 1000;
 /// Bytes of one field value kept (longer ones are cut, BoundText).
 inline constexpr size_t kMaxEventFieldBytes = 1024;
 
-/// @brief One event: its kind ("submitted", "claimed", "phase", "warning",
-/// "lease_lost", "retried", "cancel_requested", "failed", "succeeded",
-/// "result_expired", "pinned", "priority") and named fields.
+/// @brief One event: its kind (the list in docs/operator_guide.md "Job event
+/// log": "submitted", "claimed", "lease_lost", "succeeded", ...) and named
+/// fields.
 struct JobEvent {
   /// 1, 2, ... per job, in the order appended (set by AppendEvent).
   int64_t seq = 0;

@@ -642,35 +642,41 @@ std::optional<std::pair<std::string, uint32_t>> PostgresJobStore::PickClaimable(
   }
 }
 
-// The first owner after $2 (or from it: `cmp` ">=") with claimable QUEUED
-// jobs at priority $1: its oldest such job, its RUNNING jobs and its last
-// claim.
-#define NIMBUS_PG_OWNER_SEEK(cmp)                                                          \
-  "SELECT j.owner, j.create_time, j.seq, j.id, "                                           \
-  "(SELECT count(*) FROM jobs r WHERE r.state = 2 AND r.owner = j.owner), "                \
-  "(SELECT coalesce(max(c.last_claim), 0) FROM owner_claims c WHERE c.owner = j.owner) "   \
-  "FROM jobs j WHERE j.state = 1 AND NOT j.cancel_requested AND j.shards_pending = 0 AND " \
-  "j.priority = $1 AND j.owner " cmp " $2 ORDER BY j.owner, j.create_time, j.seq LIMIT 1"
+// The owners with claimable QUEUED jobs at priority $1, in one round trip:
+// a recursive walk of jobs_claim_order that seeks from each owner to the
+// next (one index probe per owner, never a scan of their jobs); for each,
+// its oldest such job, its RUNNING jobs and its last claim.
+constexpr char kRankOwnersSql[] = R"sql(
+WITH RECURSIVE owners(owner) AS (
+  (SELECT owner FROM jobs WHERE state = 1 AND NOT cancel_requested AND shards_pending = 0
+     AND priority = $1 ORDER BY owner LIMIT 1)
+  UNION ALL
+  SELECT (SELECT j.owner FROM jobs j WHERE j.state = 1 AND NOT j.cancel_requested
+            AND j.shards_pending = 0 AND j.priority = $1 AND j.owner > o.owner
+            ORDER BY j.owner LIMIT 1)
+  FROM owners o WHERE o.owner IS NOT NULL)
+SELECT o.owner, f.create_time, f.seq, f.id,
+  (SELECT count(*) FROM jobs r WHERE r.state = 2 AND r.owner = o.owner),
+  (SELECT coalesce(max(c.last_claim), 0) FROM owner_claims c WHERE c.owner = o.owner)
+FROM owners o CROSS JOIN LATERAL (
+  SELECT create_time, seq, id FROM jobs j WHERE j.state = 1 AND NOT j.cancel_requested
+    AND j.shards_pending = 0 AND j.priority = $1 AND j.owner = o.owner
+    ORDER BY j.create_time, j.seq LIMIT 1) f
+WHERE o.owner IS NOT NULL
+)sql";
 
 std::vector<std::pair<std::string, OwnerTurn>> PostgresJobStore::RankOwners(pqxx::work& t,
                                                                             int64_t priority) {
-  // One index seek per owner at `priority` (which also finds its oldest
-  // job): the cost grows with the owners there, not with their jobs.
+  // The cost grows with the owners at `priority`, not with their jobs.
   std::vector<std::pair<std::string, OwnerTurn>> owners;
-  std::string owner;
-  for (bool first = true;; first = false) {
-    // The first seek starts at '' itself (the smallest owner).
-    pqxx::result r = t.exec_params(first ? NIMBUS_PG_OWNER_SEEK(">=") : NIMBUS_PG_OWNER_SEEK(">"),
-                                   priority, owner);
-    if (r.empty()) break;
-    owner = r[0][0].as<std::string>();
+  for (const pqxx::row& r : t.exec_params(kRankOwnersSql, priority)) {
     OwnerTurn turn;
-    turn.create_time = r[0][1].as<int64_t>();
-    turn.seq = r[0][2].as<int64_t>();
-    turn.job_id = r[0][3].as<std::string>();
-    turn.running = static_cast<uint64_t>(r[0][4].as<int64_t>());
-    turn.last_claim = r[0][5].as<int64_t>();
-    owners.emplace_back(owner, std::move(turn));
+    turn.create_time = r[1].as<int64_t>();
+    turn.seq = r[2].as<int64_t>();
+    turn.job_id = r[3].as<std::string>();
+    turn.running = static_cast<uint64_t>(r[4].as<int64_t>());
+    turn.last_claim = r[5].as<int64_t>();
+    owners.emplace_back(r[0].as<std::string>(), std::move(turn));
   }
   std::stable_sort(owners.begin(), owners.end(),
                    [](const auto& a, const auto& b) { return a.second < b.second; });
@@ -748,17 +754,15 @@ absl::StatusOr<std::vector<WorkerInfo>> PostgresJobStore::ListWorkers() {
 void PostgresJobStore::AppendEventIn(pqxx::work& t, const std::string& job_id,
                                      const JobEvent& event) {
   t.exec_params("SELECT pg_advisory_xact_lock(hashtextextended($1, 43))", job_id);
-  t.exec_params(
-      "INSERT INTO job_events (job_id, seq, time, kind, fields) "
-      "SELECT $1, coalesce(max(seq), 0) + 1, $2, $3, $4 FROM job_events WHERE job_id = $1",
-      job_id, event.time, BoundText(event.kind, kMaxEventFieldBytes),
-      EncodeEventFields(event.fields));
   // The newest kMaxEventsPerJob stay; seqs stay contiguous, so the first
   // one kept tells how many were dropped.
   t.exec_params(
-      "DELETE FROM job_events WHERE job_id = $1 AND seq <= "
-      "(SELECT max(seq) FROM job_events WHERE job_id = $1) - $2",
-      job_id, kMaxEventsPerJob);
+      "WITH added AS (INSERT INTO job_events (job_id, seq, time, kind, fields) "
+      "SELECT $1, coalesce(max(seq), 0) + 1, $2, $3, $4 FROM job_events WHERE job_id = $1 "
+      "RETURNING seq) "
+      "DELETE FROM job_events WHERE job_id = $1 AND seq <= (SELECT seq FROM added) - $5",
+      job_id, event.time, BoundText(event.kind, kMaxEventFieldBytes),
+      EncodeEventFields(event.fields), kMaxEventsPerJob);
 }
 
 absl::Status PostgresJobStore::AppendEvent(const std::string& job_id, const JobEvent& event) {
