@@ -75,6 +75,22 @@ std::vector<std::pair<std::string, std::string>> DecodeEventFields(const std::st
   return fields;
 }
 
+JobEvent EndEvent(const std::string& worker_id, const Completion& c, TimeMs now) {
+  if (c.state == JobState::kSucceeded)
+    return {0,
+            now,
+            "succeeded",
+            {{"worker", worker_id},
+             {"size", absl::StrCat(c.result_size)},
+             {"sha256", c.result_sha256}}};
+  return {0,
+          now,
+          c.state == JobState::kCancelled ? "cancelled" : "failed",
+          {{"worker", worker_id},
+           {"code", absl::StatusCodeToString(static_cast<absl::StatusCode>(c.error_code))},
+           {"message", c.error}}};
+}
+
 TimeMs WallClockMs() {
   return std::chrono::duration_cast<std::chrono::milliseconds>(
              std::chrono::system_clock::now().time_since_epoch())

@@ -43,6 +43,11 @@ struct OwnerTurn {
   }
 };
 
+/// The event log entry of a recorded end (Complete writes it in its own
+/// transaction): succeeded (size, sha256), failed or cancelled (code,
+/// message), naming the worker.
+JobEvent EndEvent(const std::string& worker_id, const Completion& c, TimeMs now);
+
 /// Milliseconds since the epoch, for the few store operations that take no
 /// `now` (start-up recovery, cascades): the honest end time there.
 TimeMs WallClockMs();

@@ -995,6 +995,7 @@ absl::Status PostgresJobStore::Complete(const std::string& id, const std::string
         completion.result_key, ToDb(completion.result_size), completion.result_sha256,
         BoundText(completion.warnings, kMaxWarningsBytes), completion.error_code, id);
     PropagateShardEnd(t, id, now);
+    AppendEventIn(t, id, EndEvent(worker_id, completion, now));
     // Previews matter only while the job runs.
     t.exec_params("DELETE FROM previews WHERE job_id = $1", id);
     t.exec_params("DELETE FROM preview_wishes WHERE job_id = $1", id);

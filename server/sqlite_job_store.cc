@@ -1191,6 +1191,8 @@ absl::Status SqliteJobStore::Complete(const std::string& id, const std::string& 
     if (absl::Status st = s->Run(); !st.ok()) return st;
   }
   if (absl::Status st = ShardEndedLocked(id, now); !st.ok()) return st;
+  if (absl::Status st = AppendEventLocked(id, EndEvent(worker_id, completion, now)); !st.ok())
+    return st;
   return txn.Commit();
 }
 

@@ -538,31 +538,19 @@ void WorkerPool::RunJob(const JobRecord& record, const std::string& worker_id) {
 // fails) is tried once more with a short error and no warnings. If that
 // fails too, the attempt is abandoned with its reason: the job goes back to
 // the queue, and ClaimNext fails it once its attempts run out.
-void WorkerPool::LogEnd(const std::string& id, const std::string& worker_id,
-                        const Completion& done) {
+void WorkerPool::LogWarnings(const std::string& id, const Completion& done) {
   int warnings = 0;
   for (absl::string_view w : absl::StrSplit(done.warnings, '\n', absl::SkipEmpty()))
     if (++warnings <= kMaxWarningEvents)
       LogJobEvent(*store_, id, "warning", {{"message", std::string(w)}});
-  if (done.state == JobState::kSucceeded)
-    LogJobEvent(*store_, id, "succeeded",
-                {{"worker", worker_id},
-                 {"size", absl::StrCat(done.result_size)},
-                 {"sha256", done.result_sha256}});
-  else
-    LogJobEvent(*store_, id, done.state == JobState::kCancelled ? "cancelled" : "failed",
-                {{"worker", worker_id},
-                 {"code", absl::StatusCodeToString(static_cast<absl::StatusCode>(done.error_code))},
-                 {"message", done.error}});
 }
 
 bool WorkerPool::RecordEnd(const std::string& id, const std::string& worker_id,
                            const Completion& done) {
+  // The end event itself is written by Complete, in its transaction.
+  LogWarnings(id, done);
   absl::Status st = store_->Complete(id, worker_id, done, NowMs());
-  if (st.ok()) {
-    LogEnd(id, worker_id, done);
-    return true;
-  }
+  if (st.ok()) return true;
   // Not ours any more (or gone): nothing to record.
   if (absl::IsFailedPrecondition(st) || absl::IsNotFound(st)) return false;
   spdlog::error("job={} event=complete_failed error=\"{}\"", id, BoundText(st.ToString(), 512));
@@ -570,10 +558,7 @@ bool WorkerPool::RecordEnd(const std::string& id, const std::string& worker_id,
   brief.error = BoundText(done.error, 256);
   brief.warnings.clear();
   st = store_->Complete(id, worker_id, brief, NowMs());
-  if (st.ok()) {
-    LogEnd(id, worker_id, brief);
-    return true;
-  }
+  if (st.ok()) return true;
   if (absl::IsFailedPrecondition(st) || absl::IsNotFound(st)) return false;
   const std::string reason =
       absl::StrCat("could not record the job's end (", BoundText(st.message(), 256), ")",

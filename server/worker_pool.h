@@ -78,9 +78,8 @@ class WorkerPool {
   bool RecordEnd(const std::string& id, const std::string& worker_id, const Completion& done);
   // Tells watchers of jobs the store failed for running out of attempts.
   void PublishGivenUp(const std::vector<JobRecord>& jobs);
-  // The events of a recorded end: its warnings (the first
-  // kMaxWarningEvents), then succeeded, failed or cancelled.
-  void LogEnd(const std::string& id, const std::string& worker_id, const Completion& done);
+  // The warning events of an end (the first kMaxWarningEvents).
+  void LogWarnings(const std::string& id, const Completion& done);
   static constexpr int kMaxWarningEvents = 20;
   // The worker registry (server/worker_registry.h): this replica's row,
   // renewed every heartbeat_ms until Stop, and lost replicas dropped.

@@ -282,6 +282,28 @@ TEST_P(JobStoreQueueTest, ClaimsAndLapsedLeasesAreLogged) {
   EXPECT_EQ(Kinds("j", "reason").back(), "lease_lost:restart");
 }
 
+// The end is logged in Complete's own transaction: whoever sees the job
+// finished sees its end event too.
+TEST_P(JobStoreQueueTest, CompleteLogsTheEndWithTheResult) {
+  Queue("ok", "ann", 50, kT0);
+  Queue("bad", "ann", 40, kT0);
+  ASSERT_EQ(Claim(), "ok");
+  Completion done;
+  done.result_size = 1234;
+  done.result_sha256 = "ab12";
+  ASSERT_TRUE(store().Complete("ok", "w", done, kT0 + 5).ok());
+  EXPECT_EQ(Kinds("ok", "sha256"), (std::vector<std::string>{"claimed:", "succeeded:ab12"}));
+  EXPECT_EQ(Kinds("ok", "size").back(), "succeeded:1234");
+  ASSERT_EQ(Claim(), "bad");
+  Completion failed;
+  failed.state = JobState::kFailed;
+  failed.error = "diverged";
+  failed.error_code = static_cast<int>(absl::StatusCode::kInvalidArgument);
+  ASSERT_TRUE(store().Complete("bad", "w", failed, kT0 + 6).ok());
+  EXPECT_EQ(Kinds("bad", "message").back(), "failed:diverged");
+  EXPECT_EQ(Kinds("bad", "code").back(), "failed:INVALID_ARGUMENT");
+}
+
 TEST_P(JobStoreQueueTest, EventLogKeepsTheNewestThousandAndPages) {
   Queue("j", "ann", 50, kT0);
   for (int i = 1; i <= 1003; ++i)
