@@ -1,6 +1,7 @@
-// The job store interface: durable job records with claims and leases, so a
-// shared PostgreSQL backend with several replicas can replace the embedded
-// SQLite one without touching the service or the workers.
+// The job store interfaces: durable job records with claims and leases (the
+// queue) and the extensions some job kinds need beside it, so a shared
+// PostgreSQL backend with several replicas can replace the embedded SQLite
+// one without touching the service or the workers.
 #pragma once
 
 #include <chrono>
@@ -185,11 +186,19 @@ struct PreviewWish {
 };
 using JobChangeListener = std::function<void(const JobChange&)>;
 
-/// @brief Durable job records. All methods are thread-safe. The worker
-/// registry and the job event log live beside the queue, in the same store.
-class JobStore : public WorkerRegistry, public JobEventLog {
+// A store implements the queue (JobQueue) and, beside it, one small
+// interface per extension: what results and quotas hold (JobHoldings),
+// jelly pokes (PokeStore), shards (ShardStore), the result cache
+// (ResultCacheIndex), previews across replicas (PreviewStore), the worker
+// registry (WorkerRegistry) and the job event log (JobEventLog). Code that
+// needs one extension takes that interface alone. All methods are
+// thread-safe.
+
+/// @brief The queue: create, get, list, claim, lease, complete, cancel, and
+/// the feed of changes to it.
+class JobQueue {
  public:
-  virtual ~JobStore() = default;
+  virtual ~JobQueue() = default;
 
   /// Inserts a QUEUED job. A name longer than kMaxJobNameBytes is
   /// INVALID_ARGUMENT; warnings are bounded (server/bounded_text.h). When
@@ -203,12 +212,14 @@ class JobStore : public WorkerRegistry, public JobEventLog {
   /// Atomically claims the next job by the claim order (a RUNNING job
   /// whose lease has lapsed, or a QUEUED job: the highest priority, then
   /// fair share between owners, then the owner's oldest job; the rule is
-  /// in docs/operator_guide.md "Claim order"): it becomes RUNNING, held by `worker_id` until now +
-  /// lease, attempts + 1. nullopt when nothing is claimable. With `max_attempts` > 0, a job that
-  /// has already had that many attempts is not claimed but FAILED, with the error of its last
-  /// attempt (AbandonAttempt) or a note that its worker stopped without one: a job that kills its
-  /// worker or cannot record its end does not loop forever. Such jobs are appended to `given_up`
-  /// (when not null) as they are afterwards.
+  /// in docs/operator_guide.md "Claim order"): it becomes RUNNING, held
+  /// by `worker_id` until now + lease, attempts + 1. nullopt when nothing
+  /// is claimable. With `max_attempts` > 0, a job that has already had that
+  /// many attempts is not claimed but FAILED, with the error of its last
+  /// attempt (AbandonAttempt) or a note that its worker stopped without
+  /// one: a job that kills its worker or cannot record its end does not
+  /// loop forever. Such jobs are appended to `given_up` (when not null) as
+  /// they are afterwards.
   virtual absl::StatusOr<std::optional<JobRecord>> ClaimNext(
       const std::string& worker_id, TimeMs now, TimeMs lease_ms, uint32_t max_attempts = 0,
       std::vector<JobRecord>* given_up = nullptr) = 0;
@@ -246,6 +257,19 @@ class JobStore : public WorkerRegistry, public JobEventLog {
     (void)priority;
     return absl::UnimplementedError(absl::StrCat("this store cannot reprioritise job ", id));
   }
+  /// Cross-replica change feed: `listener` runs, on a thread of the
+  /// store's, after every committed change to any job by any process
+  /// sharing the store, including this one. Null stops the feed (call it
+  /// before whatever the listener uses goes away). A store only one process
+  /// uses has no feed: by default this does nothing.
+  virtual void SetChangeListener(JobChangeListener listener) { (void)listener; }
+};
+
+/// @brief What jobs and their results hold: quotas, pins, deletion and
+/// the retention sweep.
+class JobHoldings {
+ public:
+  virtual ~JobHoldings() = default;
 
   /// Quota accounting for one principal.
   virtual absl::StatusOr<OwnerUsage> Usage(const std::string& owner) = 0;
@@ -263,6 +287,13 @@ class JobStore : public WorkerRegistry, public JobEventLog {
   /// Serialised specs of the jobs whose assets must be kept: QUEUED,
   /// RUNNING and pinned ones.
   virtual absl::StatusOr<std::vector<std::string>> SpecsInUse() = 0;
+};
+
+/// @brief Pokes on running jelly jobs (docs/jelly.md).
+class PokeStore {
+ public:
+  virtual ~PokeStore() = default;
+
   /// Records a poke for a RUNNING job, without a frame yet; returns it
   /// with its seq. NOT_FOUND for an unknown id, FAILED_PRECONDITION when
   /// the job is not running.
@@ -273,26 +304,39 @@ class JobStore : public WorkerRegistry, public JobEventLog {
   virtual absl::StatusOr<std::vector<PokeRecord>> TakePokes(const std::string& id,
                                                             const std::string& worker_id,
                                                             int64_t frame) = 0;
+};
+
+/// @brief The shards of sharded jobs (docs/sharding.md); the queue creates,
+/// claims and completes them as jobs.
+class ShardStore {
+ public:
+  virtual ~ShardStore() = default;
+
   /// The shards of `parent_id` in shard order (NOT_FOUND for an unknown id).
   virtual absl::StatusOr<std::vector<JobRecord>> ListShards(const std::string& parent_id) = 0;
+};
+
+/// @brief Finished jobs by spec hash (docs/result_cache.md).
+class ResultCacheIndex {
+ public:
+  virtual ~ResultCacheIndex() = default;
+
   /// The newest SUCCEEDED, unexpired, top-level job of `owner` with this
   /// spec hash, or nullopt (result cache).
   virtual absl::StatusOr<std::optional<JobRecord>> FindCached(const std::string& spec_sha256,
                                                               const std::string& owner) = 0;
+};
 
-  /// Cross-replica change feed: `listener` runs, on a thread of the
-  /// store's, after every committed change to any job by any process
-  /// sharing the store, including this one. Null stops the feed (call it
-  /// before whatever the listener uses goes away). A store only one process
-  /// uses has no feed: by default this does nothing.
-  virtual void SetChangeListener(JobChangeListener listener) { (void)listener; }
+/// @brief Previews across replicas. A watcher's replica records what it wants
+/// (WishPreviews); the replica running the job reads the wishes at each
+/// heartbeat, makes those previews and stores the newest one per
+/// resolution (PutPreview, announced on the feed); watchers' replicas read
+/// it (LatestPreview). In a store only one process uses, the job hub
+/// carries previews in memory and these do nothing (the defaults).
+class PreviewStore {
+ public:
+  virtual ~PreviewStore() = default;
 
-  // Previews across replicas. A watcher's replica records what it wants
-  // (WishPreviews); the replica running the job reads the wishes at each
-  // heartbeat, makes those previews and stores the newest one per
-  // resolution (PutPreview, announced on the feed); watchers' replicas read
-  // it (LatestPreview). In a store only one process uses, the job hub
-  // carries previews in memory and these do nothing.
   /// Wishes for `id`'s previews, valid until `until` unless renewed.
   virtual absl::Status WishPreviews(const std::string& id, const std::vector<PreviewWish>& wishes,
                                     TimeMs until) {
@@ -318,6 +362,16 @@ class JobStore : public WorkerRegistry, public JobEventLog {
     return absl::NotFoundError(absl::StrCat("no stored preview of job ", id));
   }
 };
+
+/// @brief A whole job store: the queue and every extension.
+class JobStore : public JobQueue,
+                 public JobHoldings,
+                 public PokeStore,
+                 public ShardStore,
+                 public ResultCacheIndex,
+                 public PreviewStore,
+                 public WorkerRegistry,
+                 public JobEventLog {};
 
 /// Id of shard `index` of `parent_id`: "<parent id>.shard-<index>".
 inline std::string ShardJobId(const std::string& parent_id, uint32_t index) {

@@ -547,9 +547,7 @@ grpc::Status NimbusServiceImpl::Admit(const Principal& caller, const v1::SubmitJ
   nj.owner = caller.name;
   nj.priority = priority;
   if (retry_of != nullptr) nj.retried_from = retry_of->id;
-  // Jelly results also depend on the pokes a running job receives, which
-  // are not in the spec: they are never cache entries.
-  if (job->jelly() == nullptr) nj.spec_sha256 = spec::SpecHash(req.spec());
+  if (job->result_cacheable()) nj.spec_sha256 = spec::SpecHash(req.spec());
   // A finished twin answers at once, without memory admission.
   // A retry is asked for to run again: never a cache hit.
   const bool cached = retry_of == nullptr && !req.spec().no_cache() && !nj.spec_sha256.empty() &&

@@ -76,7 +76,8 @@ SweepCounts RetentionSweeper::SweepOnce(TimeMs now) {
         return counts;
       }
       spdlog::info("job={} event=result_expired freed_bytes={}", job.id, *freed);
-      LogJobEvent(*store_, job.id, "result_expired", {{"freed_bytes", absl::StrCat(*freed)}});
+      if (events_ != nullptr)
+        LogJobEvent(*events_, job.id, "result_expired", {{"freed_bytes", absl::StrCat(*freed)}});
       ++counts.results;
     }
     if (expiring->size() < size_t(kBatch)) break;

@@ -23,14 +23,16 @@ struct SweepCounts {
 /// @brief Sweeps every `interval_ms` while started.
 class RetentionSweeper {
  public:
-  RetentionSweeper(JobStore* store, ResultStore* results, AssetStore* assets, int64_t retention_ms,
-                   int64_t interval_ms)
+  RetentionSweeper(JobHoldings* store, ResultStore* results, AssetStore* assets,
+                   int64_t retention_ms, int64_t interval_ms)
       : store_(store),
         results_(results),
         assets_(assets),
         retention_ms_(retention_ms),
         interval_ms_(interval_ms) {}
   ~RetentionSweeper() { Stop(); }
+  /// Where expired results are noted in their job's event log (none: not).
+  void set_event_log(JobEventLog* log) { events_ = log; }
 
   void Start();
   void Stop();
@@ -39,7 +41,8 @@ class RetentionSweeper {
   SweepCounts SweepOnce(TimeMs now);
 
  private:
-  JobStore* store_;
+  JobHoldings* store_;
+  JobEventLog* events_ = nullptr;
   ResultStore* results_;
   AssetStore* assets_;
   int64_t retention_ms_;

@@ -304,6 +304,7 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
   impl->sweeper = std::make_unique<RetentionSweeper>(impl->store.get(), impl->results.get(),
                                                      impl->assets.get(), options.retention_ms,
                                                      SweepIntervalMs(options.retention_ms));
+  impl->sweeper->set_event_log(impl->store.get());
 
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
