@@ -153,13 +153,14 @@ absl::StatusOr<int> NimbusClient::Health(const std::string& service, double seco
   return absl::DataLossError("unexpected health answer");
 }
 
-absl::StatusOr<v1::Job> NimbusClient::Submit(const v1::JobSpec& spec,
-                                             const std::string& request_id) {
+absl::StatusOr<v1::Job> NimbusClient::Submit(const v1::JobSpec& spec, const std::string& request_id,
+                                             std::optional<int> priority) {
   grpc::ClientContext ctx;
   impl_->Authorize(ctx);
   v1::SubmitJobRequest req;
   *req.mutable_spec() = spec;
   req.set_request_id(request_id);
+  if (priority.has_value()) req.set_priority(*priority);
   v1::SubmitJobResponse resp;
   if (auto s = impl_->stub->SubmitJob(&ctx, req, &resp); !s.ok()) return FromGrpc(s);
   return resp.job();
@@ -202,6 +203,50 @@ absl::StatusOr<v1::Job> NimbusClient::Pin(const std::string& job_id, bool pinned
   v1::PinJobResponse resp;
   if (auto s = impl_->stub->PinJob(&ctx, req, &resp); !s.ok()) return FromGrpc(s);
   return resp.job();
+}
+
+absl::StatusOr<v1::Job> NimbusClient::SetPriority(const std::string& job_id, int priority) {
+  grpc::ClientContext ctx;
+  impl_->Authorize(ctx);
+  v1::SetJobPriorityRequest req;
+  req.set_job_id(job_id);
+  req.set_priority(priority);
+  v1::SetJobPriorityResponse resp;
+  if (auto s = impl_->stub->SetJobPriority(&ctx, req, &resp); !s.ok()) return FromGrpc(s);
+  return resp.job();
+}
+
+absl::StatusOr<v1::Job> NimbusClient::Retry(const std::string& job_id) {
+  grpc::ClientContext ctx;
+  impl_->Authorize(ctx);
+  v1::RetryJobRequest req;
+  req.set_job_id(job_id);
+  v1::RetryJobResponse resp;
+  if (auto s = impl_->stub->RetryJob(&ctx, req, &resp); !s.ok()) return FromGrpc(s);
+  return resp.job();
+}
+
+absl::StatusOr<v1::ListWorkersResponse> NimbusClient::ListWorkers() {
+  grpc::ClientContext ctx;
+  impl_->Authorize(ctx);
+  v1::ListWorkersResponse resp;
+  if (auto s = impl_->stub->ListWorkers(&ctx, v1::ListWorkersRequest(), &resp); !s.ok())
+    return FromGrpc(s);
+  return resp;
+}
+
+absl::StatusOr<v1::GetJobEventsResponse> NimbusClient::GetJobEvents(const std::string& job_id,
+                                                                    int64_t after_seq,
+                                                                    int32_t page_size) {
+  grpc::ClientContext ctx;
+  impl_->Authorize(ctx);
+  v1::GetJobEventsRequest req;
+  req.set_job_id(job_id);
+  req.set_after_seq(after_seq);
+  req.set_page_size(page_size);
+  v1::GetJobEventsResponse resp;
+  if (auto s = impl_->stub->GetJobEvents(&ctx, req, &resp); !s.ok()) return FromGrpc(s);
+  return resp;
 }
 
 absl::StatusOr<uint64_t> NimbusClient::Delete(const std::string& job_id) {

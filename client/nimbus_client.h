@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <string>
 
 #include "absl/status/statusor.h"
@@ -50,12 +51,24 @@ class NimbusClient {
   void set_token(const std::string& token);
   ~NimbusClient();
 
-  absl::StatusOr<v1::Job> Submit(const v1::JobSpec& spec, const std::string& request_id = "");
+  /// `priority` 0..100 (higher claimed first); the server's default, 50,
+  /// when unset.
+  absl::StatusOr<v1::Job> Submit(const v1::JobSpec& spec, const std::string& request_id = "",
+                                 std::optional<int> priority = std::nullopt);
   absl::StatusOr<v1::Job> Get(const std::string& job_id);
   absl::StatusOr<v1::ListJobsResponse> List(const v1::ListJobsRequest& request);
   absl::StatusOr<v1::Job> Cancel(const std::string& job_id);
   /// Pins (or, with `pinned` false, unpins) a job's result against expiry.
   absl::StatusOr<v1::Job> Pin(const std::string& job_id, bool pinned);
+  /// Changes a queued job's priority (0..100).
+  absl::StatusOr<v1::Job> SetPriority(const std::string& job_id, int priority);
+  /// Queues a FAILED or CANCELLED job again; returns the new job.
+  absl::StatusOr<v1::Job> Retry(const std::string& job_id);
+  /// The replicas sharing the server's job store.
+  absl::StatusOr<v1::ListWorkersResponse> ListWorkers();
+  /// One page of a job's event log, after `after_seq`.
+  absl::StatusOr<v1::GetJobEventsResponse> GetJobEvents(const std::string& job_id,
+                                                        int64_t after_seq, int32_t page_size);
   /// Deletes a finished job and its result files; returns the bytes freed.
   absl::StatusOr<uint64_t> Delete(const std::string& job_id);
   /// Pushes or drags a body of a running jelly job (docs/jelly.md).

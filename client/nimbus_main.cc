@@ -1,10 +1,10 @@
 // nimbus: the command-line client. Without --server it starts an embedded
 // in-process server on a local data folder, so it works with no setup.
-#include <CLI/CLI.hpp>
 #include <google/protobuf/util/json_util.h>
 #include <spdlog/spdlog.h>
 #include <unistd.h>
 
+#include <CLI/CLI.hpp>
 #include <atomic>
 #include <cerrno>
 #include <chrono>
@@ -13,21 +13,24 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <ctime>
 #include <filesystem>
 #include <fstream>
 #include <functional>
 #include <iostream>
+#include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <set>
 #include <string>
 #include <thread>
 #include <variant>
 #include <vector>
 
-#include "absl/strings/str_cat.h"
 #include "absl/strings/ascii.h"
 #include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
 #include "client/flame_import.h"
@@ -328,6 +331,7 @@ struct Options {
     const CLI::App* command = nullptr;  // tells which flags were given
   } explore;
   uint32_t shards = 0;       // render, submit
+  std::optional<int> priority;  // render, submit (--priority); priority N
 };
 
 std::atomic<bool> g_interrupted{false};
@@ -555,7 +559,7 @@ int RunRender(const Options& o) {
   });
   if (!session.ok()) return ExitFor(session.status());
   NimbusClient& client = *session->conn.client;
-  auto job = client.Submit(session->spec);
+  auto job = client.Submit(session->spec, "", o.priority);
   if (!job.ok()) return ExitFor(job.status());
   std::cerr << "job " << job->id() << " queued"
             << (session->conn.embedded ? " (embedded server)" : " on " + o.global.server) << "\n";
@@ -677,7 +681,7 @@ int RunExplore(const Options& o) {
 int RunSubmit(const Options& o) {
   auto session = OpenWithSpec(o, /*private_if_busy=*/false);
   if (!session.ok()) return ExitFor(session.status());
-  auto job = session->conn.client->Submit(session->spec);
+  auto job = session->conn.client->Submit(session->spec, "", o.priority);
   if (!job.ok()) return ExitFor(job.status());
   std::cout << job->id() << "\n";
   if (session->conn.embedded)
@@ -772,6 +776,72 @@ int RunPin(const Options& o, bool pinned) {
   auto job = conn->client->Pin(o.job_id, pinned);
   if (!job.ok()) return ExitFor(job.status());
   std::cout << job->id() << (job->pinned() ? " pinned" : " unpinned") << "\n";
+  return 0;
+}
+
+int RunPriority(const Options& o) {
+  auto conn = Connect(o.global);
+  if (!conn.ok()) return ExitFor(conn.status());
+  auto job = conn->client->SetPriority(o.job_id, *o.priority);
+  if (!job.ok()) return ExitFor(job.status());
+  std::cout << job->id() << " priority " << job->priority() << "\n";
+  return 0;
+}
+
+int RunRetry(const Options& o) {
+  auto conn = Connect(o.global);
+  if (!conn.ok()) return ExitFor(conn.status());
+  auto job = conn->client->Retry(o.job_id);
+  if (!job.ok()) return ExitFor(job.status());
+  std::cout << job->id() << "\n";
+  return 0;
+}
+
+// "2026-11-29T03:04:05Z" (UTC, seconds).
+std::string UtcTime(const google::protobuf::Timestamp& t) {
+  const std::time_t secs = static_cast<std::time_t>(t.seconds());
+  std::tm tm{};
+  char text[32] = "-";
+  if (secs > 0 && ::gmtime_r(&secs, &tm) != nullptr)
+    std::strftime(text, sizeof(text), "%Y-%m-%dT%H:%M:%SZ", &tm);
+  return text;
+}
+
+int RunWorkers(const Options& o) {
+  auto conn = Connect(o.global);
+  if (!conn.ok()) return ExitFor(conn.status());
+  auto list = conn->client->ListWorkers();
+  if (!list.ok()) return ExitFor(list.status());
+  std::cout << absl::StrFormat("%-24s %-6s %-20s %-8s %5s %7s %7s %-20s %s\n", "REPLICA", "STATE",
+                               "HOST", "VERSION", "SLOTS", "THREADS", "RUNNING", "LAST HEARTBEAT",
+                               "STARTED");
+  for (const auto& w : list->workers())
+    std::cout << absl::StrFormat("%-24s %-6s %-20s %-8s %5d %7d %7d %-20s %s\n", w.replica_id(),
+                                 w.lost() ? "lost" : "alive", w.host(), w.version(),
+                                 w.worker_slots(), w.threads_per_job(), w.jobs_running(),
+                                 UtcTime(w.last_heartbeat()), UtcTime(w.start_time()));
+  return 0;
+}
+
+int RunEvents(const Options& o) {
+  auto conn = Connect(o.global);
+  if (!conn.ok()) return ExitFor(conn.status());
+  int64_t after = 0;
+  do {
+    auto page = conn->client->GetJobEvents(o.job_id, after, 500);
+    if (!page.ok()) return ExitFor(page.status());
+    if (after == 0 && page->dropped() > 0)
+      std::cout << "(" << page->dropped() << " older events dropped)\n";
+    for (const auto& e : page->events()) {
+      // Fields in name order, so the output is stable.
+      std::map<std::string, std::string> fields(e.fields().begin(), e.fields().end());
+      std::string text;
+      for (const auto& [name, value] : fields)
+        if (!value.empty()) absl::StrAppend(&text, " ", name, "=", value);
+      std::cout << absl::StrFormat("%5d %s %-16s%s\n", e.seq(), UtcTime(e.time()), e.kind(), text);
+    }
+    after = page->next_after_seq();
+  } while (after != 0);
   return 0;
 }
 
@@ -880,6 +950,7 @@ std::vector<Command> AddCommands(CLI::App& app, Options& o) {
                 "run the job even if a finished job had the same spec (JobSpec.no_cache)");
     c->add_option("--shards", o.shards,
                   "split a chaos-game job into this many shards (JobSpec.shards)");
+    c->add_option("--priority", o.priority, "0 to 100, higher runs first (default 50)");
   }
   auto* explore = app.add_subcommand(
       "explore", "draw random IFS, save a contact sheet and one spec per candidate");
@@ -934,6 +1005,14 @@ std::vector<Command> AddCommands(CLI::App& app, Options& o) {
   pin->add_option("job", o.job_id)->required();
   auto* unpin = app.add_subcommand("unpin", "let a pinned job's result expire again");
   unpin->add_option("job", o.job_id)->required();
+  auto* priority = app.add_subcommand("priority", "change a queued job's priority (0 to 100)");
+  priority->add_option("job", o.job_id)->required();
+  priority->add_option("priority", o.priority, "0 to 100, higher runs first")->required();
+  auto* retry = app.add_subcommand("retry", "queue a failed or cancelled job again");
+  retry->add_option("job", o.job_id)->required();
+  auto* workers = app.add_subcommand("workers", "list the replicas sharing the job store");
+  auto* events = app.add_subcommand("events", "print a job's event log, oldest first");
+  events->add_option("job", o.job_id)->required();
   auto* del = app.add_subcommand("delete", "delete a finished job and its result files");
   del->add_option("job", o.job_id)->required();
   auto* validate = app.add_subcommand("validate", "check a spec locally and summarise it");
@@ -960,6 +1039,10 @@ std::vector<Command> AddCommands(CLI::App& app, Options& o) {
           {cancel, RunCancel},
           {pin, [](const Options& o) { return RunPin(o, true); }},
           {unpin, [](const Options& o) { return RunPin(o, false); }},
+          {priority, RunPriority},
+          {retry, RunRetry},
+          {workers, RunWorkers},
+          {events, RunEvents},
           {del, RunDelete},
           {poke, RunPoke}};
 }

@@ -15,6 +15,8 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "absl/strings/str_cat.h"
+#include "server/job_event_log.h"
+#include "server/worker_registry.h"
 
 namespace nimbus::server {
 
@@ -23,6 +25,11 @@ enum class JobState { kQueued = 1, kRunning = 2, kSucceeded = 3, kFailed = 4, kC
 inline bool IsTerminal(JobState s) {
   return s == JobState::kSucceeded || s == JobState::kFailed || s == JobState::kCancelled;
 }
+
+/// The range and default of job priorities (higher is claimed first).
+inline constexpr int kMinPriority = 0;
+inline constexpr int kMaxPriority = 100;
+inline constexpr int kDefaultPriority = 50;
 
 /// Milliseconds since the Unix epoch.
 using TimeMs = int64_t;
@@ -74,6 +81,11 @@ struct JobRecord {
   std::string spec_sha256;
   /// A result-cache hit: the job whose result this one copies.
   std::string cached_from;
+  /// Claim order (docs/operator_guide.md "Claim order"): kMinPriority to
+  /// kMaxPriority, higher first. Shards carry their parent's.
+  int priority = kDefaultPriority;
+  /// Set by RetryJob: the FAILED or CANCELLED job this one repeats.
+  std::string retried_from;
 };
 
 /// What a principal holds, for quotas.
@@ -114,6 +126,10 @@ struct NewJob {
   /// `cached_from` (the job whose result it copies).
   std::string cached_from;
   Completion cached_result;
+  /// kMinPriority..kMaxPriority (Create refuses others); shards inherit it.
+  int priority = kDefaultPriority;
+  /// A retry of this FAILED or CANCELLED job (RetryJob).
+  std::string retried_from;
 };
 
 struct ListOptions {
@@ -173,7 +189,8 @@ using JobChangeListener = std::function<void(const JobChange&)>;
 // A store implements the queue (JobQueue) and, beside it, one small
 // interface per extension: what results and quotas hold (JobHoldings),
 // jelly pokes (PokeStore), shards (ShardStore), the result cache
-// (ResultCacheIndex) and previews across replicas (PreviewStore). Code that
+// (ResultCacheIndex), previews across replicas (PreviewStore), the worker
+// registry (WorkerRegistry) and the job event log (JobEventLog). Code that
 // needs one extension takes that interface alone. All methods are
 // thread-safe.
 
@@ -192,14 +209,17 @@ class JobQueue {
   virtual absl::StatusOr<JobRecord> Get(const std::string& id) = 0;
   virtual absl::StatusOr<ListPage> List(const ListOptions& options) = 0;
 
-  /// Atomically claims the oldest QUEUED job, or a RUNNING job whose lease
-  /// has lapsed: it becomes RUNNING, held by `worker_id` until now + lease,
-  /// attempts + 1. nullopt when nothing is claimable. With `max_attempts`
-  /// > 0, a job that has already had that many attempts is not claimed but
-  /// FAILED, with the error of its last attempt (AbandonAttempt) or a note
-  /// that its worker stopped without one: a job that kills its worker or
-  /// cannot record its end does not loop forever. Such jobs are appended
-  /// to `given_up` (when not null) as they are afterwards.
+  /// Atomically claims the next job by the claim order (a RUNNING job
+  /// whose lease has lapsed, or a QUEUED job: the highest priority, then
+  /// fair share between owners, then the owner's oldest job; the rule is
+  /// in docs/operator_guide.md "Claim order"): it becomes RUNNING, held
+  /// by `worker_id` until now + lease, attempts + 1. nullopt when nothing
+  /// is claimable. With `max_attempts` > 0, a job that has already had that
+  /// many attempts is not claimed but FAILED, with the error of its last
+  /// attempt (AbandonAttempt) or a note that its worker stopped without
+  /// one: a job that kills its worker or cannot record its end does not
+  /// loop forever. Such jobs are appended to `given_up` (when not null) as
+  /// they are afterwards.
   virtual absl::StatusOr<std::optional<JobRecord>> ClaimNext(
       const std::string& worker_id, TimeMs now, TimeMs lease_ms, uint32_t max_attempts = 0,
       std::vector<JobRecord>* given_up = nullptr) = 0;
@@ -229,6 +249,14 @@ class JobQueue {
   /// again (its lease holder is gone). Returns how many were requeued.
   virtual absl::StatusOr<int> RequeueRunning() = 0;
 
+  /// Changes a QUEUED job's priority (and its queued shards'); returns the
+  /// job. INVALID_ARGUMENT naming `priority` outside kMinPriority..
+  /// kMaxPriority, NOT_FOUND for an unknown id, FAILED_PRECONDITION for a
+  /// job that is not QUEUED.
+  virtual absl::StatusOr<JobRecord> SetPriority(const std::string& id, int priority) {
+    (void)priority;
+    return absl::UnimplementedError(absl::StrCat("this store cannot reprioritise job ", id));
+  }
   /// Cross-replica change feed: `listener` runs, on a thread of the
   /// store's, after every committed change to any job by any process
   /// sharing the store, including this one. Null stops the feed (call it
@@ -341,7 +369,9 @@ class JobStore : public JobQueue,
                  public PokeStore,
                  public ShardStore,
                  public ResultCacheIndex,
-                 public PreviewStore {};
+                 public PreviewStore,
+                 public WorkerRegistry,
+                 public JobEventLog {};
 
 /// Id of shard `index` of `parent_id`: "<parent id>.shard-<index>".
 inline std::string ShardJobId(const std::string& parent_id, uint32_t index) {

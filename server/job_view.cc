@@ -16,6 +16,29 @@ void SetTime(TimeMs ms, google::protobuf::Timestamp* t) {
 }
 }  // namespace
 
+v1::Worker ToProto(const WorkerInfo& w, TimeMs now, TimeMs lease_ms) {
+  v1::Worker out;
+  out.set_replica_id(w.replica_id);
+  out.set_host(w.host);
+  out.set_version(w.version);
+  SetTime(w.start_time, out.mutable_start_time());
+  out.set_worker_slots(w.worker_slots);
+  out.set_threads_per_job(w.threads_per_job);
+  out.set_jobs_running(w.jobs_running);
+  SetTime(w.last_heartbeat, out.mutable_last_heartbeat());
+  out.set_lost(now - w.last_heartbeat > lease_ms);
+  return out;
+}
+
+v1::JobEvent ToProto(const JobEvent& e) {
+  v1::JobEvent out;
+  out.set_seq(e.seq);
+  SetTime(e.time, out.mutable_time());
+  out.set_kind(e.kind);
+  for (const auto& [name, value] : e.fields) (*out.mutable_fields())[name] = value;
+  return out;
+}
+
 TimeMs NowMs() {
   return std::chrono::duration_cast<std::chrono::milliseconds>(
              std::chrono::system_clock::now().time_since_epoch())
@@ -87,6 +110,8 @@ v1::Job ToProto(const JobRecord& r, bool with_spec) {
   if (r.result_expire_time) SetTime(r.result_expire_time, j.mutable_result_expire_time());
   // Result cache and sharded jobs (docs/result_cache.md, docs/sharding.md).
   j.set_cached_from(r.cached_from);
+  j.set_priority(r.priority);
+  j.set_retried_from(r.retried_from);
   if (r.shard_count > 1 && r.parent_id.empty()) {
     j.set_shards(r.shard_count);
     j.set_shards_succeeded(r.shard_count - std::min(r.shards_pending, r.shard_count));

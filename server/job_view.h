@@ -12,4 +12,9 @@ std::optional<JobState> FromProto(v1::JobState s);
 v1::Job ToProto(const JobRecord& r, bool with_spec);
 TimeMs NowMs();
 
+/// A registry row's wire view; lost when its last heartbeat is more than
+/// `lease_ms` before `now`.
+v1::Worker ToProto(const WorkerInfo& w, TimeMs now, TimeMs lease_ms);
+v1::JobEvent ToProto(const JobEvent& e);
+
 }  // namespace nimbus::server

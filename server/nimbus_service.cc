@@ -15,6 +15,7 @@
 #include "proto/spec_shape.h"
 #include "server/access.h"
 #include "server/bounded_text.h"
+#include "server/job_store_util.h"
 #include "server/job_view.h"
 #include "server/memory_admission.h"
 #include "server/result_export.h"
@@ -514,8 +515,10 @@ grpc::Status CheckSubmittedText(const v1::SubmitJobRequest& req) {
 }  // namespace
 
 grpc::Status NimbusServiceImpl::Admit(const Principal& caller, const v1::SubmitJobRequest& req,
-                                      v1::SubmitJobResponse& resp) {
+                                      v1::SubmitJobResponse& resp, const JobRecord* retry_of) {
   if (grpc::Status st = CheckSubmittedText(req); !st.ok()) return st;
+  const int priority = req.has_priority() ? req.priority() : kDefaultPriority;
+  if (auto st = CheckPriority(priority); !st.ok()) return ToGrpc(st);
   // Its size, unknown fields and list lengths, before anything copies it.
   if (auto st = spec::CheckSpecShape(req.spec(), limits_); !st.ok()) return ToGrpc(st);
   // Before anything else looks at the spec: a request never names a file
@@ -542,9 +545,13 @@ grpc::Status NimbusServiceImpl::Admit(const Principal& caller, const v1::SubmitJ
   nj.progress_total = job->work.total;
   for (const auto& w : job->warnings) nj.warnings += w + "\n";
   nj.owner = caller.name;
+  nj.priority = priority;
+  if (retry_of != nullptr) nj.retried_from = retry_of->id;
   if (job->result_cacheable()) nj.spec_sha256 = spec::SpecHash(req.spec());
   // A finished twin answers at once, without memory admission.
-  const bool cached = !req.spec().no_cache() && !nj.spec_sha256.empty() && AnswerFromCache(nj);
+  // A retry is asked for to run again: never a cache hit.
+  const bool cached = retry_of == nullptr && !req.spec().no_cache() && !nj.spec_sha256.empty() &&
+                      AnswerFromCache(nj);
   if (!cached) {
     // Memory admission: the job's one pilot census, if it needs one.
     auto memory = AdmitMemory(*job, limits_, pool_->threads_per_job());
@@ -558,8 +565,15 @@ grpc::Status NimbusServiceImpl::Admit(const Principal& caller, const v1::SubmitJ
   // is not needed.
   if (cached && (!rec.ok() || rec->id != nj.id)) (void)results_->Delete(nj.id);
   if (!rec.ok()) return ToGrpc(rec.status());
-  spdlog::info("job={} event=submitted name={} owner={} work={}", rec->id, rec->name, rec->owner,
-               rec->progress_total);
+  if (rec->id == nj.id)  // not an idempotent repeat
+    LogJobEvent(*store_, rec->id, "submitted",
+                {{"by", caller.name},
+                 {"priority", absl::StrCat(rec->priority)},
+                 {"retried_from", rec->retried_from},
+                 {"cached_from", rec->cached_from}});
+  spdlog::info("job={} event=submitted name={} owner={} work={} priority={}{}", rec->id, rec->name,
+               rec->owner, rec->progress_total, rec->priority,
+               rec->retried_from.empty() ? "" : " retried_from=" + rec->retried_from);
   *resp.mutable_job() = ToProto(*rec, true);
   if (rec->state == JobState::kQueued) hub_->PublishJob(resp.job());
   pool_->Wake();
@@ -717,6 +731,7 @@ grpc::Status NimbusServiceImpl::Cancel(const Principal& caller, const std::strin
     return ToGrpc(visible.status());
   auto rec = store_->RequestCancel(job_id, NowMs());
   if (!rec.ok()) return ToGrpc(rec.status());
+  LogJobEvent(*store_, job_id, "cancel_requested", {{"by", caller.name}});
   pool_->Cancel(job_id);
   // A sharded job's cancel reaches the shards this process runs at once.
   if (rec->parent_id.empty())
@@ -891,6 +906,7 @@ grpc::ServerUnaryReactor* NimbusServiceImpl::PinJob(grpc::CallbackServerContext*
       return ToGrpc(visible.status());
     auto rec = store_->SetPinned(req->job_id(), req->pinned());
     if (!rec.ok()) return ToGrpc(rec.status());
+    LogJobEvent(*store_, rec->id, req->pinned() ? "pinned" : "unpinned", {{"by", caller.name}});
     spdlog::info("job={} event={}", rec->id, req->pinned() ? "pinned" : "unpinned");
     *resp->mutable_job() = ToProto(*rec, false);
     return grpc::Status::OK;
@@ -934,6 +950,97 @@ grpc::Status NimbusServiceImpl::Delete(const Principal& caller, const std::strin
   hub_->Forget(job_id);
   spdlog::info("job={} event=deleted freed_bytes={}", job_id, resp.freed_bytes());
   return grpc::Status::OK;
+}
+
+grpc::ServerUnaryReactor* NimbusServiceImpl::SetJobPriority(grpc::CallbackServerContext* ctx,
+                                                            const v1::SetJobPriorityRequest* req,
+                                                            v1::SetJobPriorityResponse* resp) {
+  return OffThread(ctx, [this, req, resp](const Principal& caller) {
+    if (auto st = CheckPriority(req->priority()); !st.ok()) return ToGrpc(st);
+    auto visible = LoadVisibleJob(*store_, caller, req->job_id());
+    if (!visible.ok()) return ToGrpc(visible.status());
+    if (!visible->parent_id.empty())
+      return grpc::Status(
+          grpc::StatusCode::FAILED_PRECONDITION,
+          absl::StrCat("job ", visible->id, " is a shard; set the priority of its job ",
+                       visible->parent_id, " instead"));
+    auto rec = store_->SetPriority(req->job_id(), req->priority());
+    if (!rec.ok()) return ToGrpc(rec.status());
+    spdlog::info("job={} event=priority priority={} by={}", rec->id, rec->priority, caller.name);
+    LogJobEvent(*store_, rec->id, "priority",
+                {{"by", caller.name}, {"priority", absl::StrCat(rec->priority)}});
+    *resp->mutable_job() = ToProto(*rec, false);
+    hub_->PublishJob(resp->job());
+    return grpc::Status::OK;
+  });
+}
+
+grpc::ServerUnaryReactor* NimbusServiceImpl::RetryJob(grpc::CallbackServerContext* ctx,
+                                                      const v1::RetryJobRequest* req,
+                                                      v1::RetryJobResponse* resp) {
+  return OffThread(ctx, [this, req, resp](const Principal& caller) {
+    return Retry(caller, req->job_id(), *resp);
+  });
+}
+
+grpc::Status NimbusServiceImpl::Retry(const Principal& caller, const std::string& job_id,
+                                      v1::RetryJobResponse& resp) {
+  auto rec = LoadVisibleJob(*store_, caller, job_id);
+  if (!rec.ok()) return ToGrpc(rec.status());
+  if (!rec->parent_id.empty())
+    return grpc::Status(
+        grpc::StatusCode::FAILED_PRECONDITION,
+        absl::StrCat("job ", rec->id, " is a shard; retry its job ", rec->parent_id, " instead"));
+  if (rec->state != JobState::kFailed && rec->state != JobState::kCancelled)
+    return grpc::Status(
+        grpc::StatusCode::FAILED_PRECONDITION,
+        absl::StrCat("job ", rec->id, " is ", v1::JobState_Name(ToProto(rec->state)),
+                     "; only a FAILED or CANCELLED job can be retried"));
+  v1::SubmitJobRequest again;
+  if (!again.mutable_spec()->ParseFromString(rec->spec))
+    return grpc::Status(grpc::StatusCode::INTERNAL,
+                        absl::StrCat("job ", rec->id, ": its stored spec does not parse"));
+  again.set_priority(rec->priority);
+  // The new job is the original owner's, whoever asks.
+  const Principal owner{rec->owner, caller.admin};
+  v1::SubmitJobResponse submitted;
+  if (grpc::Status st = Admit(owner, again, submitted, &*rec); !st.ok()) return st;
+  LogJobEvent(*store_, rec->id, "retried",
+              {{"by", caller.name}, {"retried_as", submitted.job().id()}});
+  *resp.mutable_job() = std::move(*submitted.mutable_job());
+  return grpc::Status::OK;
+}
+
+grpc::ServerUnaryReactor* NimbusServiceImpl::ListWorkers(grpc::CallbackServerContext* ctx,
+                                                         const v1::ListWorkersRequest* req,
+                                                         v1::ListWorkersResponse* resp) {
+  (void)req;
+  return OffThread(ctx, [this, resp](const Principal&) {
+    auto rows = store_->ListWorkers();
+    if (!rows.ok()) return ToGrpc(rows.status());
+    const TimeMs now = NowMs();
+    for (const WorkerInfo& w : *rows) *resp->add_workers() = ToProto(w, now, lease_ms_);
+    return grpc::Status::OK;
+  });
+}
+
+grpc::ServerUnaryReactor* NimbusServiceImpl::GetJobEvents(grpc::CallbackServerContext* ctx,
+                                                          const v1::GetJobEventsRequest* req,
+                                                          v1::GetJobEventsResponse* resp) {
+  return OffThread(ctx, [this, req, resp](const Principal& caller) {
+    if (auto visible = LoadVisibleJob(*store_, caller, req->job_id()); !visible.ok())
+      return ToGrpc(visible.status());
+    if (req->page_size() < 0 || req->after_seq() < 0)
+      return grpc::Status(grpc::StatusCode::INVALID_ARGUMENT,
+                          req->page_size() < 0 ? "page_size: must not be negative"
+                                               : "after_seq: must not be negative");
+    auto page = store_->ListEvents(req->job_id(), req->after_seq(), req->page_size());
+    if (!page.ok()) return ToGrpc(page.status());
+    for (const JobEvent& e : page->events) *resp->add_events() = ToProto(e);
+    resp->set_next_after_seq(page->next_after);
+    resp->set_dropped(page->dropped);
+    return grpc::Status::OK;
+  });
 }
 
 }  // namespace nimbus::server

@@ -31,6 +31,8 @@ class NimbusServiceImpl final : public v1::NimbusService::CallbackService {
   /// Jobs above this many iterations that did not choose their shards are
   /// split (docs/sharding.md); 0: never.
   void set_auto_shard_iterations(uint64_t n) { auto_shard_iterations_ = n; }
+  /// ListWorkers shows a replica lost once its last heartbeat is older.
+  void set_lease_ms(int64_t ms) { lease_ms_ = ms; }
   /// Who may call (no tokens: everyone, as the anonymous admin), what each
   /// principal may store, and how long results are kept (0: for ever; only
   /// named in FetchResult's answer for an expired result).
@@ -65,11 +67,27 @@ class NimbusServiceImpl final : public v1::NimbusService::CallbackService {
   grpc::ServerUnaryReactor* PokeJob(grpc::CallbackServerContext* ctx,
                                     const v1::PokeJobRequest* req,
                                     v1::PokeJobResponse* resp) override;
+  grpc::ServerUnaryReactor* SetJobPriority(grpc::CallbackServerContext* ctx,
+                                           const v1::SetJobPriorityRequest* req,
+                                           v1::SetJobPriorityResponse* resp) override;
+  grpc::ServerUnaryReactor* RetryJob(grpc::CallbackServerContext* ctx,
+                                     const v1::RetryJobRequest* req,
+                                     v1::RetryJobResponse* resp) override;
+  grpc::ServerUnaryReactor* ListWorkers(grpc::CallbackServerContext* ctx,
+                                        const v1::ListWorkersRequest* req,
+                                        v1::ListWorkersResponse* resp) override;
+  grpc::ServerUnaryReactor* GetJobEvents(grpc::CallbackServerContext* ctx,
+                                         const v1::GetJobEventsRequest* req,
+                                         v1::GetJobEventsResponse* resp) override;
 
  private:
   // Validates and stores one submission (runs on the admission thread).
+  // With `retry_of`: a retry of that job (RetryJob), never from the cache.
   grpc::Status Admit(const Principal& caller, const v1::SubmitJobRequest& req,
-                     v1::SubmitJobResponse& resp);
+                     v1::SubmitJobResponse& resp, const JobRecord* retry_of = nullptr);
+  // RetryJob's body (runs on the executor).
+  grpc::Status Retry(const Principal& caller, const std::string& job_id,
+                     v1::RetryJobResponse& resp);
   // DeleteJob's body (runs on the executor).
   grpc::Status Delete(const Principal& caller, const std::string& job_id,
                       v1::DeleteJobResponse& resp);
@@ -97,6 +115,7 @@ class NimbusServiceImpl final : public v1::NimbusService::CallbackService {
   Quotas quotas_;
   int64_t retention_ms_ = 0;
   uint64_t auto_shard_iterations_ = 0;
+  int64_t lease_ms_ = 30'000;
   // The result cache (docs/result_cache.md): fills `nj` as a copy of the
   // newest finished job with its spec hash, if any. False on a miss.
   bool AnswerFromCache(NewJob& nj);

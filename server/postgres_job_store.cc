@@ -41,7 +41,8 @@ namespace {
 // 3: sharded jobs and the result cache (parent_id ... spec_sha256).
 // 4: cache hits name their source (cached_from).
 // 5: idempotency keys are each principal's own.
-constexpr int kSchemaVersion = 5;
+// 6: priorities, retries and the fair-share claim order.
+constexpr int kSchemaVersion = 6;
 // Any fixed 64-bit number: the advisory lock that serialises migrations.
 constexpr int64_t kMigrationLockKey = 0x6e696d6275730001;  // "nimbus" + 1
 constexpr int kDefaultPageSize = 50;
@@ -131,20 +132,43 @@ CREATE UNIQUE INDEX IF NOT EXISTS jobs_owner_request_id ON jobs (owner, request_
   WHERE request_id <> '';
 )sql";
 
+// Priorities (old jobs get the default, 50), the link from a retry to its
+// original, and what the claim order reads: claimable QUEUED jobs by
+// (priority, owner, age), RUNNING jobs by owner, and each owner's last
+// claim (from a sequence, so equal clocks still order); the worker
+// registry and the job event log.
+constexpr char kSchemaV6Sql[] = R"sql(
+ALTER TABLE jobs ADD COLUMN IF NOT EXISTS priority INTEGER NOT NULL DEFAULT 50;
+ALTER TABLE jobs ADD COLUMN IF NOT EXISTS retried_from TEXT NOT NULL DEFAULT '';
+CREATE INDEX IF NOT EXISTS jobs_claim_order ON jobs (priority, owner, create_time, seq)
+  WHERE state = 1 AND NOT cancel_requested AND shards_pending = 0;
+CREATE INDEX IF NOT EXISTS jobs_state_owner ON jobs (state, owner);
+CREATE TABLE IF NOT EXISTS owner_claims (owner TEXT PRIMARY KEY NOT NULL,
+  last_claim BIGINT NOT NULL);
+CREATE SEQUENCE IF NOT EXISTS owner_claim_seq;
+CREATE TABLE IF NOT EXISTS workers (replica_id TEXT COLLATE "C" PRIMARY KEY NOT NULL,
+  host TEXT NOT NULL, version TEXT NOT NULL, start_time BIGINT NOT NULL,
+  worker_slots INTEGER NOT NULL, threads_per_job INTEGER NOT NULL,
+  jobs_running INTEGER NOT NULL, last_heartbeat BIGINT NOT NULL);
+CREATE TABLE IF NOT EXISTS job_events (job_id TEXT COLLATE "C" NOT NULL, seq BIGINT NOT NULL,
+  time BIGINT NOT NULL, kind TEXT NOT NULL, fields TEXT NOT NULL,
+  PRIMARY KEY (job_id, seq));
+)sql";
+
 // Migrations in order: kMigrations[v - 1] takes the schema to version v.
-constexpr const char* kMigrations[] = {kSchemaV1Sql, kSchemaV2Sql, kSchemaV3Sql, kSchemaV4Sql,
-                                       kSchemaV5Sql};
+constexpr const char* kMigrations[] = {kSchemaV1Sql, kSchemaV2Sql, kSchemaV3Sql,
+                                       kSchemaV4Sql, kSchemaV5Sql, kSchemaV6Sql};
 static_assert(std::size(kMigrations) == kSchemaVersion);
 
 // The columns RowToRecord reads, in order. Text a reader could make huge is
 // cut in SQL, as in the SQLite store; the spec travels as hex text.
-#define NIMBUS_PG_COLUMNS                                                                   \
-  "id, substr(name, 1, 256), state, encode(spec, 'hex'), request_id, create_time, "         \
-  "start_time, end_time, attempts, cancel_requested, worker_id, lease_expiry, "             \
-  "progress_done, progress_total, substr(error, 1, 4200), result_key, result_size, "        \
+#define NIMBUS_PG_COLUMNS                                                                  \
+  "id, substr(name, 1, 256), state, encode(spec, 'hex'), request_id, create_time, "        \
+  "start_time, end_time, attempts, cancel_requested, worker_id, lease_expiry, "            \
+  "progress_done, progress_total, substr(error, 1, 4200), result_key, result_size, "       \
   "result_sha256, substr(warnings, 1, 16500), estimated_memory_bytes, error_code, owner, " \
-  "pinned, result_expire_time, parent_id, shard_index, shard_count, shards_pending, "       \
-  "spec_sha256, cached_from"
+  "pinned, result_expire_time, parent_id, shard_index, shard_count, shards_pending, "      \
+  "spec_sha256, cached_from, priority, retried_from"
 
 // 64-bit counters are stored as the same bits in a BIGINT.
 int64_t ToDb(uint64_t v) { return static_cast<int64_t>(v); }
@@ -184,6 +208,8 @@ JobRecord RowToRecord(const pqxx::row& row) {
   r.shards_pending = static_cast<uint32_t>(row[27].as<int64_t>());
   r.spec_sha256 = row[28].as<std::string>();
   r.cached_from = row[29].as<std::string>();
+  r.priority = row[30].as<int>();
+  r.retried_from = row[31].as<std::string>();
   return r;
 }
 
@@ -247,8 +273,22 @@ class PostgresJobStore final : public JobStore {
   absl::StatusOr<std::vector<JobRecord>> ListShards(const std::string& parent_id) override;
   absl::StatusOr<std::optional<JobRecord>> FindCached(const std::string& spec_sha256,
                                                       const std::string& owner) override;
+  absl::StatusOr<JobRecord> SetPriority(const std::string& id, int priority) override;
+  // WorkerRegistry and JobEventLog.
+  absl::Status RegisterWorker(const WorkerInfo& info) override;
+  absl::Status RenewWorker(const std::string& replica_id, uint32_t jobs_running,
+                           int64_t now) override;
+  absl::Status UnregisterWorker(const std::string& replica_id) override;
+  absl::StatusOr<int> PruneWorkers(int64_t cutoff) override;
+  absl::StatusOr<std::vector<WorkerInfo>> ListWorkers() override;
+  absl::Status AppendEvent(const std::string& job_id, const JobEvent& event) override;
+  absl::StatusOr<JobEventPage> ListEvents(const std::string& job_id, int64_t after,
+                                          int limit) override;
 
  private:
+  // Appends to `job_id`'s event log inside `t`; appends to one job's log
+  // take turns (a transaction-scoped advisory lock on the job id).
+  static void AppendEventIn(pqxx::work& t, const std::string& job_id, const JobEvent& event);
   // The feed: LISTEN on a connection of its own, reconnecting when lost.
   void ListenLoop();
   void Deliver(const std::string& payload);
@@ -272,6 +312,12 @@ class PostgresJobStore final : public JobStore {
   static void CheckClaim(pqxx::work& t, const std::string& id, const std::string& worker_id);
   static void CancelOrphans(pqxx::work& t, TimeMs now, bool lapsed_only);
   static void GiveUp(pqxx::work& t, const std::string& id, uint32_t attempts, TimeMs now);
+  // The next job by the claim order (docs/operator_guide.md "Claim
+  // order"), locked FOR UPDATE, with its attempts; rows other claimers
+  // hold are skipped. nullopt when nothing is claimable.
+  static std::optional<std::pair<std::string, uint32_t>> PickClaimable(pqxx::work& t, TimeMs now);
+  // The owners with claimable QUEUED jobs at `priority`, best turn first.
+  static std::vector<std::pair<std::string, OwnerTurn>> RankOwners(pqxx::work& t, int64_t priority);
   // A shard's end reaches its parent (docs/sharding.md): success counts
   // down shards_pending; failure or cancellation ends the parent and
   // stops its other shards. Nothing for an ordinary job.
@@ -551,10 +597,207 @@ void PostgresJobStore::GiveUp(pqxx::work& t, const std::string& id, uint32_t att
       static_cast<int>(absl::StatusCode::kInternal), id);
 }
 
+std::optional<std::pair<std::string, uint32_t>> PostgresJobStore::PickClaimable(pqxx::work& t,
+                                                                                TimeMs now) {
+  using Pick = std::optional<std::pair<std::string, uint32_t>>;
+  const auto picked = [](const pqxx::result& r) {
+    return Pick(std::pair(r[0][0].as<std::string>(), static_cast<uint32_t>(r[0][1].as<int64_t>())));
+  };
+  // Priorities from the top; a level whose rows other claimers hold
+  // all is passed over for the next one down.
+  std::optional<int64_t> below;
+  for (bool first = true;; first = false) {
+    pqxx::result top =
+        below.has_value()
+            ? t.exec_params(
+                  "SELECT priority FROM jobs WHERE state = 1 AND NOT cancel_requested "
+                  "AND shards_pending = 0 AND priority < $1 "
+                  "ORDER BY priority DESC LIMIT 1",
+                  *below)
+            : t.exec(
+                  "SELECT priority FROM jobs WHERE state = 1 AND NOT cancel_requested AND "
+                  "shards_pending = 0 ORDER BY priority DESC LIMIT 1");
+    // -1: no claimable QUEUED job (below `below`).
+    const int64_t level = top.empty() ? -1 : top[0][0].as<int64_t>();
+    if (first) {
+      // A RUNNING job whose lease lapsed goes first unless a queued job
+      // has a higher priority; running jobs are few (one per worker).
+      pqxx::result lapsed = t.exec_params(
+          "SELECT id, attempts FROM jobs WHERE state = 2 AND NOT cancel_requested AND "
+          "shards_pending = 0 AND lease_expiry < $1 AND priority >= $2 "
+          "ORDER BY priority DESC, create_time, seq LIMIT 1 FOR UPDATE SKIP LOCKED",
+          now, level);
+      if (!lapsed.empty()) return picked(lapsed);
+    }
+    if (level < 0) return Pick();
+    for (const auto& [owner, turn] : RankOwners(t, level)) {
+      pqxx::result r = t.exec_params(
+          "SELECT id, attempts FROM jobs WHERE state = 1 AND NOT cancel_requested AND "
+          "shards_pending = 0 AND priority = $1 AND owner = $2 "
+          "ORDER BY create_time, seq LIMIT 1 FOR UPDATE SKIP LOCKED",
+          level, owner);
+      if (!r.empty()) return picked(r);
+    }
+    below = level;
+  }
+}
+
+// The owners with claimable QUEUED jobs at priority $1, in one round trip:
+// a recursive walk of jobs_claim_order that seeks from each owner to the
+// next (one index probe per owner, never a scan of their jobs); for each,
+// its oldest such job, its RUNNING jobs and its last claim.
+constexpr char kRankOwnersSql[] = R"sql(
+WITH RECURSIVE owners(owner) AS (
+  (SELECT owner FROM jobs WHERE state = 1 AND NOT cancel_requested AND shards_pending = 0
+     AND priority = $1 ORDER BY owner LIMIT 1)
+  UNION ALL
+  SELECT (SELECT j.owner FROM jobs j WHERE j.state = 1 AND NOT j.cancel_requested
+            AND j.shards_pending = 0 AND j.priority = $1 AND j.owner > o.owner
+            ORDER BY j.owner LIMIT 1)
+  FROM owners o WHERE o.owner IS NOT NULL)
+SELECT o.owner, f.create_time, f.seq, f.id,
+  (SELECT count(*) FROM jobs r WHERE r.state = 2 AND r.owner = o.owner),
+  (SELECT coalesce(max(c.last_claim), 0) FROM owner_claims c WHERE c.owner = o.owner)
+FROM owners o CROSS JOIN LATERAL (
+  SELECT create_time, seq, id FROM jobs j WHERE j.state = 1 AND NOT j.cancel_requested
+    AND j.shards_pending = 0 AND j.priority = $1 AND j.owner = o.owner
+    ORDER BY j.create_time, j.seq LIMIT 1) f
+WHERE o.owner IS NOT NULL
+)sql";
+
+std::vector<std::pair<std::string, OwnerTurn>> PostgresJobStore::RankOwners(pqxx::work& t,
+                                                                            int64_t priority) {
+  // The cost grows with the owners at `priority`, not with their jobs.
+  std::vector<std::pair<std::string, OwnerTurn>> owners;
+  for (const pqxx::row& r : t.exec_params(kRankOwnersSql, priority)) {
+    OwnerTurn turn;
+    turn.create_time = r[1].as<int64_t>();
+    turn.seq = r[2].as<int64_t>();
+    turn.job_id = r[3].as<std::string>();
+    turn.running = static_cast<uint64_t>(r[4].as<int64_t>());
+    turn.last_claim = r[5].as<int64_t>();
+    owners.emplace_back(r[0].as<std::string>(), std::move(turn));
+  }
+  std::stable_sort(owners.begin(), owners.end(),
+                   [](const auto& a, const auto& b) { return a.second < b.second; });
+  return owners;
+}
+
+absl::StatusOr<JobRecord> PostgresJobStore::SetPriority(const std::string& id, int priority) {
+  if (absl::Status s = CheckPriority(priority); !s.ok()) return s;
+  return InTxn<JobRecord>("set a job's priority", [&](pqxx::work& t) {
+    const JobRecord r = LoadExisting(t, id, /*lock=*/true);
+    if (r.state != JobState::kQueued)
+      throw Abort{
+          absl::FailedPreconditionError(absl::StrCat("job \"", id, "\" is ", StateName(r.state),
+                                                     ": only a QUEUED job's priority can change"))};
+    // A sharded parent waits QUEUED for its shards: the queued ones follow.
+    t.exec_params("UPDATE jobs SET priority = $1 WHERE id = $2 OR (parent_id = $2 AND state = 1)",
+                  priority, id);
+    Notify(t, id, /*claimable=*/true);
+    return LoadExisting(t, id, false);
+  });
+}
+
+absl::Status PostgresJobStore::RegisterWorker(const WorkerInfo& w) {
+  return InTxnVoid("register a replica", [&](pqxx::work& t) {
+    t.exec_params(
+        "INSERT INTO workers (replica_id, host, version, start_time, worker_slots, "
+        "threads_per_job, jobs_running, last_heartbeat) VALUES ($1, $2, $3, $4, $5, $6, $7, $8) "
+        "ON CONFLICT (replica_id) DO UPDATE SET host = EXCLUDED.host, "
+        "version = EXCLUDED.version, start_time = EXCLUDED.start_time, "
+        "worker_slots = EXCLUDED.worker_slots, threads_per_job = EXCLUDED.threads_per_job, "
+        "jobs_running = EXCLUDED.jobs_running, last_heartbeat = EXCLUDED.last_heartbeat",
+        w.replica_id, w.host, w.version, w.start_time, int64_t{w.worker_slots},
+        int64_t{w.threads_per_job}, int64_t{w.jobs_running}, w.last_heartbeat);
+  });
+}
+
+absl::Status PostgresJobStore::RenewWorker(const std::string& replica_id, uint32_t jobs_running,
+                                           int64_t now) {
+  return InTxnVoid("renew a replica", [&](pqxx::work& t) {
+    pqxx::result r = t.exec_params(
+        "UPDATE workers SET jobs_running = $2, last_heartbeat = $3 WHERE replica_id = $1",
+        replica_id, int64_t{jobs_running}, now);
+    if (r.affected_rows() == 0)
+      throw Abort{
+          absl::NotFoundError(absl::StrCat("replica \"", replica_id, "\" is not registered"))};
+  });
+}
+
+absl::Status PostgresJobStore::UnregisterWorker(const std::string& replica_id) {
+  return InTxnVoid("unregister a replica", [&](pqxx::work& t) {
+    t.exec_params("DELETE FROM workers WHERE replica_id = $1", replica_id);
+  });
+}
+
+absl::StatusOr<int> PostgresJobStore::PruneWorkers(int64_t cutoff) {
+  return InTxn<int>("drop lost replicas", [&](pqxx::work& t) {
+    return static_cast<int>(
+        t.exec_params("DELETE FROM workers WHERE last_heartbeat < $1", cutoff).affected_rows());
+  });
+}
+
+absl::StatusOr<std::vector<WorkerInfo>> PostgresJobStore::ListWorkers() {
+  return InTxn<std::vector<WorkerInfo>>("list replicas", [&](pqxx::work& t) {
+    std::vector<WorkerInfo> out;
+    for (const pqxx::row& r :
+         t.exec("SELECT replica_id, host, version, start_time, worker_slots, threads_per_job, "
+                "jobs_running, last_heartbeat FROM workers ORDER BY replica_id"))
+      out.push_back({r[0].as<std::string>(), r[1].as<std::string>(), r[2].as<std::string>(),
+                     r[3].as<int64_t>(), r[4].as<uint32_t>(), r[5].as<uint32_t>(),
+                     r[6].as<uint32_t>(), r[7].as<int64_t>()});
+    return out;
+  });
+}
+
+void PostgresJobStore::AppendEventIn(pqxx::work& t, const std::string& job_id,
+                                     const JobEvent& event) {
+  t.exec_params("SELECT pg_advisory_xact_lock(hashtextextended($1, 43))", job_id);
+  // The newest kMaxEventsPerJob stay; seqs stay contiguous, so the first
+  // one kept tells how many were dropped.
+  t.exec_params(
+      "WITH added AS (INSERT INTO job_events (job_id, seq, time, kind, fields) "
+      "SELECT $1, coalesce(max(seq), 0) + 1, $2, $3, $4 FROM job_events WHERE job_id = $1 "
+      "RETURNING seq) "
+      "DELETE FROM job_events WHERE job_id = $1 AND seq <= (SELECT seq FROM added) - $5",
+      job_id, event.time, BoundText(event.kind, kMaxEventFieldBytes),
+      EncodeEventFields(event.fields), kMaxEventsPerJob);
+}
+
+absl::Status PostgresJobStore::AppendEvent(const std::string& job_id, const JobEvent& event) {
+  return InTxnVoid("append a job event", [&](pqxx::work& t) { AppendEventIn(t, job_id, event); });
+}
+
+absl::StatusOr<JobEventPage> PostgresJobStore::ListEvents(const std::string& job_id, int64_t after,
+                                                          int limit) {
+  limit = std::clamp(limit <= 0 ? kDefaultPageSize : limit, 1, kMaxPageSize);
+  return InTxn<JobEventPage>("list job events", [&](pqxx::work& t) {
+    JobEventPage page;
+    page.dropped =
+        t.exec_params1("SELECT coalesce(min(seq), 1) - 1 FROM job_events WHERE job_id = $1",
+                       job_id)[0]
+            .as<int64_t>();
+    for (const pqxx::row& r : t.exec_params(
+             "SELECT seq, time, kind, fields FROM job_events WHERE job_id = $1 AND seq > $2 "
+             "ORDER BY seq LIMIT $3",
+             job_id, after, limit + 1)) {
+      if (static_cast<int>(page.events.size()) == limit) {
+        page.next_after = page.events.back().seq;
+        break;
+      }
+      page.events.push_back({r[0].as<int64_t>(), r[1].as<int64_t>(), r[2].as<std::string>(),
+                             DecodeEventFields(r[3].as<std::string>())});
+    }
+    return page;
+  });
+}
+
 absl::StatusOr<JobRecord> PostgresJobStore::Create(const NewJob& job, TimeMs now) {
   if (job.name.size() > kMaxJobNameBytes)
     return absl::InvalidArgumentError(absl::StrCat("name: must be at most ", kMaxJobNameBytes,
                                                    " bytes, got ", job.name.size()));
+  if (absl::Status s = CheckPriority(job.priority); !s.ok()) return s;
   return InTxn<JobRecord>("create a job", [&](pqxx::work& t) {
     auto existing_for_key = [&]() -> std::optional<JobRecord> {
       if (job.request_id.empty()) return std::nullopt;
@@ -578,22 +821,24 @@ absl::StatusOr<JobRecord> PostgresJobStore::Create(const NewJob& job, TimeMs now
     const int64_t shards = job.shard_count > 1 ? job.shard_count : 0;
     pqxx::result ins = t.exec_params(
         "INSERT INTO jobs (id, name, state, spec, request_id, create_time, progress_total, "
-        "warnings, estimated_memory_bytes, owner, shard_count, shards_pending, spec_sha256) "
-        "VALUES ($1, $2, 1, decode($3, 'hex'), $4, $5, $6, $7, $8, $9, $10, $10, $11) "
+        "warnings, estimated_memory_bytes, owner, shard_count, shards_pending, spec_sha256, "
+        "priority, retried_from) "
+        "VALUES ($1, $2, 1, decode($3, 'hex'), $4, $5, $6, $7, $8, $9, $10, $10, $11, $12, $13) "
         "ON CONFLICT DO NOTHING RETURNING " NIMBUS_PG_COLUMNS,
         job.id, job.name, spec_hex, job.request_id, now, ToDb(job.progress_total),
         BoundText(job.warnings, kMaxWarningsBytes), ToDb(job.estimated_memory_bytes), job.owner,
-        shards, job.spec_sha256);
+        shards, job.spec_sha256, job.priority, job.retried_from);
     if (!ins.empty()) {
       // The shards, in index order (insertion order breaks create_time ties).
       for (int64_t k = 0; k < shards; ++k) {
         t.exec_params(
             "INSERT INTO jobs (id, name, state, spec, create_time, progress_total, "
-            "estimated_memory_bytes, owner, parent_id, shard_index, shard_count, spec_sha256) "
-            "VALUES ($1, $2, 1, decode($3, 'hex'), $4, $5, $6, $7, $8, $9, $10, $11)",
-            ShardJobId(job.id, uint32_t(k)), job.name, spec_hex, now,
-            ToDb(job.progress_total), ToDb(job.estimated_memory_bytes), job.owner, job.id, k,
-            shards, job.spec_sha256);
+            "estimated_memory_bytes, owner, parent_id, shard_index, shard_count, spec_sha256, "
+            "priority) VALUES ($1, $2, 1, decode($3, 'hex'), $4, $5, $6, $7, $8, $9, $10, $11, "
+            "$12)",
+            ShardJobId(job.id, uint32_t(k)), job.name, spec_hex, now, ToDb(job.progress_total),
+            ToDb(job.estimated_memory_bytes), job.owner, job.id, k, shards, job.spec_sha256,
+            job.priority);
       }
       if (!job.cached_from.empty()) {
         // A cache hit is born finished, with the copied result.
@@ -667,15 +912,11 @@ absl::StatusOr<std::optional<JobRecord>> PostgresJobStore::ClaimNext(
         gave_up.clear();
         CancelOrphans(t, now, /*lapsed_only=*/true);
         while (true) {
-          // The oldest claimable row nobody else is claiming right now.
-          pqxx::result pick = t.exec_params(
-              "SELECT id, attempts FROM jobs WHERE state IN (1, 2) AND NOT cancel_requested "
-              "AND shards_pending = 0 AND (state = 1 OR lease_expiry < $1) "
-              "ORDER BY create_time, seq LIMIT 1 FOR UPDATE SKIP LOCKED",
-              now);
-          if (pick.empty()) return std::optional<JobRecord>();
-          const std::string id = pick[0][0].as<std::string>();
-          const auto attempts = static_cast<uint32_t>(pick[0][1].as<int64_t>());
+          // The next row by the claim order that nobody else is claiming.
+          std::optional<std::pair<std::string, uint32_t>> pick = PickClaimable(t, now);
+          if (!pick.has_value()) return std::optional<JobRecord>();
+          const std::string& id = pick->first;
+          const uint32_t attempts = pick->second;
           if (max_attempts > 0 && attempts >= max_attempts) {
             GiveUp(t, id, attempts, now);
             PropagateShardEnd(t, id, now);
@@ -683,12 +924,31 @@ absl::StatusOr<std::optional<JobRecord>> PostgresJobStore::ClaimNext(
             gave_up.push_back(LoadExisting(t, id, false));
             continue;
           }
+          const JobRecord before = LoadExisting(t, id, false);
+          if (before.state == JobState::kRunning)  // its worker stopped heartbeating
+            AppendEventIn(t, id,
+                          {0,
+                           now,
+                           "lease_lost",
+                           {{"worker", before.worker_id},
+                            {"attempt", absl::StrCat(before.attempts)},
+                            {"lease_expiry", absl::StrCat(before.lease_expiry)}}});
           // progress_done restarts with the new attempt; the total stays.
           pqxx::result claimed = t.exec_params(
               "UPDATE jobs SET state = 2, worker_id = $1, lease_expiry = $2, start_time = $3, "
               "attempts = attempts + 1, progress_done = 0 WHERE id = $4 "
               "RETURNING " NIMBUS_PG_COLUMNS,
               worker_id, now + lease_ms, now, id);
+          t.exec_params(
+              "INSERT INTO owner_claims (owner, last_claim) "
+              "VALUES ($1, nextval('owner_claim_seq')) "
+              "ON CONFLICT (owner) DO UPDATE SET last_claim = EXCLUDED.last_claim",
+              claimed[0][21].as<std::string>());
+          AppendEventIn(t, id,
+                        {0,
+                         now,
+                         "claimed",
+                         {{"worker", worker_id}, {"attempt", absl::StrCat(attempts + 1)}}});
           Notify(t, id);
           return std::optional<JobRecord>(RowToRecord(claimed[0]));
         }
@@ -735,6 +995,7 @@ absl::Status PostgresJobStore::Complete(const std::string& id, const std::string
         completion.result_key, ToDb(completion.result_size), completion.result_sha256,
         BoundText(completion.warnings, kMaxWarningsBytes), completion.error_code, id);
     PropagateShardEnd(t, id, now);
+    AppendEventIn(t, id, EndEvent(worker_id, completion, now));
     // Previews matter only while the job runs.
     t.exec_params("DELETE FROM previews WHERE job_id = $1", id);
     t.exec_params("DELETE FROM preview_wishes WHERE job_id = $1", id);
@@ -794,6 +1055,12 @@ absl::StatusOr<JobRecord> PostgresJobStore::RequestCancel(const std::string& id,
 absl::StatusOr<int> PostgresJobStore::RequeueRunning() {
   return InTxn<int>("requeue running jobs", [&](pqxx::work& t) {
     CancelOrphans(t, WallClockMs(), /*lapsed_only=*/false);
+    for (const pqxx::row& held : t.exec("SELECT id, worker_id FROM jobs WHERE state = 2"))
+      AppendEventIn(t, held[0].as<std::string>(),
+                    {0,
+                     WallClockMs(),
+                     "lease_lost",
+                     {{"worker", held[1].as<std::string>()}, {"reason", "restart"}}});
     pqxx::result r = t.exec(
         "UPDATE jobs SET state = 1, worker_id = '', lease_expiry = 0 WHERE state = 2");
     t.exec_params("SELECT pg_notify($1, 'q')", std::string(kChannel));
@@ -836,14 +1103,15 @@ absl::Status PostgresJobStore::Delete(const std::string& id) {
     if (!active.empty())
       throw Abort{absl::FailedPreconditionError(absl::StrCat(
           "job ", id, " still has an active shard (", active[0][0].as<std::string>(), ")"))};
-    for (const char* sql : {"DELETE FROM pokes WHERE job_id IN (SELECT $1 UNION ALL "
-                            "SELECT id FROM jobs WHERE parent_id = $1)",
-                            "DELETE FROM previews WHERE job_id IN (SELECT $1 UNION ALL "
-                            "SELECT id FROM jobs WHERE parent_id = $1)",
-                            "DELETE FROM preview_wishes WHERE job_id IN (SELECT $1 UNION ALL "
-                            "SELECT id FROM jobs WHERE parent_id = $1)",
-                            "DELETE FROM jobs WHERE parent_id = $1 AND $1 <> ''",
-                            "DELETE FROM jobs WHERE id = $1"})
+    for (const char* sql :
+         {"DELETE FROM pokes WHERE job_id IN (SELECT $1 UNION ALL "
+          "SELECT id FROM jobs WHERE parent_id = $1)",
+          "DELETE FROM previews WHERE job_id IN (SELECT $1 UNION ALL "
+          "SELECT id FROM jobs WHERE parent_id = $1)",
+          "DELETE FROM preview_wishes WHERE job_id IN (SELECT $1 UNION ALL "
+          "SELECT id FROM jobs WHERE parent_id = $1)",
+          "DELETE FROM job_events WHERE job_id = $1",
+          "DELETE FROM jobs WHERE parent_id = $1 AND $1 <> ''", "DELETE FROM jobs WHERE id = $1"})
       t.exec_params(sql, id);
   });
 }

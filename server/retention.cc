@@ -6,6 +6,7 @@
 #include <chrono>
 #include <set>
 
+#include "absl/strings/str_cat.h"
 #include "nimbus/v1/spec.pb.h"
 #include "proto/asset_paths.h"
 #include "server/job_view.h"
@@ -75,6 +76,8 @@ SweepCounts RetentionSweeper::SweepOnce(TimeMs now) {
         return counts;
       }
       spdlog::info("job={} event=result_expired freed_bytes={}", job.id, *freed);
+      if (events_ != nullptr)
+        LogJobEvent(*events_, job.id, "result_expired", {{"freed_bytes", absl::StrCat(*freed)}});
       ++counts.results;
     }
     if (expiring->size() < size_t(kBatch)) break;

@@ -31,6 +31,8 @@ class RetentionSweeper {
         retention_ms_(retention_ms),
         interval_ms_(interval_ms) {}
   ~RetentionSweeper() { Stop(); }
+  /// Where expired results are noted in their job's event log (none: not).
+  void set_event_log(JobEventLog* log) { events_ = log; }
 
   void Start();
   void Stop();
@@ -40,6 +42,7 @@ class RetentionSweeper {
 
  private:
   JobHoldings* store_;
+  JobEventLog* events_ = nullptr;
   ResultStore* results_;
   AssetStore* assets_;
   int64_t retention_ms_;

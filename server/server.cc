@@ -293,6 +293,7 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
       limits);
   impl->service->set_cancel_wait_ms(options.cancel_wait_ms);
   impl->service->set_auto_shard_iterations(options.auto_shard_iterations);
+  impl->service->set_lease_ms(options.lease_ms);
   const bool auth = !tokens->empty();
   const size_t principals = tokens->size();
   impl->service->set_security(
@@ -303,6 +304,7 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
   impl->sweeper = std::make_unique<RetentionSweeper>(impl->store.get(), impl->results.get(),
                                                      impl->assets.get(), options.retention_ms,
                                                      SweepIntervalMs(options.retention_ms));
+  impl->sweeper->set_event_log(impl->store.get());
 
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();

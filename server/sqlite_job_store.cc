@@ -11,6 +11,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdint>
+#include <functional>
 #include <limits>
 #include <memory>
 #include <mutex>
@@ -36,8 +37,9 @@ namespace {
 // result_expire_time (security: ownership and retention). 4: adds the pokes
 // table (jelly jobs). 5: adds sharded jobs (parent_id, shard_index,
 // shard_count, shards_pending) and the result cache (spec_sha256,
-// cached_from).
-constexpr int kSchemaVersion = 6;
+// cached_from). 6: idempotency keys per principal. 7: priorities, retries
+// and the fair-share claim order (owner_claims).
+constexpr int kSchemaVersion = 7;
 // Long enough to ride out another process's short write transactions, short
 // enough that a wedged peer surfaces as UNAVAILABLE instead of a hang.
 constexpr int kBusyTimeoutMs = 10000;
@@ -134,6 +136,30 @@ CREATE UNIQUE INDEX IF NOT EXISTS jobs_owner_request_id ON jobs (owner, request_
   WHERE request_id <> '';
 )sql";
 
+// Version 6 files gain priorities (old jobs get the default, 50), the link
+// from a retry to its original, and what the claim order reads: an index of
+// claimable QUEUED jobs by (priority, owner, age), RUNNING jobs by owner,
+// and each owner's last claim (a counter, so equal clocks still order);
+// the worker registry and the job event log. Every file runs it, a fresh
+// one too.
+constexpr char kMigrateToV7Sql[] = R"sql(
+ALTER TABLE jobs ADD COLUMN priority INTEGER NOT NULL DEFAULT 50;
+ALTER TABLE jobs ADD COLUMN retried_from TEXT NOT NULL DEFAULT '';
+CREATE INDEX IF NOT EXISTS jobs_claim_order ON jobs (priority, owner, create_time)
+  WHERE state = 1 AND cancel_requested = 0 AND shards_pending = 0;
+CREATE INDEX IF NOT EXISTS jobs_state_owner ON jobs (state, owner);
+CREATE TABLE IF NOT EXISTS owner_claims (owner TEXT PRIMARY KEY NOT NULL,
+  last_claim INTEGER NOT NULL);
+CREATE INDEX IF NOT EXISTS owner_claims_last ON owner_claims (last_claim);
+CREATE TABLE IF NOT EXISTS workers (replica_id TEXT PRIMARY KEY NOT NULL,
+  host TEXT NOT NULL, version TEXT NOT NULL, start_time INTEGER NOT NULL,
+  worker_slots INTEGER NOT NULL, threads_per_job INTEGER NOT NULL,
+  jobs_running INTEGER NOT NULL, last_heartbeat INTEGER NOT NULL);
+CREATE TABLE IF NOT EXISTS job_events (job_id TEXT NOT NULL, seq INTEGER NOT NULL,
+  time INTEGER NOT NULL, kind TEXT NOT NULL, fields TEXT NOT NULL,
+  PRIMARY KEY (job_id, seq));
+)sql";
+
 // Column order shared by every SELECT that feeds RowToRecord. Text a client
 // or a reader could make huge is cut in SQL already (stores written before
 // the bounds may hold a gigabyte of error text), and again by BoundText
@@ -144,7 +170,7 @@ CREATE UNIQUE INDEX IF NOT EXISTS jobs_owner_request_id ON jobs (owner, request_
   "substr(error, 1, 4200), result_key, result_size, result_sha256, "                       \
   "substr(warnings, 1, 16500), estimated_memory_bytes, error_code, owner, pinned, "        \
   "result_expire_time, parent_id, shard_index, shard_count, shards_pending, spec_sha256, " \
-  "cached_from"
+  "cached_from, priority, retried_from"
 
 absl::StatusCode CodeFor(int rc) {
   switch (rc & 0xff) {
@@ -301,6 +327,8 @@ JobRecord RowToRecord(const Statement& s) {
   r.shards_pending = static_cast<uint32_t>(s.Int(27));
   r.spec_sha256 = s.Text(28);
   r.cached_from = s.Text(29);
+  r.priority = static_cast<int>(s.Int(30));
+  r.retried_from = s.Text(31);
   return r;
 }
 
@@ -356,8 +384,24 @@ class SqliteJobStore final : public JobStore {
   absl::StatusOr<std::vector<JobRecord>> ListShards(const std::string& parent_id) override;
   absl::StatusOr<std::optional<JobRecord>> FindCached(const std::string& spec_sha256,
                                                       const std::string& owner) override;
+  absl::StatusOr<JobRecord> SetPriority(const std::string& id, int priority) override;
+  // WorkerRegistry and JobEventLog.
+  absl::Status RegisterWorker(const WorkerInfo& info) override;
+  absl::Status RenewWorker(const std::string& replica_id, uint32_t jobs_running,
+                           int64_t now) override;
+  absl::Status UnregisterWorker(const std::string& replica_id) override;
+  absl::StatusOr<int> PruneWorkers(int64_t cutoff) override;
+  absl::StatusOr<std::vector<WorkerInfo>> ListWorkers() override;
+  absl::Status AppendEvent(const std::string& job_id, const JobEvent& event) override;
+  absl::StatusOr<JobEventPage> ListEvents(const std::string& job_id, int64_t after,
+                                          int limit) override;
 
  private:
+  // Appends to `job_id`'s event log inside the caller's transaction.
+  absl::Status AppendEventLocked(const std::string& job_id, const JobEvent& event);
+  // Runs one write statement binding `bind`; the rows it changed.
+  absl::StatusOr<int> RunWrite(const char* sql, const std::function<void(Statement&)>& bind);
+
   // Rolls back unless committed, so every early return leaves no open
   // transaction (and no held write lock) behind.
   class Transaction {
@@ -413,8 +457,13 @@ class SqliteJobStore final : public JobStore {
   // A cancel-requested RUNNING job whose worker is gone (lease lapsed or
   // process restarted) can never be finished by that worker; finish it here.
   absl::Status CancelOrphansLocked(const char* where_clause_sql, TimeMs now);
-  // The (create_time, id) of the oldest claimable job, if any.
+  // The (create_time, id) of the next job by the claim order, if any.
   absl::StatusOr<std::optional<std::pair<TimeMs, std::string>>> PickClaimableLocked(TimeMs now);
+  // Fair share among the owners of claimable QUEUED jobs at `priority`:
+  // the winner's oldest job.
+  absl::StatusOr<std::optional<OwnerTurn>> NextOwnerTurnLocked(int64_t priority);
+  // Records that the owner of `id` was served now (owner_claims).
+  absl::Status NoteClaimLocked(const std::string& id);
   // Fails a job whose attempts ran out, keeping its last attempt's error.
   absl::Status GiveUpLocked(const std::string& id, uint32_t attempts, TimeMs now);
   // Sharded jobs (docs/sharding.md). After `id` reached a terminal state: a
@@ -556,7 +605,9 @@ absl::Status SqliteJobStore::Migrate() {
   }
   if (*version < 5)
     if (absl::Status s = Exec(kMigrateToV5Sql); !s.ok()) return s;
-  if (absl::Status s = Exec(kMigrateToV6Sql); !s.ok()) return s;
+  if (*version < 6)
+    if (absl::Status s = Exec(kMigrateToV6Sql); !s.ok()) return s;
+  if (absl::Status s = Exec(kMigrateToV7Sql); !s.ok()) return s;
   if (absl::Status s = Exec(absl::StrCat("PRAGMA user_version=", kSchemaVersion).c_str());
       !s.ok()) {
     return s;
@@ -634,6 +685,7 @@ absl::StatusOr<JobRecord> SqliteJobStore::Create(const NewJob& job, TimeMs now) 
   if (job.name.size() > kMaxJobNameBytes)
     return absl::InvalidArgumentError(absl::StrCat("name: must be at most ", kMaxJobNameBytes,
                                                    " bytes, got ", job.name.size()));
+  if (absl::Status s = CheckPriority(job.priority); !s.ok()) return s;
   std::lock_guard<std::mutex> lock(mu_);
   Transaction txn(this);
   if (absl::Status s = txn.Begin(); !s.ok()) return s;
@@ -663,14 +715,16 @@ absl::StatusOr<JobRecord> SqliteJobStore::Create(const NewJob& job, TimeMs now) 
   {
     absl::StatusOr<Statement> s = Prepare(
         "INSERT INTO jobs (id, name, state, spec, request_id, create_time, progress_total, "
-        "warnings, estimated_memory_bytes, owner, shard_count, shards_pending, spec_sha256) "
-        "VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?11, ?12)");
+        "warnings, estimated_memory_bytes, owner, shard_count, shards_pending, spec_sha256, "
+        "priority, retried_from) "
+        "VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?11, ?12, ?13, ?14)");
     if (!s.ok()) return s.status();
     s->Bind(1, job.id).Bind(2, job.name).Bind(3, JobState::kQueued).BindBlob(4, job.spec);
     s->Bind(5, job.request_id).Bind(6, now).Bind(7, job.progress_total);
     s->Bind(8, BoundText(job.warnings, kMaxWarningsBytes));
     s->Bind(9, job.estimated_memory_bytes).Bind(10, job.owner);
     s->Bind(11, int64_t{shards}).Bind(12, job.spec_sha256);
+    s->Bind(13, job.priority).Bind(14, job.retried_from);
     if (absl::Status st = s->Run(); !st.ok()) {
       if (st.code() == absl::StatusCode::kAlreadyExists) {
         return absl::AlreadyExistsError(absl::StrCat("job \"", job.id, "\" already exists"));
@@ -701,8 +755,8 @@ absl::StatusOr<JobRecord> SqliteJobStore::Create(const NewJob& job, TimeMs now) 
 absl::Status SqliteJobStore::InsertShardsLocked(const NewJob& job, TimeMs now) {
   absl::StatusOr<Statement> s = Prepare(
       "INSERT INTO jobs (id, name, state, spec, create_time, progress_total, warnings, "
-      "estimated_memory_bytes, owner, parent_id, shard_index, shard_count, spec_sha256) "
-      "VALUES (?1, ?2, 1, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12)");
+      "estimated_memory_bytes, owner, parent_id, shard_index, shard_count, spec_sha256, "
+      "priority) VALUES (?1, ?2, 1, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13)");
   if (!s.ok()) return s.status();
   for (uint32_t k = 0; k < job.shard_count; ++k) {
     s->Reset();
@@ -710,6 +764,7 @@ absl::Status SqliteJobStore::InsertShardsLocked(const NewJob& job, TimeMs now) {
     s->Bind(5, job.progress_total).Bind(6, BoundText(job.warnings, kMaxWarningsBytes));
     s->Bind(7, job.estimated_memory_bytes).Bind(8, job.owner).Bind(9, job.id);
     s->Bind(10, int64_t{k}).Bind(11, int64_t{job.shard_count}).Bind(12, job.spec_sha256);
+    s->Bind(13, job.priority);
     if (absl::Status st = s->Run(); !st.ok()) return st;
   }
   return absl::OkStatus();
@@ -870,47 +925,120 @@ absl::StatusOr<ListPage> SqliteJobStore::List(const ListOptions& options) {
 
 absl::StatusOr<std::optional<std::pair<TimeMs, std::string>>>
 SqliteJobStore::PickClaimableLocked(TimeMs now) {
-  // Two index-friendly probes instead of one OR: the oldest QUEUED job and the
-  // oldest RUNNING job whose lease lapsed; the older of the two wins. Ties
-  // of create_time go by insertion order (rowid), so shards run in order.
-  std::optional<std::pair<TimeMs, std::string>> best;
-  int64_t best_rowid = 0;
-  auto consider = [&](const char* sql, bool bind_now) -> absl::Status {
-    absl::StatusOr<Statement> s = Prepare(sql);
-    if (!s.ok()) return s.status();
-    if (bind_now) s->Bind(1, now);
-    absl::StatusOr<bool> row = s->Step();
-    if (!row.ok()) return row.status();
-    if (*row) {
-      const TimeMs t = s->Int(0);
-      const int64_t rowid = s->Int(1);
-      if (!best.has_value() || std::pair(t, rowid) < std::pair(best->first, best_rowid)) {
-        best.emplace(t, s->Text(2));
-        best_rowid = rowid;
-      }
-    }
-    return absl::OkStatus();
-  };
-  // State values are inlined: they are fixed by the header's enum.
+  // State values are inlined: they are fixed by the header's enum, and the
+  // partial index jobs_claim_order needs its WHERE terms literally.
   static_assert(static_cast<int>(JobState::kQueued) == 1);
   static_assert(static_cast<int>(JobState::kRunning) == 2);
-  if (absl::Status s =
-          consider("SELECT create_time, rowid, id FROM jobs WHERE state = 1 AND "
-                   "cancel_requested = 0 AND shards_pending = 0 "
-                   "ORDER BY create_time, rowid LIMIT 1",
-                   false);
-      !s.ok()) {
-    return s;
+  using Pick = std::optional<std::pair<TimeMs, std::string>>;
+  // The highest priority among claimable QUEUED jobs: one index probe (the
+  // index named, as in NIMBUS_OWNER_SEEK).
+  std::optional<int64_t> top;
+  {
+    absl::StatusOr<Statement> s = Prepare(
+        "SELECT priority FROM jobs INDEXED BY jobs_claim_order WHERE state = 1 AND "
+        "cancel_requested = 0 AND shards_pending = 0 ORDER BY priority DESC LIMIT 1");
+    if (!s.ok()) return s.status();
+    absl::StatusOr<bool> row = s->Step();
+    if (!row.ok()) return row.status();
+    if (*row) top = s->Int(0);
   }
-  if (absl::Status s =
-          consider("SELECT create_time, rowid, id FROM jobs WHERE state = 2 AND "
-                   "cancel_requested = 0 AND lease_expiry < ?1 "
-                   "ORDER BY create_time, rowid LIMIT 1",
-                   true);
-      !s.ok()) {
-    return s;
+  {
+    // A RUNNING job whose lease lapsed goes first unless a queued job has a
+    // higher priority; running jobs are few (one per worker).
+    absl::StatusOr<Statement> s = Prepare(
+        "SELECT create_time, id FROM jobs WHERE state = 2 AND cancel_requested = 0 AND "
+        "shards_pending = 0 AND lease_expiry < ?1 AND priority >= ?2 "
+        "ORDER BY priority DESC, create_time, rowid LIMIT 1");
+    if (!s.ok()) return s.status();
+    s->Bind(1, now).Bind(2, top.value_or(int64_t{kMinPriority}));
+    absl::StatusOr<bool> row = s->Step();
+    if (!row.ok()) return row.status();
+    if (*row) return Pick(std::pair(s->Int(0), s->Text(1)));
+  }
+  if (!top.has_value()) return Pick();
+  absl::StatusOr<std::optional<OwnerTurn>> turn = NextOwnerTurnLocked(*top);
+  if (!turn.ok()) return turn.status();
+  if (!turn->has_value()) return Pick();
+  return Pick(std::pair((*turn)->create_time, (*turn)->job_id));
+}
+
+// The first owner after ?2 (or from it: `cmp` ">=") with claimable QUEUED
+// jobs at priority ?1, and its oldest such job. The index is named: on a
+// table without statistics the planner would pick jobs_state_owner and sort.
+#define NIMBUS_OWNER_SEEK(cmp)                                                         \
+  "SELECT owner, create_time, rowid, id FROM jobs INDEXED BY jobs_claim_order "        \
+  "WHERE state = 1 AND cancel_requested = 0 AND shards_pending = 0 AND priority = ?1 " \
+  "AND owner " cmp " ?2 ORDER BY owner, create_time, rowid LIMIT 1"
+
+absl::StatusOr<std::optional<OwnerTurn>> SqliteJobStore::NextOwnerTurnLocked(int64_t priority) {
+  // Steps through the owners with claimable jobs at `priority` in owner
+  // order, one index seek each (which also finds the owner's oldest job);
+  // the cost grows with the owners at that priority, not with their jobs.
+  std::optional<OwnerTurn> best;
+  std::string owner;
+  for (bool first = true;; first = false) {
+    OwnerTurn turn;
+    {
+      absl::StatusOr<Statement> s =
+          Prepare(first ? NIMBUS_OWNER_SEEK(">=") : NIMBUS_OWNER_SEEK(">"));
+      if (!s.ok()) return s.status();
+      s->Bind(1, priority).Bind(2, owner);
+      absl::StatusOr<bool> row = s->Step();
+      if (!row.ok()) return row.status();
+      if (!*row) break;
+      owner = s->Text(0);
+      turn.create_time = s->Int(1);
+      turn.seq = s->Int(2);
+      turn.job_id = s->Text(3);
+    }
+    {
+      absl::StatusOr<Statement> s = Prepare(
+          "SELECT (SELECT count(*) FROM jobs WHERE state = 2 AND owner = ?1), "
+          "(SELECT coalesce(max(last_claim), 0) FROM owner_claims WHERE owner = ?1)");
+      if (!s.ok()) return s.status();
+      s->Bind(1, owner);
+      absl::StatusOr<bool> row = s->Step();
+      if (!row.ok()) return row.status();
+      turn.running = s->Uint(0);
+      turn.last_claim = s->Int(1);
+    }
+    if (!best.has_value() || turn < *best) best = std::move(turn);
   }
   return best;
+}
+
+absl::Status SqliteJobStore::NoteClaimLocked(const std::string& id) {
+  absl::StatusOr<Statement> s = Prepare(
+      "INSERT INTO owner_claims (owner, last_claim) SELECT owner, "
+      "(SELECT coalesce(max(last_claim), 0) + 1 FROM owner_claims) FROM jobs WHERE id = ?1 "
+      "ON CONFLICT (owner) DO UPDATE SET last_claim = excluded.last_claim");
+  if (!s.ok()) return s.status();
+  s->Bind(1, id);
+  return s->Run();
+}
+
+absl::StatusOr<JobRecord> SqliteJobStore::SetPriority(const std::string& id, int priority) {
+  if (absl::Status s = CheckPriority(priority); !s.ok()) return s;
+  std::lock_guard<std::mutex> lock(mu_);
+  Transaction txn(this);
+  if (absl::Status s = txn.Begin(); !s.ok()) return s;
+  absl::StatusOr<JobRecord> r = LoadExistingLocked(id);
+  if (!r.ok()) return r.status();
+  if (r->state != JobState::kQueued)
+    return absl::FailedPreconditionError(absl::StrCat("job \"", id, "\" is ", StateName(r->state),
+                                                      ": only a QUEUED job's priority can change"));
+  {
+    // A sharded parent waits QUEUED for its shards: the queued ones follow.
+    absl::StatusOr<Statement> s =
+        Prepare("UPDATE jobs SET priority = ?1 WHERE id = ?2 OR (parent_id = ?2 AND state = 1)");
+    if (!s.ok()) return s.status();
+    s->Bind(1, priority).Bind(2, id);
+    if (absl::Status st = s->Run(); !st.ok()) return st;
+  }
+  absl::StatusOr<JobRecord> changed = LoadExistingLocked(id);
+  if (!changed.ok()) return changed.status();
+  if (absl::Status s = txn.Commit(); !s.ok()) return s;
+  return changed;
 }
 
 absl::Status SqliteJobStore::GiveUpLocked(const std::string& id, uint32_t attempts, TimeMs now) {
@@ -968,6 +1096,20 @@ absl::StatusOr<std::optional<JobRecord>> SqliteJobStore::ClaimNext(
     return std::optional<JobRecord>();
   }
 
+  absl::StatusOr<JobRecord> before = LoadExistingLocked(best->second);
+  if (!before.ok()) return before.status();
+  if (before->state == JobState::kRunning) {
+    // Its worker stopped heartbeating: the event log says so.
+    if (absl::Status s =
+            AppendEventLocked(before->id, {0,
+                                           now,
+                                           "lease_lost",
+                                           {{"worker", before->worker_id},
+                                            {"attempt", absl::StrCat(before->attempts)},
+                                            {"lease_expiry", absl::StrCat(before->lease_expiry)}}});
+        !s.ok())
+      return s;
+  }
   {
     // progress_done restarts with the new attempt; the total is unchanged.
     absl::StatusOr<Statement> s = Prepare(
@@ -978,6 +1120,14 @@ absl::StatusOr<std::optional<JobRecord>> SqliteJobStore::ClaimNext(
     s->Bind(5, best->second);
     if (absl::Status st = s->Run(); !st.ok()) return st;
   }
+  if (absl::Status s = NoteClaimLocked(best->second); !s.ok()) return s;
+  if (absl::Status s = AppendEventLocked(
+          best->second, {0,
+                         now,
+                         "claimed",
+                         {{"worker", worker_id}, {"attempt", absl::StrCat(before->attempts + 1)}}});
+      !s.ok())
+    return s;
   absl::StatusOr<JobRecord> claimed = LoadExistingLocked(best->second);
   if (!claimed.ok()) return claimed.status();
   if (absl::Status s = txn.Commit(); !s.ok()) return s;
@@ -1041,6 +1191,8 @@ absl::Status SqliteJobStore::Complete(const std::string& id, const std::string& 
     if (absl::Status st = s->Run(); !st.ok()) return st;
   }
   if (absl::Status st = ShardEndedLocked(id, now); !st.ok()) return st;
+  if (absl::Status st = AppendEventLocked(id, EndEvent(worker_id, completion, now)); !st.ok())
+    return st;
   return txn.Commit();
 }
 
@@ -1130,6 +1282,24 @@ absl::StatusOr<int> SqliteJobStore::RequeueRunning() {
       !s.ok()) {
     return s;
   }
+  {
+    // Each requeued job's log says whose claim ended.
+    std::vector<std::pair<std::string, std::string>> held;
+    absl::StatusOr<Statement> s = Prepare("SELECT id, worker_id FROM jobs WHERE state = 2");
+    if (!s.ok()) return s.status();
+    for (;;) {
+      absl::StatusOr<bool> row = s->Step();
+      if (!row.ok()) return row.status();
+      if (!*row) break;
+      held.emplace_back(s->Text(0), s->Text(1));
+    }
+    s->Reset();
+    for (const auto& [id, worker] : held)
+      if (absl::Status st = AppendEventLocked(
+              id, {0, WallClockMs(), "lease_lost", {{"worker", worker}, {"reason", "restart"}}});
+          !st.ok())
+        return st;
+  }
   int requeued = 0;
   {
     absl::StatusOr<Statement> s =
@@ -1200,6 +1370,13 @@ absl::Status SqliteJobStore::Delete(const std::string& id) {
   {
     // A parent goes with its shards.
     absl::StatusOr<Statement> s = Prepare("DELETE FROM jobs WHERE id = ?1 OR parent_id = ?1");
+    if (!s.ok()) return s.status();
+    s->Bind(1, id);
+    if (absl::Status st = s->Run(); !st.ok()) return st;
+  }
+  {
+    // And its event log.
+    absl::StatusOr<Statement> s = Prepare("DELETE FROM job_events WHERE job_id = ?1");
     if (!s.ok()) return s.status();
     s->Bind(1, id);
     if (absl::Status st = s->Run(); !st.ok()) return st;
@@ -1308,6 +1485,129 @@ absl::StatusOr<std::vector<PokeRecord>> SqliteJobStore::TakePokes(const std::str
   }
   if (absl::Status s = txn.Commit(); !s.ok()) return s;
   return out;
+}
+
+absl::StatusOr<int> SqliteJobStore::RunWrite(const char* sql,
+                                             const std::function<void(Statement&)>& bind) {
+  std::lock_guard<std::mutex> lock(mu_);
+  absl::StatusOr<Statement> s = Prepare(sql);
+  if (!s.ok()) return s.status();
+  bind(*s);
+  if (absl::Status st = s->Run(); !st.ok()) return st;
+  return sqlite3_changes(w_.db);
+}
+
+absl::Status SqliteJobStore::RegisterWorker(const WorkerInfo& w) {
+  return RunWrite(
+             "INSERT OR REPLACE INTO workers (replica_id, host, version, start_time, "
+             "worker_slots, threads_per_job, jobs_running, last_heartbeat) "
+             "VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+             [&](Statement& s) {
+               s.Bind(1, w.replica_id).Bind(2, w.host).Bind(3, w.version);
+               s.Bind(4, w.start_time).Bind(5, int64_t{w.worker_slots});
+               s.Bind(6, int64_t{w.threads_per_job}).Bind(7, int64_t{w.jobs_running});
+               s.Bind(8, w.last_heartbeat);
+             })
+      .status();
+}
+
+absl::Status SqliteJobStore::RenewWorker(const std::string& replica_id, uint32_t jobs_running,
+                                         int64_t now) {
+  absl::StatusOr<int> changed = RunWrite(
+      "UPDATE workers SET jobs_running = ?2, last_heartbeat = ?3 WHERE replica_id = ?1",
+      [&](Statement& s) { s.Bind(1, replica_id).Bind(2, int64_t{jobs_running}).Bind(3, now); });
+  if (!changed.ok()) return changed.status();
+  if (*changed == 0)
+    return absl::NotFoundError(absl::StrCat("replica \"", replica_id, "\" is not registered"));
+  return absl::OkStatus();
+}
+
+absl::Status SqliteJobStore::UnregisterWorker(const std::string& replica_id) {
+  return RunWrite("DELETE FROM workers WHERE replica_id = ?1",
+                  [&](Statement& s) { s.Bind(1, replica_id); })
+      .status();
+}
+
+absl::StatusOr<int> SqliteJobStore::PruneWorkers(int64_t cutoff) {
+  return RunWrite("DELETE FROM workers WHERE last_heartbeat < ?1",
+                  [&](Statement& s) { s.Bind(1, cutoff); });
+}
+
+absl::StatusOr<std::vector<WorkerInfo>> SqliteJobStore::ListWorkers() {
+  std::lock_guard<std::mutex> lock(*read_mu_);
+  absl::StatusOr<Statement> s = r_->Prepare(
+      "SELECT replica_id, host, version, start_time, worker_slots, threads_per_job, "
+      "jobs_running, last_heartbeat FROM workers ORDER BY replica_id");
+  if (!s.ok()) return s.status();
+  std::vector<WorkerInfo> out;
+  for (;;) {
+    absl::StatusOr<bool> row = s->Step();
+    if (!row.ok()) return row.status();
+    if (!*row) break;
+    out.push_back({s->Text(0), s->Text(1), s->Text(2), s->Int(3), uint32_t(s->Int(4)),
+                   uint32_t(s->Int(5)), uint32_t(s->Int(6)), s->Int(7)});
+  }
+  return out;
+}
+
+absl::Status SqliteJobStore::AppendEvent(const std::string& job_id, const JobEvent& event) {
+  std::lock_guard<std::mutex> lock(mu_);
+  Transaction txn(this);
+  if (absl::Status s = txn.Begin(); !s.ok()) return s;
+  if (absl::Status s = AppendEventLocked(job_id, event); !s.ok()) return s;
+  return txn.Commit();
+}
+
+absl::Status SqliteJobStore::AppendEventLocked(const std::string& job_id, const JobEvent& event) {
+  {
+    absl::StatusOr<Statement> s = Prepare(
+        "INSERT INTO job_events (job_id, seq, time, kind, fields) "
+        "SELECT ?1, coalesce(max(seq), 0) + 1, ?2, ?3, ?4 FROM job_events WHERE job_id = ?1");
+    if (!s.ok()) return s.status();
+    s->Bind(1, job_id).Bind(2, event.time).Bind(3, BoundText(event.kind, kMaxEventFieldBytes));
+    s->Bind(4, EncodeEventFields(event.fields));
+    if (absl::Status st = s->Run(); !st.ok()) return st;
+  }
+  // The newest kMaxEventsPerJob stay; seqs stay contiguous, so the first
+  // one kept tells how many were dropped.
+  absl::StatusOr<Statement> s = Prepare(
+      "DELETE FROM job_events WHERE job_id = ?1 AND seq <= "
+      "(SELECT max(seq) FROM job_events WHERE job_id = ?1) - ?2");
+  if (!s.ok()) return s.status();
+  s->Bind(1, job_id).Bind(2, kMaxEventsPerJob);
+  return s->Run();
+}
+
+absl::StatusOr<JobEventPage> SqliteJobStore::ListEvents(const std::string& job_id, int64_t after,
+                                                        int limit) {
+  limit = std::clamp(limit <= 0 ? kDefaultPageSize : limit, 1, kMaxPageSize);
+  std::lock_guard<std::mutex> lock(*read_mu_);
+  JobEventPage page;
+  {
+    absl::StatusOr<Statement> s =
+        r_->Prepare("SELECT coalesce(min(seq), 1) - 1 FROM job_events WHERE job_id = ?1");
+    if (!s.ok()) return s.status();
+    s->Bind(1, job_id);
+    absl::StatusOr<bool> row = s->Step();
+    if (!row.ok()) return row.status();
+    page.dropped = *row ? s->Int(0) : 0;
+  }
+  absl::StatusOr<Statement> s = r_->Prepare(
+      "SELECT seq, time, kind, fields FROM job_events WHERE job_id = ?1 AND seq > ?2 "
+      "ORDER BY seq LIMIT ?3");
+  if (!s.ok()) return s.status();
+  s->Bind(1, job_id).Bind(2, after).Bind(3, limit + 1);
+  for (;;) {
+    absl::StatusOr<bool> row = s->Step();
+    if (!row.ok()) return row.status();
+    if (!*row) break;
+    if (static_cast<int>(page.events.size()) == limit) {
+      page.next_after = page.events.back().seq;
+      break;
+    }
+    page.events.push_back({s->Int(0), s->Int(1), s->Text(2), DecodeEventFields(s->Text(3))});
+  }
+  return page;
 }
 
 absl::StatusOr<std::unique_ptr<JobStore>> OpenSqliteJobStore(const std::string& path) {

@@ -1,16 +1,18 @@
 #include "server/worker_pool.h"
 
 #include <spdlog/spdlog.h>
-
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <chrono>
+#include <utility>
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
 #include "absl/strings/str_replace.h"
+#include "absl/strings/str_split.h"
 #include "core/io/metadata_keys.h"
 #include "server/bounded_text.h"
 #include "server/job_runner.h"
@@ -96,7 +98,11 @@ class WorkerPool::Context : public JobContext {
   absl::Status ReportProgress(const JobProgress& progress) override {
     auto* p = view_.mutable_progress();
     const v1::ProgressPhase phase = ToProto(progress.phase);
-    if (phase != p->phase()) phase_start_ = Clock::now();  // rates are per phase
+    if (phase != p->phase()) {
+      phase_start_ = Clock::now();  // rates are per phase
+      LogJobEvent(*pool_->store_, record_.id, "phase",
+                  {{"phase", v1::ProgressPhase_Name(phase)}, {"worker", worker_id_}});
+    }
     const double elapsed = std::max(1e-6, Seconds(Clock::now() - phase_start_));
     const uint64_t done = progress.done, total = progress.total;
     const double rate = double(done) / elapsed;
@@ -324,8 +330,50 @@ WorkerPool::WorkerPool(JobStore* store, ResultStore* results, JobHub* hub, Worke
 WorkerPool::~WorkerPool() { Stop(); }
 
 void WorkerPool::Start() {
+  start_time_ = NowMs();
+  if (auto st = store_->RegisterWorker(RegistryRow()); !st.ok())
+    spdlog::warn("replica={} event=register_failed reason=\"{}\"", options_.instance_id,
+                 BoundText(st.ToString(), 512));
+  registry_thread_ = std::thread([this] { RegistryLoop(); });
   for (int i = 0; i < std::max(1, options_.workers); ++i)
     threads_.emplace_back([this, i] { Loop(i); });
+}
+
+WorkerInfo WorkerPool::RegistryRow() {
+  char host[256] = {};
+  (void)::gethostname(host, sizeof(host) - 1);
+  WorkerInfo row;
+  row.replica_id = options_.instance_id;
+  row.host = host;
+  row.version = NIMBUS_VERSION;
+  row.start_time = start_time_;
+  row.worker_slots = static_cast<uint32_t>(std::max(1, options_.workers));
+  row.threads_per_job = static_cast<uint32_t>(threads_per_job_);
+  std::lock_guard<std::mutex> lock(mu_);
+  row.jobs_running = static_cast<uint32_t>(running_.size());
+  row.last_heartbeat = NowMs();
+  return row;
+}
+
+void WorkerPool::RegistryLoop() {
+  while (true) {
+    size_t running = 0;
+    {
+      std::unique_lock<std::mutex> lock(mu_);
+      registry_wake_.wait_for(lock, std::chrono::milliseconds(options_.heartbeat_ms),
+                              [&] { return stopping_; });
+      if (stopping_) return;
+      running = running_.size();
+    }
+    const TimeMs now = NowMs();
+    absl::Status st = store_->RenewWorker(options_.instance_id, uint32_t(running), now);
+    // Dropped while this replica stalled: it is back.
+    if (absl::IsNotFound(st)) st = store_->RegisterWorker(RegistryRow());
+    if (!st.ok())
+      spdlog::warn("replica={} event=renew_failed reason=\"{}\"", options_.instance_id,
+                   BoundText(st.ToString(), 512));
+    (void)store_->PruneWorkers(now - options_.registry_retention_ms);
+  }
 }
 
 void WorkerPool::Stop() {
@@ -336,8 +384,14 @@ void WorkerPool::Stop() {
   }
   shutdown_ = true;
   wake_.notify_all();
+  registry_wake_.notify_all();
   for (auto& t : threads_) t.join();
   threads_.clear();
+  if (registry_thread_.joinable()) {
+    registry_thread_.join();
+    // A clean stop leaves the registry; a crash leaves the row to turn lost.
+    (void)store_->UnregisterWorker(options_.instance_id);
+  }
 }
 
 void WorkerPool::Wake() {
@@ -451,6 +505,7 @@ void WorkerPool::RunJob(const JobRecord& record, const std::string& worker_id) {
   } else if (release) {
     auto st = store_->Release(id, worker_id);
     spdlog::info("job={} event=released status=\"{}\"", id, st.ToString());
+    if (st.ok()) LogJobEvent(*store_, id, "released", {{"worker", worker_id}});
   } else {
     if (done.state == JobState::kSucceeded) {
       // Record the finished progress; heartbeats only sample it.
@@ -483,8 +538,17 @@ void WorkerPool::RunJob(const JobRecord& record, const std::string& worker_id) {
 // fails) is tried once more with a short error and no warnings. If that
 // fails too, the attempt is abandoned with its reason: the job goes back to
 // the queue, and ClaimNext fails it once its attempts run out.
+void WorkerPool::LogWarnings(const std::string& id, const Completion& done) {
+  int warnings = 0;
+  for (absl::string_view w : absl::StrSplit(done.warnings, '\n', absl::SkipEmpty()))
+    if (++warnings <= kMaxWarningEvents)
+      LogJobEvent(*store_, id, "warning", {{"message", std::string(w)}});
+}
+
 bool WorkerPool::RecordEnd(const std::string& id, const std::string& worker_id,
                            const Completion& done) {
+  // The end event itself is written by Complete, in its transaction.
+  LogWarnings(id, done);
   absl::Status st = store_->Complete(id, worker_id, done, NowMs());
   if (st.ok()) return true;
   // Not ours any more (or gone): nothing to record.
@@ -501,6 +565,7 @@ bool WorkerPool::RecordEnd(const std::string& id, const std::string& worker_id,
                    done.error.empty() ? "" : "; it ended: ", BoundText(done.error, 256));
   const int code = done.error_code != 0 ? done.error_code : int(st.code());
   st = store_->AbandonAttempt(id, worker_id, reason, code);
+  LogJobEvent(*store_, id, "attempt_abandoned", {{"worker", worker_id}, {"message", reason}});
   spdlog::error("job={} event=attempt_abandoned reason=\"{}\" status=\"{}\"", id, reason,
                 BoundText(st.ToString(), 512));
   return false;
@@ -510,6 +575,10 @@ void WorkerPool::PublishGivenUp(const std::vector<JobRecord>& jobs) {
   for (const JobRecord& job : jobs) {
     spdlog::warn("job={} event=gave_up attempts={} error=\"{}\"", job.id, job.attempts,
                  BoundText(job.error, 512));
+    LogJobEvent(*store_, job.id, "failed",
+                {{"code", absl::StatusCodeToString(static_cast<absl::StatusCode>(job.error_code))},
+                 {"message", job.error},
+                 {"attempts", absl::StrCat(job.attempts)}});
     hub_->PublishJob(ToProto(job, false));
     hub_->Forget(job.id);
   }

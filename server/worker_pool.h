@@ -34,6 +34,9 @@ struct WorkerOptions {
   /// its end could not be recorded) FAILS with its last attempt's error.
   /// 0: no limit.
   uint32_t max_attempts = 3;
+  /// How long a replica that stopped heartbeating stays in the worker
+  /// registry (listed as lost) before it is dropped.
+  TimeMs registry_retention_ms = 24 * 3600 * 1000;
 };
 
 /// @brief A fixed pool of job workers.
@@ -75,6 +78,13 @@ class WorkerPool {
   bool RecordEnd(const std::string& id, const std::string& worker_id, const Completion& done);
   // Tells watchers of jobs the store failed for running out of attempts.
   void PublishGivenUp(const std::vector<JobRecord>& jobs);
+  // The warning events of an end (the first kMaxWarningEvents).
+  void LogWarnings(const std::string& id, const Completion& done);
+  static constexpr int kMaxWarningEvents = 20;
+  // The worker registry (server/worker_registry.h): this replica's row,
+  // renewed every heartbeat_ms until Stop, and lost replicas dropped.
+  void RegistryLoop();
+  WorkerInfo RegistryRow();
 
   JobStore* store_;
   ResultStore* results_;
@@ -84,6 +94,7 @@ class WorkerPool {
 
   std::mutex mu_;
   std::condition_variable wake_;
+  std::condition_variable registry_wake_;
   bool stopping_ = false;
   uint64_t wake_generation_ = 0;
   std::map<std::string, std::shared_ptr<std::atomic<bool>>> running_;  // job id -> cancel flag
@@ -96,6 +107,8 @@ class WorkerPool {
   std::map<std::string, ParentPreviews> parent_previews_;
   std::atomic<bool> shutdown_{false};
   std::vector<std::thread> threads_;
+  std::thread registry_thread_;
+  TimeMs start_time_ = 0;
 };
 
 }  // namespace nimbus::server

@@ -338,13 +338,26 @@ class Client:
 
     # --- jobs ---------------------------------------------------------------
 
-    def submit(self, spec, request_id=None, base_dir=None):
+    def submit(self, spec, request_id=None, base_dir=None, priority=None):
         """Queues a spec (JobSpec, dict, JSON text or spec file path) after
-        uploading its local assets; returns the Job."""
+        uploading its local assets; returns the Job. `priority` 0..100
+        (higher runs first; the server's default, 50, when None)."""
         msg, base = load_spec(spec, base_dir)
         self.upload_spec_assets(msg, base)
         req = pb2.SubmitJobRequest(spec=msg, request_id=request_id or "")
+        if priority is not None:
+            req.priority = priority
         return self._unary("SubmitJob", req).job
+
+    def set_priority(self, job, priority):
+        """Changes a queued job's priority (0..100); returns the job."""
+        req = pb2.SetJobPriorityRequest(job_id=_job_id(job), priority=priority)
+        return self._unary("SetJobPriority", req).job
+
+    def retry(self, job):
+        """Queues a FAILED or CANCELLED job again; returns the new Job
+        (its retried_from names the original)."""
+        return self._unary("RetryJob", pb2.RetryJobRequest(job_id=_job_id(job))).job
 
     def get(self, job):
         return self._unary("GetJob", pb2.GetJobRequest(job_id=_job_id(job))).job
@@ -359,6 +372,21 @@ class Client:
 
     def unpin(self, job):
         return self.pin(job, pinned=False)
+
+    def workers(self):
+        """The replicas sharing the server's job store (nimbus.v1.Worker)."""
+        return list(self._unary("ListWorkers", pb2.ListWorkersRequest()).workers)
+
+    def events(self, job, page_size=500):
+        """The job's event log (nimbus.v1.JobEvent), oldest first, every page."""
+        out, after = [], 0
+        while True:
+            page = self._unary("GetJobEvents", pb2.GetJobEventsRequest(
+                job_id=_job_id(job), after_seq=after, page_size=page_size))
+            out.extend(page.events)
+            after = page.next_after_seq
+            if not after:
+                return out
 
     def delete(self, job):
         """Deletes a finished job and its result files; returns the bytes freed."""
@@ -517,10 +545,10 @@ class Client:
                                   f"cannot write {part}: {e.strerror}") from None
 
     def render(self, spec, path, previews_dir=None, on_event=None, base_dir=None,
-               preview_resolution=64, preview_interval=1.0, request_id=None):
+               preview_resolution=64, preview_interval=1.0, request_id=None, priority=None):
         """Submits, watches (saving previews if asked), and fetches the result
         to `path`. Raises JobFailedError when the job fails or is cancelled."""
-        job = self.submit(spec, request_id=request_id, base_dir=base_dir)
+        job = self.submit(spec, request_id=request_id, base_dir=base_dir, priority=priority)
         previews = []
         final = job
         for ev in self.watch(job, previews_dir=previews_dir,

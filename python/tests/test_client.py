@@ -302,6 +302,45 @@ class ClientTest(unittest.TestCase):
         self.assertEqual(e.field, "grid.resolution[1]")
         self.assertIn("must be positive", e.details)
 
+    def test_priority_is_kept_checked_and_retry_links_the_original(self):
+        job = self.client.submit(small_tree(iterations=2_000_000_000), priority=80)
+        self.assertEqual(job.priority, 80)
+        with self.assertRaises(nimbus.NimbusError) as cm:
+            self.client.submit(small_tree(), priority=101)
+        self.assertEqual(cm.exception.code, grpc.StatusCode.INVALID_ARGUMENT)
+        self.assertIn("priority", cm.exception.details)
+        cancelled = self.client.wait(self.client.cancel(job))
+        self.assertEqual(nimbus.state_name(cancelled.state), "CANCELLED")
+        with self.assertRaises(nimbus.NimbusError) as cm:
+            self.client.set_priority(job, 10)
+        self.assertEqual(cm.exception.code, grpc.StatusCode.FAILED_PRECONDITION)
+        again = self.client.retry(job)
+        self.assertNotEqual(again.id, job.id)
+        self.assertEqual(again.retried_from, job.id)
+        self.assertEqual(again.priority, 80)
+        self.client.wait(self.client.cancel(again))
+        with self.assertRaises(nimbus.NimbusError) as cm:
+            self.client.retry(self.client.submit(small_tree(), priority=0))
+        self.assertEqual(cm.exception.code, grpc.StatusCode.FAILED_PRECONDITION)
+
+    def test_event_log_and_worker_registry(self):
+        spec = small_tree()
+        spec["no_cache"] = True  # a run of its own, not a copy of an earlier one
+        job = self.client.submit(spec, priority=60)
+        self.client.wait(job)
+        events = self.client.events(job)
+        kinds = [e.kind for e in events]
+        self.assertEqual(kinds[0], "submitted")
+        self.assertEqual(events[0].fields["priority"], "60")
+        self.assertIn("claimed", kinds)
+        self.assertEqual(kinds[-1], "succeeded")
+        self.assertEqual(events[-1].fields["sha256"], self.client.get(job).result.sha256)
+        self.assertEqual([e.seq for e in events], list(range(1, len(events) + 1)))
+        workers = self.client.workers()
+        self.assertEqual(len(workers), 1)
+        self.assertFalse(workers[0].lost)
+        self.assertGreaterEqual(workers[0].worker_slots, 1)
+
     def test_unknown_job_is_not_found(self):
         with self.assertRaises(nimbus.NimbusError) as cm:
             self.client.get("j-does-not-exist")

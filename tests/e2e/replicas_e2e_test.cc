@@ -18,11 +18,12 @@
 #include <thread>
 #include <vector>
 
+#include "absl/strings/str_join.h"
 #include "client/nimbus_client.h"
 #include "core/base/sha256.h"
 #include "proto/spec_io.h"
-#include "tests/support/nimbusd_process.h"
 #include "tests/support/job_store_factory.h"
+#include "tests/support/nimbusd_process.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus {
@@ -229,6 +230,50 @@ TEST_F(ReplicasE2E, KilledReplicasJobIsFinishedByAnotherWithIdenticalBytes) {
   EXPECT_EQ(FetchSha(*clients_[survivor], job->id(), "failover.vdb"), ref_done.result().sha256());
   EXPECT_EQ(FetchSha(*clients_[survivor], reference->id(), "reference.vdb"),
             ref_done.result().sha256());
+}
+
+// kill -9 of a replica: ListWorkers on the others shows it lost once its
+// lease has passed, and the event log of its job says the lease was lost
+// and who claimed the job next.
+TEST_F(ReplicasE2E, KilledReplicaIsListedLostAndItsJobsLogSaysSo) {
+  auto workers = clients_[0]->ListWorkers();
+  ASSERT_TRUE(workers.ok()) << workers.status();
+  ASSERT_EQ(workers->workers_size(), kReplicas);
+  for (const auto& w : workers->workers()) {
+    EXPECT_FALSE(w.lost()) << w.replica_id();
+    EXPECT_EQ(w.worker_slots(), 2u);
+    EXPECT_EQ(w.threads_per_job(), 1u);
+  }
+  auto job = clients_[0]->Submit(Tetrahedron(32, 400'000'000));
+  ASSERT_TRUE(job.ok()) << job.status();
+  const int victim = AwaitRunningWithProgress(job->id(), *clients_[0]);
+  ASSERT_GE(victim, 0);
+  const std::string victim_worker = clients_[0]->Get(job->id())->worker();
+  replicas_[victim]->Kill();
+  const int survivor = (victim + 1) % kReplicas;
+  const v1::Job done = AwaitEnd(job->id(), *clients_[survivor]);
+  ASSERT_EQ(done.state(), v1::JOB_STATE_SUCCEEDED) << done.error();
+
+  // The lease (1.5 s) has passed since the victim's last heartbeat: the
+  // job was claimed again only after it.
+  workers = clients_[survivor]->ListWorkers();
+  ASSERT_TRUE(workers.ok()) << workers.status();
+  ASSERT_EQ(workers->workers_size(), kReplicas);
+  for (const auto& w : workers->workers())
+    EXPECT_EQ(w.lost(), w.replica_id() == ReplicaId(victim)) << w.replica_id();
+
+  auto events = clients_[survivor]->GetJobEvents(job->id(), 0, 500);
+  ASSERT_TRUE(events.ok()) << events.status();
+  std::vector<std::string> claims;
+  for (const auto& e : events->events())
+    if (e.kind() == "claimed" || e.kind() == "lease_lost")
+      claims.push_back(e.kind() + " " + e.fields().at("worker") + " " + e.fields().at("attempt"));
+  ASSERT_EQ(claims.size(), 3u) << absl::StrJoin(claims, "; ");
+  EXPECT_EQ(claims[0], "claimed " + victim_worker + " 1");
+  EXPECT_EQ(claims[1], "lease_lost " + victim_worker + " 1");
+  EXPECT_EQ(claims[2].rfind("claimed ", 0), 0u);
+  EXPECT_EQ(claims[2].find(ReplicaId(victim) + "/"), std::string::npos) << claims[2];
+  EXPECT_EQ(events->events(events->events_size() - 1).kind(), "succeeded");
 }
 
 TEST_F(ReplicasE2E, AShardedJobOverThreeReplicasEqualsTheUnshardedResult) {

@@ -67,11 +67,44 @@ TEST_F(PostgresJobStoreTest, ReplicasStartingTogetherMigrateOnce) {
   for (auto& t : threads) t.join();
   ASSERT_TRUE(errors.empty()) << errors.front();
   EXPECT_EQ(QueryInt("SELECT count(*) FROM nimbus_schema"), 1);
-  EXPECT_EQ(QueryInt("SELECT max(version) FROM nimbus_schema"), 5);
+  EXPECT_EQ(QueryInt("SELECT max(version) FROM nimbus_schema"), 6);
   EXPECT_EQ(QueryInt("SELECT count(*) FROM pg_indexes WHERE indexname = 'jobs_owner_request_id' "
                      "AND indexdef LIKE '%UNIQUE%(owner, request_id)%WHERE%'"),
             1);
   EXPECT_EQ(QueryInt("SELECT count(*) FROM pg_indexes WHERE indexname = 'jobs_request_id'"), 0);
+}
+
+// A schema-5 database (before priorities) with a queued job: version 6
+// gives the job the default priority, and it is claimed as before.
+TEST_F(PostgresJobStoreTest, UpgradesASchemaFiveDatabase) {
+  {
+    std::unique_ptr<JobStore> fresh = Open();
+    ASSERT_NE(fresh, nullptr);
+  }
+  {
+    pqxx::connection c(url_);
+    pqxx::work w(c);
+    w.exec(
+        "DROP TABLE owner_claims; DROP SEQUENCE owner_claim_seq; DROP TABLE workers; "
+        "DROP TABLE job_events; "
+        "DROP INDEX jobs_claim_order; DROP INDEX jobs_state_owner; "
+        "ALTER TABLE jobs DROP COLUMN priority; ALTER TABLE jobs DROP COLUMN retried_from; "
+        "UPDATE nimbus_schema SET version = 5; "
+        "INSERT INTO jobs (id, name, state, spec, create_time, owner) "
+        "VALUES ('old', 'o', 1, '\\x00', 1, 'ann')");
+    w.commit();
+  }
+  std::unique_ptr<JobStore> store = Open();
+  ASSERT_NE(store, nullptr);
+  EXPECT_EQ(QueryInt("SELECT max(version) FROM nimbus_schema"), 6);
+  auto old = store->Get("old");
+  ASSERT_TRUE(old.ok()) << old.status();
+  EXPECT_EQ(old->priority, 50);
+  EXPECT_EQ(old->retried_from, "");
+  EXPECT_EQ(old->owner, "ann");
+  auto claimed = store->ClaimNext("w", kT0, 1000);
+  ASSERT_TRUE(claimed.ok() && claimed->has_value()) << claimed.status();
+  EXPECT_EQ((*claimed)->id, "old");
 }
 
 TEST_F(PostgresJobStoreTest, RefusesANewerSchema) {

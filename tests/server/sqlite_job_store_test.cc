@@ -75,7 +75,7 @@ int64_t QueryInt(const std::string& path, const char* sql) {
 
 TEST_F(SqliteJobStoreTest, SchemaIsVersionedWalAndIndexed) {
   const std::string path = db_path().string();
-  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 6);
+  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 7);
   // WAL is persistent in the file header, so a fresh connection reports it.
   EXPECT_EQ(QueryInt(path, "SELECT journal_mode = 'wal' FROM pragma_journal_mode"), 1);
   EXPECT_EQ(QueryInt(path,
@@ -174,7 +174,7 @@ TEST(SqliteJobStoreOpenTest, UpgradesAVersionOneFile) {
   ExecOnFile(path, kVersionOneSchema);
   std::unique_ptr<JobStore> store = OpenOrDie(path);
   ASSERT_NE(store, nullptr);
-  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 6);
+  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 7);
   // Old jobs keep everything and gain the code their end implies.
   const std::pair<const char*, int> expected[] = {{"queued", 0}, {"failed", 2}, {"cancelled", 1}};
   for (const auto& [id, code] : expected) {
@@ -194,7 +194,66 @@ TEST(SqliteJobStoreOpenTest, UpgradesAVersionOneFile) {
   store = OpenOrDie(path);
   ASSERT_NE(store, nullptr);
   EXPECT_EQ(store->Get("queued")->error_code, 8);
-  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 6);
+  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 7);
+}
+
+// A version-6 file (before priorities) with a queued job: version 7 gives
+// it the default priority, and it is claimed as before.
+TEST(SqliteJobStoreOpenTest, UpgradesAVersionSixFile) {
+  TempDir dir;
+  const std::string path = (dir / "jobs.db").string();
+  OpenOrDie(path).reset();
+  ExecOnFile(path,
+             "DROP TABLE owner_claims; DROP TABLE workers; DROP TABLE job_events; "
+             "DROP INDEX jobs_claim_order; DROP INDEX jobs_state_owner; "
+             "ALTER TABLE jobs DROP COLUMN priority; ALTER TABLE jobs DROP COLUMN retried_from; "
+             "INSERT INTO jobs (id, name, state, spec, create_time, owner) "
+             "VALUES ('old', 'o', 1, x'00', 1, 'ann'); PRAGMA user_version=6;");
+  std::unique_ptr<JobStore> store = OpenOrDie(path);
+  ASSERT_NE(store, nullptr);
+  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 7);
+  absl::StatusOr<JobRecord> old = store->Get("old");
+  ASSERT_TRUE(old.ok()) << old.status();
+  EXPECT_EQ(old->priority, 50);
+  EXPECT_EQ(old->retried_from, "");
+  EXPECT_EQ(old->owner, "ann");
+  absl::StatusOr<std::optional<JobRecord>> claimed = store->ClaimNext("w", kT0, 100);
+  ASSERT_TRUE(claimed.ok() && claimed->has_value()) << claimed.status();
+  EXPECT_EQ((*claimed)->id, "old");
+}
+
+// The claim order's probes are satisfied by their indexes, ordering included:
+// no scan or sort of the queue.
+TEST_F(SqliteJobStoreTest, ClaimOrderQueriesUseTheirIndexes) {
+  const std::string path = db_path().string();
+  const auto plan = [&](const std::string& sql) {
+    sqlite3* db = nullptr;
+    EXPECT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
+    sqlite3_stmt* stmt = nullptr;
+    EXPECT_EQ(sqlite3_prepare_v2(db, ("EXPLAIN QUERY PLAN " + sql).c_str(), -1, &stmt, nullptr),
+              SQLITE_OK)
+        << sqlite3_errmsg(db);
+    std::string out;
+    while (sqlite3_step(stmt) == SQLITE_ROW)
+      out += std::string(reinterpret_cast<const char*>(sqlite3_column_text(stmt, 3))) + "\n";
+    sqlite3_finalize(stmt);
+    sqlite3_close(db);
+    return out;
+  };
+  const std::string top = plan(
+      "SELECT priority FROM jobs INDEXED BY jobs_claim_order WHERE state = 1 AND "
+      "cancel_requested = 0 AND shards_pending = 0 ORDER BY priority DESC LIMIT 1");
+  EXPECT_NE(top.find("jobs_claim_order"), std::string::npos) << top;
+  EXPECT_EQ(top.find("TEMP B-TREE"), std::string::npos) << top;
+  const std::string seek = plan(
+      "SELECT owner, create_time, rowid, id FROM jobs INDEXED BY jobs_claim_order WHERE "
+      "state = 1 AND cancel_requested = 0 AND shards_pending = 0 AND priority = 50 AND "
+      "owner > 'a' "
+      "ORDER BY owner, create_time, rowid LIMIT 1");
+  EXPECT_NE(seek.find("jobs_claim_order"), std::string::npos) << seek;
+  EXPECT_EQ(seek.find("TEMP B-TREE"), std::string::npos) << seek;
+  const std::string running = plan("SELECT count(*) FROM jobs WHERE state = 2 AND owner = 'a'");
+  EXPECT_NE(running.find("jobs_state_owner"), std::string::npos) << running;
 }
 
 // Another connection holds the write lock, as a slow writer in another
@@ -242,7 +301,7 @@ TEST(SqliteJobStoreOpenTest, UpgradesAVersionTwoFileWithOwnersAndAPokesTable) {
                        "PRAGMA user_version=2;");
   std::unique_ptr<JobStore> store = OpenOrDie(path);
   ASSERT_NE(store, nullptr);
-  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 6);
+  EXPECT_EQ(QueryInt(path, "PRAGMA user_version"), 7);
   EXPECT_EQ(QueryInt(path, "SELECT count(*) FROM pokes"), 0);
   // Version 5: old jobs are top-level, unsharded and not in the cache.
   EXPECT_EQ(QueryInt(path,

@@ -41,6 +41,8 @@ class NimbusSceneProps(bpy.types.PropertyGroup):
                                     description="Largest axis of preview grids; 0: none")
     preview_interval: FloatProperty(name="Preview every", default=1.0, min=0.05,
                                     unit="TIME_ABSOLUTE", description="Seconds between previews")
+    priority: IntProperty(name="Priority", default=50, min=0, max=100,
+                          description="Higher runs first; equal priorities share the farm fairly")
     status: StringProperty(name="Status", default="")
     progress: FloatProperty(name="Progress", subtype="PERCENTAGE", min=0, max=100)
     job_id: StringProperty(name="Job")
@@ -146,6 +148,7 @@ class NIMBUS_PT_panel(bpy.types.Panel):
         row = col.row(align=True)
         row.prop(props, "preview_resolution")
         row.prop(props, "preview_interval")
+        col.prop(props, "priority")
         row = col.row(align=True)
         row.operator("nimbus.submit", icon="EXPORT")
         row.operator("nimbus.cancel", icon="CANCEL")

@@ -24,12 +24,13 @@ _local_server = None    # a nimbusd started by the add-on
 
 class JobSession:
     def __init__(self, address, spec_path, out_dir, preview_resolution=64,
-                 preview_interval=1.0):
+                 preview_interval=1.0, priority=None):
         self.address = address
         self.spec_path = spec_path
         self.out_dir = Path(out_dir)
         self.preview_resolution = preview_resolution
         self.preview_interval = preview_interval
+        self.priority = priority
         self.events = queue.Queue()
         self.job_id = ""
         self.job_name = ""
@@ -51,7 +52,7 @@ class JobSession:
     def _run(self):
         try:
             self._client = nimbus.Client(self.address)
-            job = self._client.submit(self.spec_path)
+            job = self._client.submit(self.spec_path, priority=self.priority)
             self.events.put(("submitted", job))
             previews_dir = self.out_dir / "previews" / job.id
             final = job
@@ -162,7 +163,7 @@ def start(scene):
     if _active is not None and not _active.finished:
         raise RuntimeError(f"job {_active.job_id or '(submitting)'} is still running")
     _active = JobSession(props.server, spec, output_dir(props), props.preview_resolution,
-                         props.preview_interval).start()
+                         props.preview_interval, props.priority).start()
     props.status = "submitting"
     props.progress = 0.0
     return _active
