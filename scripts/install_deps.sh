@@ -30,6 +30,10 @@ PACKAGES=(
   python3-grpcio python3-protobuf blender
   # The libFuzzer targets (tests/fuzz, scripts/fuzz.sh) build with clang.
   clang libclang-rt-14-dev ccache
+  # The HTTP port (nimbusd --http): the JSON API, the console and /metrics;
+  # promtool and a real Prometheus for its tests, chromium (driven by
+  # playwright-core from npm, scripts/console_deps.sh) for the console's.
+  libcpp-httplib-dev prometheus-cpp-dev prometheus chromium
 )
 
 missing=()

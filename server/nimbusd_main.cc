@@ -72,12 +72,16 @@ int main(int argc, char** argv) {
   std::string data_dir = o.data_dir.string();
   double max_memory_gib = double(o.limits.max_memory_bytes) / double(1ull << 30);
   std::string log_level = "info";
-  std::string port_file;
+  std::string port_file, http_port_file, console_dir;
   double retention_hours = 0, retention_seconds = 0;
   app.add_option("--listen", o.listen, "host:port to serve on (port 0: any free port)")
       ->capture_default_str();
   app.add_option("--port-file", port_file,
                  "write the port actually bound here once serving (useful with port 0)");
+  app.add_option("--http", o.http_listen,
+                 "host:port of the HTTP port: console, JSON API, /metrics (default: none)");
+  app.add_option("--http-port-file", http_port_file, "write the HTTP port bound here");
+  app.add_option("--console-dir", console_dir, "the console's static files (default: installed)");
   app.add_option("--data-dir", data_dir, "folder for the job database and results")
       ->capture_default_str();
   app.add_option("--workers", o.workers, "jobs run at once")->capture_default_str()->check(
@@ -140,6 +144,7 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   CLI11_PARSE(app, argc, argv);
   o.data_dir = data_dir;
+  o.console_dir = console_dir;
   // A URL with a password is better kept out of the process list.
   if (o.store_url.empty())
     if (const char* env = std::getenv("NIMBUS_STORE_URL")) o.store_url = env;
@@ -179,6 +184,11 @@ int main(int argc, char** argv) {
   }
   if (!(*server)->address().empty()) {
     spdlog::info("listening on {}", (*server)->address());
+    if (!http_port_file.empty() && !WritePortFile(http_port_file, (*server)->http_port())) {
+      spdlog::error("event=start_failed error=\"cannot write --http-port-file {}\"",
+                    http_port_file);
+      return 1;
+    }
     if (!port_file.empty() && !WritePortFile(port_file, (*server)->port())) {
       spdlog::error("event=start_failed error=\"cannot write --port-file {}\"", port_file);
       (*server)->Shutdown();
