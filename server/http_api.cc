@@ -190,12 +190,28 @@ bool WriteRange(ApiState& s, const httplib::Request& req, const std::string& id,
   return left == 0;
 }
 
+// Whether every range of the request lies (at least partly) inside a file
+// of `size` bytes; httplib answers the others with a bogus length.
+bool RangesSatisfiable(const httplib::Ranges& ranges, uint64_t size) {
+  for (const auto& [first, last] : ranges) {
+    if (first < 0 ? last <= 0 : (uint64_t(first) >= size || (last >= 0 && last < first)))
+      return false;
+  }
+  return true;
+}
+
 void Download(std::shared_ptr<ApiState> s, const httplib::Request& req, httplib::Response& res,
               const std::string& name) {
   const std::string id = req.matches[1];
   FileEntry file;
   grpc::Status st = FindFile(*s, req, id, name, file);
   if (!st.ok()) return SendError(res, st);
+  if (!RangesSatisfiable(req.ranges, file.size)) {
+    SendError(res, grpc::OUT_OF_RANGE, absl::StrCat("Range: the file has ", file.size, " bytes"));
+    res.status = 416;
+    res.set_header("Content-Range", absl::StrCat("bytes */", file.size));
+    return;
+  }
   res.set_header("Content-Disposition", absl::StrCat("attachment; filename=\"", file.name, "\""));
   res.set_header("X-Nimbus-Sha256", file.sha256);
   res.set_header("Accept-Ranges", "bytes");
@@ -259,7 +275,24 @@ void SendError(httplib::Response& res, const grpc::Status& status) {
 
 void RegisterStreams(httplib::Server& server, std::shared_ptr<ApiState> state);
 
+bool PlausibleId(const std::string& id) {
+  if (id.empty() || id.size() > 256) return false;
+  for (unsigned char c : id)
+    if (c <= ' ' || c >= 0x7f || c == '/' || c == '\\') return false;
+  return true;
+}
+
 void RegisterApi(httplib::Server& server, std::shared_ptr<ApiState> s) {
+  // Job ids are printable ASCII: anything else names no job (and never
+  // reaches gRPC, whose strings must be UTF-8).
+  server.set_pre_routing_handler([](const httplib::Request& req, httplib::Response& res) {
+    constexpr absl::string_view kJobs = "/api/v1/jobs/";
+    if (req.path.rfind(kJobs.data(), 0) != 0) return httplib::Server::HandlerResponse::Unhandled;
+    const std::string rest = req.path.substr(kJobs.size());
+    if (PlausibleId(rest.substr(0, rest.find('/')))) return httplib::Server::HandlerResponse::Unhandled;
+    SendError(res, grpc::NOT_FOUND, "no such job");
+    return httplib::Server::HandlerResponse::Handled;
+  });
   const std::string job = "/api/v1/jobs/([^/]+)";
   server.Get("/api/v1/jobs", [s](const auto& req, auto& res) { ListJobs(*s, req, res); });
   server.Post("/api/v1/jobs", [s](const auto& req, auto& res) { SubmitJob(*s, req, res); });

@@ -1,0 +1,384 @@
+// The HTTP port against a real nimbusd on loopback, through httplib's
+// client: every /api/v1 call, its errors, ownership, Range resumption,
+// previews, the event stream, hostile inputs, a flood of event streams, and
+// /metrics checked by Prometheus' own promtool.
+#include <google/protobuf/util/json_util.h>
+#include <gtest/gtest.h>
+#include <httplib.h>
+#include <sys/stat.h>
+
+#include <atomic>
+#include <fstream>
+#include <sstream>
+#include <thread>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_split.h"
+#include "core/io/image_io.h"
+#include "tests/support/e2e_clients.h"
+#include "tests/support/nimbusd_process.h"
+#include "tests/support/test_util.h"
+
+namespace nimbus {
+namespace {
+
+constexpr char kAlice[] = "alice-token-0123456789abcdef";
+constexpr char kBob[] = "bob-token-0123456789abcdef00";
+
+std::string ReadAll(const std::filesystem::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+v1::JobSpec EndlessJob() {
+  v1::JobSpec spec = testing::SmallTetrahedronJob();
+  spec.mutable_chaos_game()->set_iterations(uint64_t{1} << 38);
+  return spec;
+}
+
+std::string SubmitBody(const v1::JobSpec& spec) {
+  v1::SubmitJobRequest req;
+  *req.mutable_spec() = spec;
+  std::string json;
+  EXPECT_TRUE(google::protobuf::util::MessageToJsonString(req, &json).ok());
+  return json;
+}
+
+template <typename M>
+M Parse(const std::string& json) {
+  M m;
+  google::protobuf::util::JsonParseOptions o;
+  EXPECT_TRUE(google::protobuf::util::JsonStringToMessage(json, &m, o).ok()) << json;
+  return m;
+}
+
+// httplib's client whose answers are values: a call that got no answer
+// reads as status -1 with the error's name as body.
+struct Http {
+  httplib::Client c;
+  static httplib::Response Of(httplib::Result r) {
+    if (r) return *r;
+    httplib::Response none;
+    none.status = -1;
+    none.body = httplib::to_string(r.error());
+    return none;
+  }
+  httplib::Response Get(const std::string& path, const httplib::Headers& h = {}) {
+    return Of(c.Get(path, h));
+  }
+  httplib::Response Post(const std::string& path, const std::string& body, const char* type) {
+    return Of(c.Post(path, body, type));
+  }
+  httplib::Response Delete(const std::string& path, const std::string& body, const char* type) {
+    return Of(c.Delete(path, body, type));
+  }
+};
+
+class HttpApi : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const auto tokens = dir_ / "tokens";
+    std::ofstream(tokens) << kAlice << " alice\n" << kBob << " bob\n";
+    ::chmod(tokens.c_str(), 0600);
+    server_.set_args({"--workers", "2", "--threads-per-job", "1", "--log-level", "warn",
+                      "--min-free-disk-mib", "0", "--auth-tokens", tokens.string(), "--http",
+                      "127.0.0.1:0", "--http-port-file", (dir_ / "http_port").string()});
+    ASSERT_TRUE(server_.Start().ok());
+    http_port_ = std::stoi(ReadAll(dir_ / "http_port"));
+  }
+
+  httplib::Client Raw(const std::string& token = kAlice) {
+    httplib::Client c("127.0.0.1", http_port_);
+    if (!token.empty()) c.set_bearer_token_auth(token);
+    c.set_read_timeout(60, 0);
+    return c;
+  }
+  Http Client(const std::string& token = kAlice) { return Http{Raw(token)}; }
+
+  v1::Job Submit(const v1::JobSpec& spec, const std::string& token = kAlice) {
+    auto r = Client(token).Post("/api/v1/jobs", SubmitBody(spec), "application/json");
+    EXPECT_EQ(r.status, 200) << r.body;
+    return Parse<v1::SubmitJobResponse>(r.body).job();
+  }
+
+  v1::Job Get(const std::string& id) {
+    auto r = Client().Get(absl::StrCat("/api/v1/jobs/", id));
+    EXPECT_TRUE(r.status == 200);
+    return Parse<v1::GetJobResponse>(r.body).job();
+  }
+
+  // Polls until the job leaves QUEUED/RUNNING (bounded by the job's size).
+  v1::Job AwaitEnd(const std::string& id) {
+    for (int i = 0; i < 6000; ++i) {
+      v1::Job j = Get(id);
+      if (j.state() >= v1::JOB_STATE_SUCCEEDED) return j;
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    ADD_FAILURE() << "job " << id << " never ended";
+    return {};
+  }
+
+  v1::Job AwaitRunning(const std::string& id) {
+    for (int i = 0; i < 6000; ++i) {
+      v1::Job j = Get(id);
+      if (j.state() == v1::JOB_STATE_RUNNING && j.progress().done() > 0) return j;
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    ADD_FAILURE() << "job " << id << " never ran";
+    return {};
+  }
+
+  testing::TempDir dir_;
+  testing::NimbusdProcess server_{dir_ / "data"};
+  int http_port_ = 0;
+};
+
+TEST_F(HttpApi, SubmitGetListDownloadWithRangeMatchesGrpcFetch) {
+  const v1::Job submitted = Submit(testing::SmallTetrahedronJob());
+  ASSERT_FALSE(submitted.id().empty());
+  const v1::Job done = AwaitEnd(submitted.id());
+  ASSERT_EQ(done.state(), v1::JOB_STATE_SUCCEEDED) << done.error();
+  EXPECT_EQ(done.owner(), "alice");
+
+  auto list = Client().Get("/api/v1/jobs?state=SUCCEEDED&page_size=10");
+  ASSERT_TRUE(list.status == 200);
+  auto jobs = Parse<v1::ListJobsResponse>(list.body);
+  ASSERT_EQ(jobs.jobs_size(), 1);
+  EXPECT_EQ(jobs.jobs(0).id(), submitted.id());
+  auto none = Client().Get("/api/v1/jobs?state=QUEUED");
+  EXPECT_EQ(Parse<v1::ListJobsResponse>(none.body).jobs_size(), 0);
+
+  // The reference: the same result fetched over gRPC by the CLI's client.
+  auto grpc = testing::ConnectAs(server_.target(), kAlice);
+  ASSERT_NE(grpc, nullptr);
+  ASSERT_TRUE(grpc->Fetch(submitted.id(), dir_ / "grpc.vdb").ok());
+  const std::string expected = ReadAll(dir_ / "grpc.vdb");
+  ASSERT_GT(expected.size(), 200u);
+
+  const std::string path = absl::StrCat("/api/v1/jobs/", submitted.id(), "/result");
+  auto whole = Client().Get(path);
+  ASSERT_TRUE(whole.status == 200);
+  EXPECT_EQ(whole.body, expected);
+  EXPECT_EQ(whole.get_header_value("X-Nimbus-Sha256"), done.result().sha256());
+  // A resumed download (curl -C - sends "Range: bytes=N-").
+  auto tail = Client().Get(path, {{"Range", "bytes=100-"}});
+    EXPECT_EQ(tail.status, 206);
+  EXPECT_EQ(tail.body, expected.substr(100));
+  EXPECT_EQ(tail.get_header_value("Content-Range"),
+            absl::StrCat("bytes 100-", expected.size() - 1, "/", expected.size()));
+  auto middle = Client().Get(path, {{"Range", "bytes=10-19"}});
+  EXPECT_EQ(middle.body, expected.substr(10, 10));
+  auto beyond = Client().Get(path, {{"Range", absl::StrCat("bytes=", expected.size() + 5, "-")}});
+  EXPECT_EQ(beyond.status, 416);
+  EXPECT_EQ(beyond.get_header_value("Content-Range"), absl::StrCat("bytes */", expected.size()));
+}
+
+TEST_F(HttpApi, AnotherOwnersJobIsNotFoundAndTokensAreRequired) {
+  const v1::Job job = Submit(EndlessJob());
+  const std::string path = absl::StrCat("/api/v1/jobs/", job.id());
+  EXPECT_EQ(Client(kBob).Get(path).status, 404);
+  EXPECT_EQ(Client(kBob).Post(path + "/cancel", "{}", "application/json").status, 404);
+  EXPECT_EQ(Client(kBob).Delete(path, "{}", "application/json").status, 404);
+  EXPECT_EQ(Client(kBob).Get(path + "/stream").status, 404);
+  EXPECT_EQ(Client(kBob).Get(path + "/preview.png").status, 404);
+  auto bob_list = Client(kBob).Get("/api/v1/jobs");
+  EXPECT_EQ(Parse<v1::ListJobsResponse>(bob_list.body).jobs_size(), 0);
+  auto anonymous = Client("").Get(path);
+  EXPECT_EQ(anonymous.status, 401);
+  EXPECT_NE(anonymous.body.find("UNAUTHENTICATED"), std::string::npos);
+  EXPECT_EQ(Client("wrong-token-0123456789abcdef").Get("/api/v1/jobs").status, 401);
+  // Operators' endpoints need no token.
+  EXPECT_EQ(Client("").Get("/healthz").status, 200);
+  EXPECT_EQ(Client("").Get("/readyz").status, 200);
+
+  auto cancelled = Client().Post(path + "/cancel", "{}", "application/json");
+  ASSERT_EQ(cancelled.status, 200) << cancelled.body;
+  EXPECT_EQ(AwaitEnd(job.id()).state(), v1::JOB_STATE_CANCELLED);
+}
+
+TEST_F(HttpApi, PinAndDelete) {
+  const v1::Job job = Submit(testing::SmallTetrahedronJob());
+  const v1::Job done = AwaitEnd(job.id());
+  ASSERT_GT(done.result().size_bytes(), 0u);
+  const std::string path = absl::StrCat("/api/v1/jobs/", job.id());
+  auto pinned = Client().Post(path + "/pin", "", "application/json");
+  ASSERT_EQ(pinned.status, 200);
+  EXPECT_TRUE(Parse<v1::PinJobResponse>(pinned.body).job().pinned());
+  auto unpinned = Client().Post(path + "/pin", R"({"pinned":false})", "application/json");
+  EXPECT_FALSE(Parse<v1::PinJobResponse>(unpinned.body).job().pinned());
+  auto deleted = Client().Delete(path, "{}", "application/json");
+  ASSERT_EQ(deleted.status, 200) << deleted.body;
+  EXPECT_EQ(Parse<v1::DeleteJobResponse>(deleted.body).freed_bytes(), done.result().size_bytes());
+  EXPECT_EQ(Client().Get(path).status, 404);
+}
+
+TEST_F(HttpApi, HostileInputsAreRefusedWithClearErrors) {
+  auto c = Client();
+  auto malformed = c.Post("/api/v1/jobs", "{\"spec\": {", "application/json");
+  EXPECT_EQ(malformed.status, 400);
+  EXPECT_NE(malformed.body.find("body: not a nimbus.v1.SubmitJobRequest"), std::string::npos);
+  auto unknown = c.Post("/api/v1/jobs", R"({"spek": {}})", "application/json");
+  EXPECT_EQ(unknown.status, 400);
+  v1::JobSpec bad = testing::SmallTetrahedronJob();
+  bad.mutable_grid()->set_resolution(0, 0);
+  auto invalid = c.Post("/api/v1/jobs", SubmitBody(bad), "application/json");
+  EXPECT_EQ(invalid.status, 400);
+  EXPECT_NE(invalid.body.find("grid.resolution"), std::string::npos) << invalid.body;
+  auto huge = c.Post("/api/v1/jobs", std::string(9 << 20, '{'), "application/json");
+  EXPECT_EQ(huge.status, 413);
+  auto form = c.Post("/api/v1/jobs", SubmitBody(testing::SmallTetrahedronJob()), "text/plain");
+  EXPECT_EQ(form.status, 415);
+  EXPECT_EQ(c.Get("/api/v1/jobs?state=SLEEPING").status, 400);
+  EXPECT_EQ(c.Get("/api/v1/jobs?page_size=-3").status, 400);
+  EXPECT_EQ(c.Get("/api/v1/jobs/no-such-job").status, 404);
+  EXPECT_EQ(c.Get("/api/v1/jobs/%00%ff").status / 100, 4);
+  // Traversal in a file name reaches neither the data folder nor /etc.
+  const v1::Job job = Submit(testing::SmallTetrahedronJob());
+  AwaitEnd(job.id());
+  for (const char* name : {"..%2F..%2Fjobs.db", "..%2F..%2F..%2F..%2Fetc%2Fpasswd", "%2e%2e"}) {
+    auto r = c.Get(absl::StrCat("/api/v1/jobs/", job.id(), "/files/", name));
+    EXPECT_EQ(r.status, 404) << name;
+    EXPECT_EQ(r.body.find("SQLite format"), std::string::npos);
+    EXPECT_EQ(r.body.find("root:"), std::string::npos);
+  }
+  EXPECT_EQ(c.Get("/../../etc/passwd").status, 404);
+  EXPECT_EQ(c.Get(absl::StrCat("/api/v1/jobs/", job.id(), "/preview.png?resolution=9999")).status,
+            400);
+}
+
+// Reads a job's event stream until `enough` says so; the events as
+// (name, data) pairs.
+std::vector<std::pair<std::string, std::string>> ReadEvents(
+    httplib::Client& c, const std::string& path,
+    const std::function<bool(const std::vector<std::pair<std::string, std::string>>&)>& enough) {
+  std::vector<std::pair<std::string, std::string>> events;
+  std::string buffered;
+  auto r = c.Get(path, [&](const char* data, size_t n) {
+    buffered.append(data, n);
+    size_t cut;
+    while ((cut = buffered.find("\n\n")) != std::string::npos) {
+      std::string name, body;
+      for (absl::string_view line : absl::StrSplit(buffered.substr(0, cut), '\n')) {
+        if (absl::ConsumePrefix(&line, "event: ")) name = std::string(line);
+        if (absl::ConsumePrefix(&line, "data: ")) body = std::string(line);
+      }
+      events.emplace_back(name, body);
+      buffered.erase(0, cut + 2);
+    }
+    return !enough(events);
+  });
+  return events;
+}
+
+TEST_F(HttpApi, EventStreamCarriesStateProgressAndNewPreviews) {
+  const v1::Job job = Submit(EndlessJob());
+  AwaitRunning(job.id());
+  auto c = Raw();
+  Http h{Raw()};
+  const std::string base = absl::StrCat("/api/v1/jobs/", job.id());
+  auto events = ReadEvents(c, base + "/stream?preview_resolution=16&preview_interval=0.05",
+                           [](const auto& ev) {
+                             int previews = 0;
+                             for (const auto& e : ev) previews += e.first == "preview";
+                             return previews >= 2;
+                           });
+  std::vector<uint64_t> sequences;
+  for (const auto& [name, data] : events) {
+    if (name == "job") EXPECT_EQ(Parse<v1::Job>(data).id(), job.id());
+    if (name == "preview") sequences.push_back(Parse<v1::Preview>(data).sequence());
+  }
+  ASSERT_GE(sequences.size(), 2u);
+  EXPECT_LT(sequences[0], sequences[1]);
+
+  // The newest preview as a density array and as a PNG of the same shape.
+  auto density = h.Get(base + "/preview.density?resolution=16");
+  ASSERT_EQ(density.status, 200) << density.body;
+  std::vector<int> shape;
+  for (absl::string_view s : absl::StrSplit(density.get_header_value("X-Nimbus-Shape"), ','))
+    shape.push_back(std::stoi(std::string(s)));
+  ASSERT_EQ(shape.size(), 3u);
+  EXPECT_EQ(shape[0], 16);
+  ASSERT_EQ(density.body.size(), size_t(4) * shape[0] * shape[1] * shape[2]);
+  double total = 0;
+  for (size_t i = 0; i < density.body.size(); i += 4) {
+    float v;
+    std::memcpy(&v, density.body.data() + i, 4);
+    total += v;
+  }
+  EXPECT_GT(total, 0);
+  auto png = h.Get(base + "/preview.png?resolution=16");
+  ASSERT_EQ(png.status, 200);
+  std::ofstream(dir_ / "p.png", std::ios::binary) << png.body;
+  auto pixels = ReadPngPixels(dir_ / "p.png");
+  ASSERT_TRUE(pixels.ok()) << pixels.status();
+  EXPECT_EQ(pixels->width, shape[0]);
+  EXPECT_EQ(pixels->height, shape[1]);
+
+  // Cancelling ends the stream with the job CANCELLED.
+  std::thread cancel([&] {
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+    Client().Post(base + "/cancel", "{}", "application/json");
+  });
+  auto tail = ReadEvents(c, base + "/stream", [](const auto&) { return false; });
+  cancel.join();
+  ASSERT_GE(tail.size(), 2u);
+  EXPECT_EQ(tail.back().first, "end");
+  EXPECT_EQ(Parse<v1::Job>(tail[tail.size() - 2].second).state(), v1::JOB_STATE_CANCELLED);
+}
+
+TEST_F(HttpApi, AFloodOfEventStreamsIsBoundedAndGrpcStaysResponsive) {
+  const v1::Job job = Submit(EndlessJob());
+  AwaitRunning(job.id());
+  const std::string path = absl::StrCat("/api/v1/jobs/", job.id(), "/stream");
+  constexpr int kStreams = 100;  // beyond the server's 64
+  std::atomic<int> accepted{0}, refused{0};
+  std::atomic<bool> release{false};
+  std::vector<std::thread> threads;
+  for (int i = 0; i < kStreams; ++i)
+    threads.emplace_back([&] {
+      auto c = Raw();
+      c.Get(
+          path,
+          [&](const httplib::Response& head) {
+            (head.status == 200 ? accepted : refused) += 1;
+            return head.status == 200;
+          },
+          [&](const char*, size_t) { return !release.load(); });
+    });
+  while (accepted + refused < kStreams) std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  EXPECT_EQ(accepted.load(), 64);
+  EXPECT_EQ(refused.load(), kStreams - 64);
+  // With every stream slot taken, gRPC and ordinary HTTP calls still answer.
+  auto grpc = testing::ConnectAs(server_.target(), kAlice);
+  ASSERT_NE(grpc, nullptr);
+  auto got = grpc->Get(job.id());
+  ASSERT_TRUE(got.ok()) << got.status();
+  EXPECT_EQ(Client().Get("/api/v1/jobs").status, 200);
+  release = true;
+  ASSERT_TRUE(grpc->Cancel(job.id()).ok());
+  for (auto& t : threads) t.join();
+}
+
+TEST_F(HttpApi, MetricsPassPromtoolAndCountJobs) {
+  const v1::Job a = Submit(testing::SmallTetrahedronJob());
+  const v1::Job b = Submit(testing::SmallTetrahedronJob());
+  AwaitEnd(a.id());
+  AwaitEnd(b.id());
+  auto metrics = Client("").Get("/metrics");
+  ASSERT_EQ(metrics.status, 200);
+  const std::string& text = metrics.body;
+  EXPECT_NE(text.find("nimbus_jobs{kind=\"chaos_game\",state=\"succeeded\"} 2\n"), std::string::npos)
+      << text;
+  EXPECT_NE(text.find("nimbus_grpc_calls_total{code=\"OK\",method=\"nimbus.v1.NimbusService/SubmitJob\"} 2"),
+            std::string::npos);
+  EXPECT_NE(text.find("nimbus_job_duration_seconds_count{kind=\"chaos_game\"} 2"), std::string::npos);
+  std::ofstream(dir_ / "metrics.txt") << text;
+  const std::string cmd = absl::StrCat("promtool check metrics < ", (dir_ / "metrics.txt").string(),
+                                       " > ", (dir_ / "promtool.txt").string(), " 2>&1");
+  EXPECT_EQ(std::system(cmd.c_str()), 0) << ReadAll(dir_ / "promtool.txt");
+}
+
+}  // namespace
+}  // namespace nimbus
