@@ -120,7 +120,7 @@ function jobPage(id) {
     clear(info);
     info.append(el('span', { id: 'job-state', class: `state-${shortState(job.state)}` }, shortState(job.state)),
       ` · owner ${job.owner} · worker ${job.worker || '-'} · `, progressBar(job.progress), ' ', progressText(job.progress),
-      job.error ? el('p', { class: 'error' }, job.error) : null);
+      ...(job.error ? [el('p', { class: 'error' }, job.error)] : []));
     clear(warnings); warnings.append(...(job.warnings || []).map((w) => el('li', {}, w)));
     clear(files); files.append(...fileLinks(job));
   };

@@ -28,7 +28,9 @@ export function progressText(p) {
   const phase = (p.phase || '').replace('PROGRESS_PHASE_', '').toLowerCase();
   const rate = p.rate ? `${Number(p.rate).toExponential(2)} ${p.unit}/s` : '';
   const eta = p.etaSeconds ? `ETA ${Math.round(p.etaSeconds)} s` : '';
-  return [phase, rate, eta].filter(Boolean).join(' · ');
+  const count = new Intl.NumberFormat('en', { notation: 'compact', maximumFractionDigits: 2 });
+  const done = `${count.format(Number(p.done))}/${count.format(Number(p.total))} ${p.unit || ''}`;
+  return [phase, done, rate, eta].filter(Boolean).join(' · ');
 }
 
 export function progressBar(p) {
