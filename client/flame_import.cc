@@ -2,6 +2,7 @@
 
 #include <expat.h>
 
+#include <algorithm>
 #include <array>
 #include <cctype>
 #include <cmath>
@@ -236,9 +237,15 @@ absl::StatusOr<Camera> ReadCamera(const Element& f) {
   NIMBUS_ASSIGN_OR_RETURN(double scale, Number(f, "scale", 0.0));
   NIMBUS_ASSIGN_OR_RETURN(double zoom, Number(f, "zoom", 0.0));
   NIMBUS_ASSIGN_OR_RETURN(double rotate, Number(f, "rotate", 0.0));
+  if (!(scale > 0)) return Bad(f, "scale", "needs a positive scale (pixels per unit)");
+  // flam3 multiplies the scale by 2^zoom; the product must leave a finite,
+  // non-empty view of the picture's size.
   c.pixels_per_unit = scale * std::exp2(zoom);
-  if (!(c.pixels_per_unit > 0 && std::isfinite(c.pixels_per_unit)))
-    return Bad(f, "scale", "needs a positive scale (pixels per unit)");
+  const double span = std::max(size[0], size[1]) / c.pixels_per_unit;
+  if (!(c.pixels_per_unit > 0 && std::isfinite(c.pixels_per_unit) && std::isfinite(span)))
+    return Bad(f, zoom != 0 ? "zoom" : "scale",
+               StrCat("scale ", scale, " times 2^zoom (zoom ", zoom, ") gives ", c.pixels_per_unit,
+                      " pixels per unit, which leaves no usable view"));
   const double t = rotate * M_PI / 180.0, cs = std::cos(t), sn = std::sin(t);
   // Mirror y after turning by `rotate`; C is its own inverse.
   c.to_nimbus = {cs, -sn, 0, -sn, -cs, 0};

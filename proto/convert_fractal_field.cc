@@ -4,6 +4,7 @@
 // Counts and sizes are checked before anything is built.
 
 #include <cmath>
+#include <limits>
 #include <memory>
 
 #include "core/field/field_recipe.h"
@@ -20,6 +21,9 @@ constexpr uint32_t kMaxAnimationFrames = 4096;
 // cell far from integer overflow).
 constexpr double kMinCell = 1e-9;
 constexpr double kMaxPeriodNodes = double(int64_t{1} << 40);
+// A sine wind faster than this turns 2π t / period into noise (or, for a
+// subnormal period, into NaN positions and an empty volume).
+constexpr double kMinSinePeriod = 1e-9;
 
 using Repeated = google::protobuf::RepeatedField<double>;
 
@@ -140,8 +144,15 @@ absl::Status ConvertWeights(const v1::FieldWeights& w, const std::string& path,
     explicit_weights.push_back(v);
   }
   const double amplitude = w.amplitude() == 0 ? 1.0 : w.amplitude();
+  if (rule != WeightRule::kExplicit && std::abs(amplitude) < std::numeric_limits<double>::min())
+    return Invalid(path + ".amplitude", StrCat("too close to 0 to weigh anything, got ", amplitude));
   absl::Status st = ApplyWeightRule(rule, amplitude, w.hurst(), explicit_weights, p.dims, p.meshes);
   if (!st.ok()) return Invalid(path, std::string(st.message()));
+  // The field is divided by Σ|weight|: with none, every voxel is empty.
+  double sum = 0;
+  for (const FieldMesh& m : p.meshes) sum += std::abs(m.weight);
+  if (rule == WeightRule::kExplicit && !(sum >= std::numeric_limits<double>::min()))
+    return Invalid(path + ".explicit_weights", "need at least one weight that is not 0");
   return absl::OkStatus();
 }
 
@@ -178,8 +189,9 @@ absl::Status ConvertWind(const v1::FieldWind& w, const std::string& path, int s,
     out.amplitude[size_t(i)] = w.amplitude(i);
   }
   out.sine_period = w.period() == 0 ? 1.0 : w.period();
-  if (!(std::isfinite(out.sine_period) && out.sine_period > 0))
-    return Invalid(path + ".period", "must be finite and > 0");
+  if (!(out.sine_period >= kMinSinePeriod && out.sine_period <= kMaxMagnitude))
+    return Invalid(path + ".period", StrCat("must be in [", kMinSinePeriod, ", ", kMaxMagnitude,
+                                            "] time units (0: 1), got ", w.period()));
   NIMBUS_RETURN_IF_ERROR(CheckNumber(w.phase_degrees(), path + ".phase_degrees"));
   out.phase_radians = w.phase_degrees() * M_PI / 180;
   return absl::OkStatus();
@@ -218,7 +230,8 @@ absl::Status ConvertPeriods(const v1::FieldMapping& m, const std::string& path,
   for (int i = 0; i < m.period_size(); ++i) {
     const std::string f = StrCat(path, ".period[", i, "]");
     NIMBUS_RETURN_IF_ERROR(CheckNumber(m.period(i), f));
-    if (m.period(i) < 0) return Invalid(f, "must be >= 0 (0: not periodic)");
+    if (m.period(i) != 0 && !(m.period(i) >= kMinCell))
+      return Invalid(f, StrCat("must be 0 (not periodic) or >= ", kMinCell, ", got ", m.period(i)));
     p.mapping.period[size_t(i)] = m.period(i);
   }
   return absl::OkStatus();
@@ -341,9 +354,19 @@ absl::Status ConvertOutputs(const v1::FractalField& f, const GridFrame& frame,
   const v1::FieldDensity& d = f.density();
   NIMBUS_RETURN_IF_ERROR(CheckNumber(d.threshold(), "fractal_field.density.threshold"));
   plan.density.threshold = d.threshold();
+  // Without a shape v lies in [-1, 1]: from 1 up, every voxel is empty.
+  if (plan.output == FieldOutputKind::kDensity && !f.has_shape() && d.threshold() >= 1)
+    return Invalid("fractal_field.density.threshold",
+                   StrCat("must be < 1 without a shape (the field lies in [-1, 1], so every "
+                          "voxel would be empty), got ", d.threshold()));
   plan.density.gain = d.gain() == 0 ? 1.0 : d.gain();
   if (!(plan.density.gain > 0 && plan.density.gain <= kMaxMagnitude))
     return Invalid("fractal_field.density.gain", StrCat("must be finite and > 0, got ", d.gain()));
+  // Densities are floats: a smaller gain rounds every one to 0.
+  if (plan.density.gain < std::numeric_limits<float>::min())
+    return Invalid("fractal_field.density.gain",
+                   StrCat("must be at least ", std::numeric_limits<float>::min(),
+                          " (smaller densities round to 0), got ", d.gain()));
   plan.density.soft_clip = d.soft_clip();
   const v1::FieldTerrain& t = f.terrain();
   const double z0 = frame.bounds.min.z, z1 = frame.bounds.max.z;

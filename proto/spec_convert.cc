@@ -152,14 +152,30 @@ absl::StatusOr<Affine3> ComposeSteps(const google::protobuf::RepeatedPtrField<v1
 
 namespace {
 
-absl::Status ConvertName(const v1::JobSpec& spec, JobPlan& job) {
-  // Names go into file names, logs and every listing: keep them short.
-  if (spec.name().size() > 128)
-    return Invalid("name", StrCat("must be at most 128 bytes, got ", spec.name().size()));
-  job.name = spec.name().empty() ? "nimbus" : spec.name();
-  for (char c : job.name)
+// Names go into file names, grid names, logs and every listing: short, and
+// letters, digits, '_', '-' and '.' only.
+absl::Status CheckPlainName(const std::string& name, const std::string& field) {
+  if (name.size() > 128)
+    return Invalid(field, StrCat("must be at most 128 bytes, got ", name.size()));
+  for (char c : name)
     if (!(std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-' || c == '.'))
-      return Invalid("name", "use letters, digits, '_', '-' and '.' only");
+      return Invalid(field, "use letters, digits, '_', '-' and '.' only");
+  return absl::OkStatus();
+}
+
+absl::Status ConvertName(const v1::JobSpec& spec, JobPlan& job) {
+  NIMBUS_RETURN_IF_ERROR(CheckPlainName(spec.name(), "name"));
+  job.name = spec.name().empty() ? "nimbus" : spec.name();
+  return absl::OkStatus();
+}
+
+// The density grid's name: a plain name that no other grid of the file has.
+absl::Status CheckGridName(const std::string& name) {
+  NIMBUS_RETURN_IF_ERROR(CheckPlainName(name, "output.grid_name"));
+  for (const char* taken : {"Cd", "address", "counts", "component", "v"})
+    if (name == taken)
+      return Invalid("output.grid_name",
+                     StrCat("'", name, "' is the name of another grid Nimbus may write"));
   return absl::OkStatus();
 }
 
@@ -191,6 +207,7 @@ absl::Status ConvertConventions(const v1::Output& o, OutputConventions& c) {
 }
 
 absl::Status ConvertOutput(const v1::Output& o, DensityOptions& density) {
+  NIMBUS_RETURN_IF_ERROR(CheckGridName(o.grid_name()));
   density.grid_name = o.grid_name().empty() ? "density" : o.grid_name();
   switch (o.density_mapping()) {
     case v1::DENSITY_MAPPING_UNSPECIFIED:

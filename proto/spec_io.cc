@@ -13,6 +13,10 @@ namespace nimbus::spec {
 
 namespace {
 
+// The same depth protobuf's binary decoder allows, so any spec read here can
+// also be sent to a server.
+constexpr int kMaxTextNesting = 100;
+
 // Collects text-format parser errors with their positions.
 class ErrorCollector : public google::protobuf::io::ErrorCollector {
  public:
@@ -50,6 +54,9 @@ absl::StatusOr<v1::JobSpec> ParseSpec(const std::string& text, SpecFormat format
   google::protobuf::TextFormat::Parser parser;
   ErrorCollector errors(source_name);
   parser.RecordErrorsTo(&errors);
+  // The parser recurses once per nested message; without a bound a deep
+  // spec exhausts the stack.
+  parser.SetRecursionLimit(kMaxTextNesting);
   if (!parser.ParseFromString(text, &spec))
     return absl::InvalidArgumentError(
         errors.first().empty() ? absl::StrCat(source_name, ": malformed text-format spec")

@@ -9,6 +9,7 @@
 #include "core/base/status_macros.h"
 #include "core/grid/contact_sheet.h"
 #include "core/jelly/jelly_render.h"
+#include "core/sets/set_source_price.h"
 
 namespace nimbus::server {
 
@@ -76,13 +77,51 @@ uint64_t SetIfsBytes(const SetIfsPlan& plan, Int3 r) {
 }
 
 
+// The costliest mesh to voxelise among `sources` (they are built one at a
+// time), with the top-level source that holds it.
+struct MeshPrice {
+  uint64_t bytes = 0;
+  const SetSourcePlan* source = nullptr;
+  /// `rest` plus this price, saturated (an absurd mesh prices at 2^64 - 1).
+  uint64_t Plus(uint64_t rest) const {
+    return bytes > UINT64_MAX - rest ? UINT64_MAX : rest + bytes;
+  }
+};
+
+MeshPrice PriceMeshes(const std::vector<const SetSourcePlan*>& sources, const GridFrame& frame,
+                      int threads) {
+  MeshPrice price;
+  for (const SetSourcePlan* s : sources) {
+    const uint64_t b = SetSourceBuildBytes(*s, frame, threads);
+    if (b > price.bytes) price = {b, s};
+  }
+  return price;
+}
+
+// Over the limit: the mesh's field when voxelising it is at least half the
+// job, else `field`.
+absl::Status OverLimit(const std::string& field, const std::string& what, uint64_t bytes,
+                       const MeshPrice& mesh, const spec::Limits& limits) {
+  if (mesh.source != nullptr && mesh.bytes >= bytes / 2)
+    return absl::ResourceExhaustedError(StrCat(
+        mesh.source->field, ": voxelising its mesh takes up to ", GiB(mesh.bytes), " of ",
+        GiB(bytes), " of memory (the triangles fanned out of its polygons, and the voxels "
+        "each meets); the server limit is ", GiB(limits.max_memory_bytes)));
+  return absl::ResourceExhaustedError(StrCat(field, ": ", what, " needs up to ", GiB(bytes),
+                                             " of memory; the server limit is ",
+                                             GiB(limits.max_memory_bytes)));
+}
+
 absl::StatusOr<MemoryAdmission> AdmitSetIfs(const JobPlan& plan, const SetIfsPlan& s,
-                                            const spec::Limits& limits) {
-  const uint64_t bytes = SetIfsBytes(s, plan.frame.resolution);
+                                            const spec::Limits& limits, int threads) {
+  std::vector<const SetSourcePlan*> sources;
+  if (s.start) sources.push_back(&*s.start);
+  for (const SetMapPlan& m : s.maps)
+    if (m.condensation) sources.push_back(&*m.condensation);
+  const MeshPrice mesh = PriceMeshes(sources, plan.frame, threads);
+  const uint64_t bytes = mesh.Plus(SetIfsBytes(s, plan.frame.resolution));
   if (bytes > limits.max_memory_bytes)
-    return absl::ResourceExhaustedError(StrCat("grid.resolution: the job needs up to ", GiB(bytes),
-                                               " of memory; the server limit is ",
-                                               GiB(limits.max_memory_bytes)));
+    return OverLimit("grid.resolution", "the job", bytes, mesh, limits);
   return MemoryAdmission{bytes, 0};
 }
 
@@ -102,11 +141,11 @@ uint64_t FractalFieldBytes(const FractalFieldPlan& k, Int3 r, int threads) {
 
 absl::StatusOr<MemoryAdmission> AdmitFractalField(const JobPlan& plan, const FractalFieldPlan& k,
                                                   const spec::Limits& limits, int threads) {
-  const uint64_t bytes = FractalFieldBytes(k, plan.frame.resolution, threads);
+  const MeshPrice mesh =
+      k.shape ? PriceMeshes({&k.shape->source}, plan.frame, threads) : MeshPrice{};
+  const uint64_t bytes = mesh.Plus(FractalFieldBytes(k, plan.frame.resolution, threads));
   if (bytes > limits.max_memory_bytes)
-    return absl::ResourceExhaustedError(StrCat("grid.resolution: the fractal field needs up to ",
-                                               GiB(bytes), " of memory; the server limit is ",
-                                               GiB(limits.max_memory_bytes)));
+    return OverLimit("grid.resolution", "the fractal field", bytes, mesh, limits);
   return MemoryAdmission{bytes, 0};
 }
 
@@ -200,7 +239,7 @@ absl::StatusOr<MemoryAdmission> AdmitMemory(const JobPlan& plan, const spec::Lim
                                        : ComponentAccumulator::MaxMemoryBytes(plan.frame.resolution);
             return AdmitPointRun(plan, k.run, extra, limits, threads, interrupter);
           },
-          [&](const SetIfsPlan& k) { return AdmitSetIfs(plan, k, limits); },
+          [&](const SetIfsPlan& k) { return AdmitSetIfs(plan, k, limits, threads); },
           [&](const FractalFieldPlan& k) { return AdmitFractalField(plan, k, limits, threads); },
           [&](const JellyPlan& k) { return AdmitJelly(plan, k, limits); },
           [&](const ExplorePlan& k) { return AdmitExplore(k, limits, threads); }},

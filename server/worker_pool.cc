@@ -10,6 +10,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
+#include "absl/strings/str_replace.h"
 #include "core/io/metadata_keys.h"
 #include "server/bounded_text.h"
 #include "server/job_runner.h"
@@ -33,6 +34,14 @@ v1::ProgressPhase ToProto(JobPhase phase) {
 }
 
 double Seconds(Clock::duration d) { return std::chrono::duration<double>(d).count(); }
+
+// A failed job's error as its owner reads it: the writers name the files
+// they write, and the server's directories are none of a client's business,
+// so the job's scratch file and its folders keep only their own names.
+std::string ClientError(absl::string_view message, const std::filesystem::path& scratch) {
+  std::string out = absl::StrReplaceAll(message, {{scratch.parent_path().string() + "/", ""}});
+  return absl::StrReplaceAll(out, {{scratch.parent_path().parent_path().string() + "/", ""}});
+}
 
 // TBB starts its scheduler, loads its allocator and starts its threads on
 // first use, a few milliseconds; a worker does it before it looks for a job,
@@ -422,11 +431,13 @@ void WorkerPool::RunJob(const JobRecord& record, const std::string& worker_id) {
     }
   } else if (!status.ok()) {
     done.state = JobState::kFailed;
-    done.error = BoundText(status.message(), kMaxErrorBytes);
+    done.error =
+        BoundText(ClientError(status.message(), ctx.ResultScratchPath()), kMaxErrorBytes);
     done.error_code = int(status.code());
   } else if (auto stored = results_->Commit(id, ctx.ResultScratchPath()); !stored.ok()) {
     done.state = JobState::kFailed;
-    done.error = BoundText(stored.status().message(), kMaxErrorBytes);
+    done.error =
+        BoundText(ClientError(stored.status().message(), ctx.ResultScratchPath()), kMaxErrorBytes);
     done.error_code = int(stored.status().code());
   } else {
     done.state = JobState::kSucceeded;

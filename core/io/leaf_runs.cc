@@ -16,9 +16,9 @@ namespace {
 
 thread_local const SpillScope* g_spill = nullptr;
 
-[[noreturn]] void SpillError(const char* what, const std::filesystem::path& dir) {
-  throw std::runtime_error(std::string("leaf spill file in ") + dir.string() + ": " + what + ": " +
-                           std::strerror(errno));
+// Throws the failure `what` of the spill file in `dir` with its errno `error`.
+[[noreturn]] void SpillError(const char* what, int error, const std::filesystem::path& dir) {
+  throw SpillFileError(std::string("leaf spill file: ") + what, error, dir);
 }
 
 // An unnamed file in `dir` (O_TMPFILE), or a named one removed at once where
@@ -28,7 +28,7 @@ int OpenSpill(const std::filesystem::path& dir) {
   if (fd >= 0) return fd;
   std::string name = (dir / "leaves.spill.XXXXXX").string();
   fd = ::mkostemp(name.data(), O_CLOEXEC);
-  if (fd < 0) SpillError("cannot create", dir);
+  if (fd < 0) SpillError("cannot create", errno, dir);
   ::unlink(name.c_str());
   return fd;
 }
@@ -61,7 +61,7 @@ void LeafRuns::Append(std::string_view run) {
   for (size_t done = 0; done < run.size();) {
     const ssize_t n = ::write(fd_, run.data() + done, run.size() - done);
     if (n < 0 && errno == EINTR) continue;
-    if (n <= 0) SpillError("write failed", spill->dir());
+    if (n <= 0) SpillError("write failed", n < 0 ? errno : ENOSPC, spill->dir());
     done += size_t(n);
   }
 }
@@ -99,7 +99,7 @@ void LeafRuns::WriteTo(std::ostream& os) const {
   for (uint64_t at = 0; at < bytes_ - kept_;) {
     const ssize_t n = ::pread(fd_, buf.as<char>(), buf.bytes(), off_t(at));
     if (n < 0 && errno == EINTR) continue;
-    if (n <= 0) throw std::runtime_error("leaf spill file: read failed");
+    if (n <= 0) SpillError("read failed", n < 0 ? errno : EIO, {});
     os.write(buf.as<char>(), n);
     at += uint64_t(n);
   }

@@ -7,12 +7,30 @@
 #include <cstdint>
 #include <filesystem>
 #include <ostream>
+#include <stdexcept>
+#include <string>
 #include <string_view>
 #include <vector>
 
 #include "core/base/zero_pages.h"
 
 namespace nimbus::vdb_internal {
+
+/// What LeafRuns throws when its spill file fails. The message names no
+/// folder (it may reach a client); `error` is the errno, so a writer can
+/// tell a full disk from other failures, and `dir` the spill's folder
+/// (empty when not known).
+class SpillFileError : public std::runtime_error {
+ public:
+  SpillFileError(const std::string& what, int error, std::filesystem::path dir)
+      : std::runtime_error(what), error_(error), dir_(std::move(dir)) {}
+  int error() const { return error_; }
+  const std::filesystem::path& dir() const { return dir_; }
+
+ private:
+  int error_;
+  std::filesystem::path dir_;
+};
 
 /// @brief Every leaf's LeafNode::writeBuffers bytes of one grid, in tree
 /// order, appended run by run. The archive needs them all before it can
@@ -29,10 +47,11 @@ class LeafRuns {
   LeafRuns(LeafRuns&& other) noexcept;
   LeafRuns& operator=(LeafRuns&&) = delete;
   ~LeafRuns();
-  /// Appends a copy of `run`. Throws std::runtime_error when the spill
-  /// file fails.
+  /// Appends a copy of `run`. Throws SpillFileError when the spill file
+  /// fails.
   void Append(std::string_view run);
   /// Writes every run to `os`, in order, through one bounded buffer.
+  /// Throws SpillFileError when the spill file cannot be read back.
   void WriteTo(std::ostream& os) const;
   uint64_t bytes() const { return bytes_; }
   bool spilled() const { return fd_ >= 0; }

@@ -104,6 +104,17 @@ inline absl::Status ParseVertex(const std::vector<std::string_view>& tok, std::s
   return absl::OkStatus();
 }
 
+// Most corners a polygon of a mesh file may have. Polygons are fan-split
+// into corners - 2 triangles that all share the first corner, so a huge
+// one is a small file that voxelises as a huge mesh.
+inline constexpr size_t kMaxPolygonCorners = 4096;
+
+// The error for a face of `corners` > kMaxPolygonCorners corners.
+inline std::string TooManyCorners(size_t corners) {
+  return Cat("face has ", corners, " corners; at most ", kMaxPolygonCorners,
+             " are allowed (split it into smaller faces)");
+}
+
 // Fan-splits a polygon given by vertex indices.
 inline void AddPolygon(const std::vector<uint32_t>& poly, TriangleMesh& mesh) {
   for (size_t k = 1; k + 1 < poly.size(); ++k)

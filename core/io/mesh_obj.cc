@@ -46,6 +46,8 @@ absl::StatusOr<TriangleMesh> ParseObj(std::string_view text, std::string_view na
       mesh.vertices.push_back(p);
     } else if (tok[0] == "f") {
       if (tok.size() < 4) return LineError(name, ln, "face needs at least three corners");
+      if (tok.size() - 1 > kMaxPolygonCorners)
+        return LineError(name, ln, TooManyCorners(tok.size() - 1));
       poly.clear();
       for (size_t k = 1; k < tok.size(); ++k) {
         absl::StatusOr<uint32_t> v = FaceCorner(tok[k], mesh.vertices.size(), name, ln);

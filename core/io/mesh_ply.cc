@@ -251,6 +251,7 @@ class MeshBuilder {
       mesh_.vertices.push_back(p);
     } else if (&e == face_el_) {
       if (inst.list.size() < 3) return "face with fewer than 3 corners";
+      if (inst.list.size() > kMaxPolygonCorners) return TooManyCorners(inst.list.size());
       poly_.clear();
       for (double v : inst.list) {
         // Indices refer to the header's vertex count, so faces may come first.

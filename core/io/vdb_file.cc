@@ -18,6 +18,7 @@
 #include "absl/strings/str_cat.h"
 #include "core/base/file_digests.h"
 #include "core/base/sha256.h"
+#include "core/io/leaf_runs.h"
 
 namespace nimbus::vdb_internal {
 
@@ -218,6 +219,12 @@ absl::Status WriteChecked(const std::filesystem::path& path, const std::filesyst
   try {
     write_archive(os);
     os.flush();
+  } catch (const SpillFileError& e) {
+    // The leaves waiting on the result's disk: the same disk, the same
+    // error. A spill folder of the caller's own choosing is named too.
+    const bool elsewhere = !e.dir().empty() && e.dir() != path.parent_path();
+    st = WriteError(path, e.error(),
+                    absl::StrCat(e.what(), elsewhere ? " in " + e.dir().string() : ""));
   } catch (const std::exception& e) {
     if (buf.error() == 0)
       st = absl::InternalError(absl::StrCat("writing ", path.string(), ": ", e.what()));

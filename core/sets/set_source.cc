@@ -1,11 +1,35 @@
 #include "core/sets/set_source.h"
 
+#include <algorithm>
+
 #include "absl/strings/str_cat.h"
+#include "core/sets/set_source_price.h"
 #include "core/sets/voxelize.h"
 
 namespace nimbus {
 
 using absl::StrCat;
+
+namespace {
+
+// Fit first (in the mesh's units), then the spec's own transform.
+Affine3 MeshPlacement(const SetSourcePlan& s, const TriangleMesh& mesh, const GridFrame& frame) {
+  const Affine3 fit =
+      s.fit ? FitPlacement(mesh.GetBounds(), frame, s.fit_margin_voxels) : Affine3::Identity();
+  return s.transform * fit;
+}
+
+}  // namespace
+
+uint64_t SetSourceBuildBytes(const SetSourcePlan& s, const GridFrame& frame, int threads) {
+  uint64_t bytes = 0;
+  if (s.kind == SetSourcePlan::Kind::kMesh && s.mesh)
+    bytes = VoxelizeMemoryBytes(*s.mesh, MeshPlacement(s, *s.mesh, frame), frame, s.shell_voxels,
+                                threads);
+  for (const SetSourcePlan& p : s.parts)
+    bytes = std::max(bytes, SetSourceBuildBytes(p, frame, threads));
+  return bytes;
+}
 
 absl::StatusOr<VoxelSet> BuildSetSource(const SetSourcePlan& s, const GridFrame& frame,
                                         SetBuildCache* cache, Interrupter* interrupter) {
@@ -17,10 +41,7 @@ absl::StatusOr<VoxelSet> BuildSetSource(const SetSourcePlan& s, const GridFrame&
   switch (s.kind) {
     case SetSourcePlan::Kind::kMesh: {
       TriangleMesh mesh = *s.mesh;
-      // Fit first (in the mesh's units), then the spec's own transform.
-      const Affine3 fit =
-          s.fit ? FitPlacement(mesh.GetBounds(), frame, s.fit_margin_voxels) : Affine3::Identity();
-      const Affine3 place = s.transform * fit;
+      const Affine3 place = MeshPlacement(s, mesh, frame);
       for (Vec3& v : mesh.vertices) v = place.Apply(v);
       VoxelizeOptions o;
       o.shell_voxels = s.shell_voxels;

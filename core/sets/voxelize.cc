@@ -9,6 +9,7 @@
 #include "absl/strings/str_cat.h"
 #include "core/base/status_macros.h"
 #include "core/io/vdb_module.h"
+#include "core/sets/set_source_price.h"
 
 namespace nimbus {
 namespace {
@@ -87,6 +88,65 @@ Affine3 FitPlacement(const Bounds& mesh, const GridFrame& frame, double margin_v
   const Vec3 fc = 0.5 * (frame.bounds.min + frame.bounds.max);
   return Affine3::Translate(fc) * Affine3::Scale({scale, scale, scale}) *
          Affine3::Translate(-1.0 * mc);
+}
+
+namespace {
+
+// Lattice rays (per axis) and narrow-band voxels one triangle may touch.
+struct TriangleReach {
+  double rays[3] = {0, 0, 0};
+  double band = 0;
+};
+
+// `q` in index units (voxel size 1); `band` in voxels.
+TriangleReach Reach(const Vec3 q[3], double band, Int3 res) {
+  TriangleReach r;
+  double perimeter3 = 0;
+  for (int k = 0; k < 3; ++k) perimeter3 += Length(q[(k + 1) % 3] - q[k]);
+  const double area3 = 0.5 * Length(Cross(q[1] - q[0], q[2] - q[0]));
+  for (int axis = 0; axis < 3; ++axis) {
+    const int ua = (axis + 1) % 3, va = (axis + 2) % 3;
+    const double area = 0.5 * std::abs((q[1][ua] - q[0][ua]) * (q[2][va] - q[0][va]) -
+                                       (q[1][va] - q[0][va]) * (q[2][ua] - q[0][ua]));
+    double perimeter = 0;
+    for (int k = 0; k < 3; ++k)
+      perimeter += std::hypot(q[(k + 1) % 3][ua] - q[k][ua], q[(k + 1) % 3][va] - q[k][va]);
+    // Lattice points in a convex region: at most area + perimeter / 2 + 1.
+    r.rays[axis] = std::min(area + perimeter / 2 + 1, double(res[ua]) * double(res[va]));
+  }
+  r.band = (area3 + perimeter3 * band + M_PI * band * band) * 2 * band + 1;
+  return r;
+}
+
+}  // namespace
+
+uint64_t VoxelizeMemoryBytes(const TriangleMesh& mesh, const Affine3& placement,
+                             const GridFrame& frame, double shell_voxels, int threads) {
+  const Vec3 h = frame.VoxelSize();
+  const Int3 res = frame.resolution;
+  auto index = [&](uint32_t v) {
+    const Vec3 w = placement.Apply(mesh.vertices[v]);
+    return Vec3{w.x / h.x, w.y / h.y, w.z / h.z};
+  };
+  // The level set's band is 2 voxels; the ray vote's shell at least half a voxel.
+  const double band = std::max(2.0, shell_voxels + 1.0);
+  double rays[3] = {0, 0, 0}, band_voxels = 0;
+  for (const auto& t : mesh.triangles) {
+    const Vec3 q[3] = {index(t[0]), index(t[1]), index(t[2])};
+    const TriangleReach r = Reach(q, band, res);
+    for (int a = 0; a < 3; ++a) rays[a] += r.rays[a];
+    band_voxels += r.band;
+  }
+  const double v = double(mesh.vertices.size()), t = double(mesh.triangles.size());
+  const double voxels = double(res.x) * double(res.y) * double(res.z);
+  const double set_bytes = std::ceil(res.x / 64.0) * 8 * double(res.y) * double(res.z);
+  // Two meshes (the plan's and the placed copy), the topology's weld map and
+  // edges, the index-space points, meshToVolume's copies.
+  double bytes = 2 * (24 * v + 12 * t) + 80 * v + 48 * t + 24 * v + 24 * v + 12 * t;
+  bytes += 7 * set_bytes;                                   // the votes and the interior
+  bytes += 24 * std::max({rays[0], rays[1], rays[2]});      // 12-byte crossings, doubling
+  bytes += 9 * std::min(band_voxels, std::max(threads, 1) * voxels);  // distance, index, id
+  return bytes >= 1.8e19 ? UINT64_MAX : uint64_t(bytes);
 }
 
 // Voxelisation and grid sets are OpenVDB's: they run in the module

@@ -177,6 +177,10 @@ TEST(FlameImport, BadGenomesAreRefusedNamingWhatIsWrong) {
       {"<flame size=\"100000 10\" scale=\"1\">" + ok_xform + "</flame>",
        "attribute size: needs two whole numbers in [1, 65536]"},
       {"<flame size=\"10 10\">" + ok_xform + "</flame>", "attribute scale: needs a positive"},
+      {Flame(ok_xform, "zoom=\"1000000\""), "attribute zoom: scale 50 times 2^zoom"},
+      {Flame(ok_xform, "zoom=\"-1000000\""), "attribute zoom: scale 50 times 2^zoom"},
+      {"<flame size=\"10 10\" scale=\"1e-320\">" + ok_xform + "</flame>",
+       "attribute scale: scale"},
       {Flame(ok_xform + "<color index=\"300\" rgb=\"1 2 3\"/>\n"), "attribute index"},
       {Flame(ok_xform + "<palette count=\"1\">12345</palette>\n"), "6 hex digits"},
   };

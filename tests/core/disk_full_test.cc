@@ -9,6 +9,7 @@
 #include <cstring>
 #include <fstream>
 
+#include "core/io/leaf_runs.h"
 #include "core/io/vdb_internal.h"
 #include "core/io/vdb_io.h"
 #include "tests/support/test_util.h"
@@ -118,6 +119,29 @@ TEST(DiskFull, TinyTmpfsGivesResourceExhausted) {
   EXPECT_EQ(st.code(), absl::StatusCode::kResourceExhausted) << st;
   EXPECT_THAT(st.message(), HasSubstr("disk full while writing the result"));
   EXPECT_TRUE(left.empty()) << "left: " << left[0];
+}
+
+// Leaves that spill to a full disk: the same RESOURCE_EXHAUSTED as the
+// file's own writes, naming the result and the spill's folder (one of the
+// caller's choosing, not the result's own).
+TEST(DiskFull, FullSpillDiskGivesResourceExhausted) {
+  testing::TempDir dir;
+  const std::filesystem::path mnt = dir / "spill";
+  std::filesystem::create_directories(mnt);
+  if (::mount("tmpfs", mnt.c_str(), "tmpfs", 0, "size=64k") != 0)
+    GTEST_SKIP() << "cannot mount a tmpfs here (" << std::strerror(errno) << ")";
+  absl::Status st;
+  {
+    const vdb_internal::SpillScope spill(mnt, 0);
+    const GridFrame frame = Frame(48);
+    st = WriteDensityVdb(dir / "out.vdb", NoisyCounts(frame), frame, {}, {});
+  }
+  ::umount2(mnt.c_str(), MNT_DETACH);
+  EXPECT_EQ(st.code(), absl::StatusCode::kResourceExhausted) << st;
+  EXPECT_THAT(st.message(), HasSubstr("disk full while writing the result"));
+  EXPECT_THAT(st.message(), HasSubstr("out.vdb"));
+  EXPECT_THAT(st.message(), HasSubstr("leaf spill file: write failed in " + mnt.string()));
+  EXPECT_EQ(Names(dir.path()), std::vector<std::string>{"spill"});
 }
 
 }  // namespace

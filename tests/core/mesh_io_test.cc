@@ -6,6 +6,7 @@
 #include <cstring>
 #include <fstream>
 
+#include "absl/strings/str_cat.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus {
@@ -189,6 +190,30 @@ TEST(MeshIo, ErrorsNameTheFileAndPlace) {
   WriteFile(dir / "mesh.xyz", "v 0 0 0\n");
   EXPECT_THAT(Message(LoadMesh(dir / "mesh.xyz").status()), HasSubstr("unknown mesh format"));
   EXPECT_EQ(LoadMesh(dir / "missing.obj").status().code(), absl::StatusCode::kNotFound);
+}
+
+// A face of n corners is n - 2 triangles; past kMaxPolygonCorners it is
+// refused with its line (OBJ, ASCII PLY) or its face (binary PLY).
+TEST(MeshIo, HugePolygonsAreRefusedWithTheLimit) {
+  auto obj = [](int corners) {
+    std::string text = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf";
+    for (int c = 0; c < corners; ++c) absl::StrAppend(&text, " ", c % 4 + 1);
+    return text + "\n";
+  };
+  auto most = ParseObj(obj(4096), "most.obj");
+  ASSERT_TRUE(most.ok()) << most.status();
+  EXPECT_EQ(most->triangles.size(), 4094u);
+  EXPECT_THAT(Message(ParseObj(obj(4097), "big.obj").status()),
+              HasSubstr("big.obj:5: face has 4097 corners; at most 4096 are allowed"));
+  EXPECT_THAT(Message(ParseObj(obj(1'000'000), "huge.obj").status()),
+              HasSubstr("huge.obj:5: face has 1000000 corners; at most 4096"));
+  std::string ply =
+      "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+      "property float z\nelement face 1\nproperty list uint int vertex_indices\nend_header\n"
+      "0 0 0\n1 0 0\n0 1 0\n5000";
+  for (int c = 0; c < 5000; ++c) absl::StrAppend(&ply, " ", c % 3);
+  EXPECT_THAT(Message(ParsePly(ply + "\n", "big.ply").status()),
+              HasSubstr("big.ply:13: face has 5000 corners; at most 4096"));
 }
 
 TEST(MeshIo, FileTypeFromNamesAndWords) {

@@ -2,12 +2,14 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 
 #include "core/io/mesh_io.h"
 #include "core/sets/shapes.h"
 #include "core/io/vdb_io.h"
+#include "core/sets/set_source_price.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus {
@@ -210,6 +212,48 @@ TEST(Voxelize, HonoursTheInterrupter) {
   o.method = InteriorMethod::kRayVote;
   EXPECT_EQ(VoxelizeMesh(Example("cow.obj"), Cube(32), o, &cancel).status().code(),
             absl::StatusCode::kCancelled);
+}
+
+// Lattice rays along `axis` strictly inside triangle q (index space, where
+// the ray vote casts a ray through every whole (u, v)), counted one by one.
+int64_t RaysInside(const Vec3 q[3], int axis, Int3 res) {
+  const int ua = (axis + 1) % 3, va = (axis + 2) % 3;
+  int64_t n = 0;
+  for (int iu = 0; iu < res[ua]; ++iu)
+    for (int iv = 0; iv < res[va]; ++iv) {
+      int positive = 0, negative = 0;
+      for (int k = 0; k < 3; ++k) {
+        const Vec3& a = q[k];
+        const Vec3& b = q[(k + 1) % 3];
+        const double e = (b[ua] - a[ua]) * (iv - a[va]) - (b[va] - a[va]) * (iu - a[ua]);
+        positive += e > 0, negative += e < 0;
+      }
+      n += positive == 3 || negative == 3;
+    }
+  return n;
+}
+
+// Every copy of a triangle is voxelised again: the ray vote keeps a
+// 12-byte crossing for each lattice ray through each copy, and the price
+// must cover that (and stay within a few times of it).
+TEST(VoxelizePrice, CoversEveryLatticeRayOfEveryCopy) {
+  const GridFrame frame = Cube(64);
+  TriangleMesh one;
+  one.vertices = {{-0.9, -0.9, -0.5}, {0.9, -0.7, 0.1}, {-0.6, 0.9, 0.6}};
+  one.triangles = {{0, 1, 2}};
+  TriangleMesh copies = one;
+  copies.triangles.assign(1000, {0, 1, 2});
+  const Vec3 h = frame.VoxelSize();
+  Vec3 q[3];
+  for (int k = 0; k < 3; ++k)
+    for (int a = 0; a < 3; ++a) q[k][a] = (one.vertices[k][a] - frame.bounds.min[a]) / h[a] - 0.5;
+  int64_t rays = 0;
+  for (int axis = 0; axis < 3; ++axis) rays = std::max(rays, RaysInside(q, axis, frame.resolution));
+  ASSERT_GT(rays, 1000);  // a triangle across most of the grid
+  const double extra = double(VoxelizeMemoryBytes(copies, Affine3::Identity(), frame, 0, 1)) -
+                       double(VoxelizeMemoryBytes(one, Affine3::Identity(), frame, 0, 1));
+  EXPECT_GE(extra, 999.0 * 12 * double(rays));
+  EXPECT_LE(extra, 999.0 * 48 * double(rays));
 }
 
 TEST(GridSet, LevelSetRoundTripMatchesTheMeshInterior) {

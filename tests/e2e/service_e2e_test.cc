@@ -366,6 +366,17 @@ TEST(CliE2E, RenderWithEmbeddedServerAndBadInput) {
   EXPECT_EQ(RunCli(data + " get j-missing"), 2);
 }
 
+TEST(CliE2E, DeeplyNestedTextSpecIsAnErrorNotACrash) {
+  testing::TempDir dir;
+  std::string open, close;
+  for (int i = 0; i < 5000; ++i) open += "random_balls { inside { ", close += "} } ";
+  std::ofstream(dir / "deep.txtpb") << "set_ifs { maps { condensation { " << open
+                                    << "sphere { radius: 1 } " << close << "} } }";
+  const std::string spec = (dir / "deep.txtpb").string();
+  EXPECT_EQ(RunCli("validate " + spec), 2);
+  EXPECT_EQ(RunCli("--data-dir " + (dir / "data").string() + " submit " + spec), 2);
+}
+
 // A render started while another process serves the default data dir (a
 // second terminal) runs in a private data dir and removes it; commands that
 // need the shared queue are refused with a message naming the holder.

@@ -147,9 +147,33 @@ TEST(FractalFieldSpec, ErrorsNameTheField) {
       {[](v1::JobSpec& s) { s.mutable_fractal_field()->mutable_terrain(); },
        "fractal_field: set at most one of density and terrain"},
       {[](v1::JobSpec& s) { Field(s)->mutable_mapping()->add_period(-1); },
-       "fractal_field.field.mapping.period[2]: must be >= 0 (0: not periodic)"},
+       "fractal_field.field.mapping.period[2]: must be 0 (not periodic) or >= 1e-09, got -1"},
+      {[](v1::JobSpec& s) { Field(s)->mutable_mapping()->add_period(1e-320); },
+       "fractal_field.field.mapping.period[2]: must be 0 (not periodic) or >= 1e-09, got "
+       "9.99989e-321"},
+      {[](v1::JobSpec& s) {
+         auto* wind = Field(s)->mutable_mapping()->mutable_wind();
+         wind->set_kind(v1::WIND_KIND_SINE);
+         wind->set_period(1e-320);
+       },
+       "fractal_field.field.mapping.wind.period: must be in [1e-09, 1e+12] time units (0: 1), "
+       "got 9.99989e-321"},
+      {[](v1::JobSpec& s) {
+         auto* w = Field(s)->mutable_weights();
+         w->set_rule(v1::WEIGHT_RULE_EXPLICIT);
+         for (int i = 0; i < 4; ++i) w->add_explicit_weights(i == 2 ? -0.0 : 0.0);
+       },
+       "fractal_field.field.weights.explicit_weights: need at least one weight that is not 0"},
+      {[](v1::JobSpec& s) { Field(s)->mutable_weights()->set_amplitude(-1e-310); },
+       "fractal_field.field.weights.amplitude: too close to 0 to weigh anything, got -1e-310"},
       {[](v1::JobSpec& s) { s.mutable_fractal_field()->mutable_density()->set_gain(-1); },
        "fractal_field.density.gain: must be finite and > 0, got -1"},
+      {[](v1::JobSpec& s) { s.mutable_fractal_field()->mutable_density()->set_gain(1e-300); },
+       "fractal_field.density.gain: must be at least 1.17549e-38 (smaller densities round to 0), "
+       "got 1e-300"},
+      {[](v1::JobSpec& s) { s.mutable_fractal_field()->mutable_density()->set_threshold(1); },
+       "fractal_field.density.threshold: must be < 1 without a shape (the field lies in [-1, 1], "
+       "so every voxel would be empty), got 1"},
       {[](v1::JobSpec& s) {
          Field(s)->clear_mesh_series();
          auto* m = Field(s)->add_meshes();

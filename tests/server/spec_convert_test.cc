@@ -64,6 +64,46 @@ TEST(SpecConvert, MalformedJsonIsReported) {
   EXPECT_THAT(std::string(spec.status().message()), HasSubstr("malformed JSON"));
 }
 
+// Random balls inside random balls, `levels` SetSources deep.
+std::string NestedTextSpec(int levels) {
+  std::string open, close;
+  for (int i = 0; i < levels; ++i) open += "random_balls { inside { ", close += "} } ";
+  return "set_ifs { maps { condensation { " + open + "sphere { radius: 1 } " + close + "} } }";
+}
+
+TEST(SpecConvert, DeeplyNestedTextSpecIsRefusedBeforeTheStackRunsOut) {
+  auto deep = ParseSpec(NestedTextSpec(5000), SpecFormat::kText, "deep.txtpb");
+  ASSERT_FALSE(deep.ok());
+  EXPECT_EQ(deep.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_THAT(std::string(deep.status().message()), HasSubstr("deep.txtpb:1:"));
+  EXPECT_THAT(std::string(deep.status().message()), HasSubstr("recursion limit of 100"));
+  // 3 + 2 * 48 + 1 = 100 message levels is the deepest accepted.
+  EXPECT_TRUE(ParseSpec(NestedTextSpec(48), SpecFormat::kText).ok());
+  EXPECT_FALSE(ParseSpec(NestedTextSpec(49), SpecFormat::kText).ok());
+}
+
+TEST(SpecConvert, GridNameIsAShortPlainNameOfNoOtherGrid) {
+  const std::vector<std::pair<std::string, std::string>> bad = {
+      {std::string(1 << 20, 'a'), "output.grid_name: must be at most 128 bytes, got 1048576"},
+      {std::string("../x\0y", 6), "output.grid_name: use letters, digits"},
+      {"a b", "output.grid_name: use letters, digits"},
+      {"Cd", "output.grid_name: 'Cd' is the name of another grid"},
+      {"counts", "output.grid_name: 'counts' is the name of another grid"},
+  };
+  for (const auto& [name, message] : bad) {
+    v1::JobSpec spec = Valid();
+    spec.mutable_output()->set_grid_name(name);
+    const absl::Status s = Check(spec);
+    EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument) << message;
+    EXPECT_THAT(std::string(s.message()), HasSubstr(message));
+  }
+  v1::JobSpec spec = Valid();
+  spec.mutable_output()->set_grid_name(std::string(128, 'd'));
+  EXPECT_TRUE(Check(spec).ok());
+  spec.mutable_output()->set_grid_name("fog.density-2_b");
+  EXPECT_TRUE(Check(spec).ok());
+}
+
 TEST(SpecConvert, UnknownStepKindNamesTheField) {
   auto spec = ParseSpec(R"({"chaos_game": {"ifs": {"maps": [{"steps": [{"twist": {}}]}]}}})",
                         SpecFormat::kJson);
