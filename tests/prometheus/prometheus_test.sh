@@ -57,6 +57,9 @@ scrape_configs:
       - targets: ["$HTTP"]
 YML
 promtool check config "$DIR/prometheus.yml" >/dev/null
+# The operator guide's example config and alert rules (deploy/prometheus).
+(cd "$SRC/deploy/prometheus" && promtool check config prometheus.yml >/dev/null)
+echo "ok: deploy/prometheus config and rules" 
 prometheus --config.file="$DIR/prometheus.yml" --storage.tsdb.path="$DIR/tsdb" \
   --web.listen-address="127.0.0.1:$PROM_PORT" --log.level=warn &
 PPID_PROM=$!
