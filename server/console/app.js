@@ -136,7 +136,11 @@ function jobPage(id) {
         const got = Number(png.headers.get('X-Nimbus-Preview-Sequence'));
         const old = img.src;
         img.src = URL.createObjectURL(await png.blob());
+        await img.decode().catch(() => {});
         if (old) URL.revokeObjectURL(old);
+        // From the stream's announcement to the picture on screen.
+        if (performance.getEntriesByName(`nimbus-preview-${got}`).length)
+          performance.measure('nimbus-preview-shown', `nimbus-preview-${got}`);
         img.dataset.sequence = String(got);
         seq.textContent = `#${got}`;
         if (volume) {
@@ -158,7 +162,10 @@ function jobPage(id) {
     spec.textContent = JSON.stringify(job.spec, null, 2);
     return stream(`${path}/stream?preview_resolution=64&preview_interval=0.2`, (name, data) => {
       if (name === 'job') show(data);
-      else if (name === 'preview') loadPreview(Number(data.sequence));
+      else if (name === 'preview') {
+        performance.mark(`nimbus-preview-${data.sequence}`);
+        loadPreview(Number(data.sequence));
+      }
     }, abort.signal);
   }).catch((e) => { if (e.name !== 'AbortError') showError(e); });
   return () => abort.abort();

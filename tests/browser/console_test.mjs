@@ -88,6 +88,10 @@ try {
     return seen.size >= 3;
   });
   check(seen.size >= 3, `preview picture changed twice (sequences ${[...seen].join(', ')})`);
+  const shown = await page.evaluate(() =>
+    performance.getEntriesByName('nimbus-preview-shown').map((m) => m.duration).sort((a, b) => a - b));
+  if (shown.length)
+    console.log(`preview event to picture shown: median ${shown[shown.length >> 1].toFixed(1)} ms, max ${shown[shown.length - 1].toFixed(1)} ms over ${shown.length}`);
 
   // The 3D view drew something other than its black background.
   const lit = await waitFor('a drawn 3D view', () => page.evaluate(() => {
