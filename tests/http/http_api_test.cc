@@ -13,10 +13,12 @@
 #include <thread>
 
 #include "absl/strings/str_cat.h"
+#include "absl/strings/match.h"
 #include "absl/strings/str_split.h"
 #include "core/io/image_io.h"
 #include "tests/support/e2e_clients.h"
 #include "tests/support/nimbusd_process.h"
+#include "tests/support/postgres_server.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus {
@@ -380,6 +382,67 @@ TEST_F(HttpApi, MetricsPassPromtoolAndCountJobs) {
   const std::string cmd = absl::StrCat("promtool check metrics < ", (dir_ / "metrics.txt").string(),
                                        " > ", (dir_ / "promtool.txt").string(), " 2>&1");
   EXPECT_EQ(std::system(cmd.c_str()), 0) << ReadAll(dir_ / "promtool.txt");
+}
+
+// Two replicas on one PostgreSQL store: a job that replica B runs shows
+// live (state, progress, previews) on replica A's HTTP port.
+TEST(HttpReplicas, AJobRunningOnBShowsLiveOnA) {
+  std::string why;
+  testing::PostgresServer* pg = testing::PostgresServer::Shared(&why);
+  if (!pg) GTEST_SKIP() << why;
+  auto url = pg->NewDatabase();
+  ASSERT_TRUE(url.ok()) << url.status();
+  testing::TempDir dir;
+  auto args = [&](const std::string& id) {
+    return std::vector<std::string>{"--store", *url, "--results-dir", (dir / "results").string(),
+                                    "--replica-id", id, "--workers", "1", "--threads-per-job", "1",
+                                    "--log-level", "warn", "--min-free-disk-mib", "0",
+                                    "--http", "127.0.0.1:0", "--http-port-file",
+                                    (dir / (id + ".http")).string()};
+  };
+  testing::NimbusdProcess a(dir / "a", args("A")), b(dir / "b", args("B"));
+  ASSERT_TRUE(a.Start().ok());
+  ASSERT_TRUE(b.Start().ok());
+  httplib::Client c("127.0.0.1", std::stoi(ReadAll(dir / "A.http")));
+  c.set_read_timeout(60, 0);
+  std::vector<std::string> ids;
+  for (int i = 0; i < 2; ++i) {
+    auto r = Http::Of(c.Post("/api/v1/jobs", SubmitBody(EndlessJob()), "application/json"));
+    ASSERT_EQ(r.status, 200) << r.body;
+    ids.push_back(Parse<v1::SubmitJobResponse>(r.body).job().id());
+  }
+  // One worker each: the two jobs run one on each replica.
+  std::string on_b;
+  for (int i = 0; i < 3000 && on_b.empty(); ++i) {
+    auto list = Parse<v1::ListJobsResponse>(Http::Of(c.Get("/api/v1/jobs?state=RUNNING")).body);
+    for (const v1::Job& j : list.jobs())
+      if (absl::StartsWith(j.worker(), "B/") && j.progress().done() > 0) on_b = j.id();
+    if (on_b.empty()) std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  ASSERT_FALSE(on_b.empty()) << "no job ran on replica B";
+  uint64_t first_done = 0, last_done = 0;
+  int previews = 0;
+  size_t seen = 0;
+  const std::string stream =
+      absl::StrCat("/api/v1/jobs/", on_b, "/stream?preview_resolution=16&preview_interval=0.2");
+  ReadEvents(c, stream, [&](const auto& events) {
+    for (; seen < events.size(); ++seen) {
+      const auto& [name, data] = events[seen];
+      if (name == "preview") ++previews;
+      if (name != "job") continue;
+      const v1::Job j = Parse<v1::Job>(data);
+      EXPECT_TRUE(absl::StartsWith(j.worker(), "B/"));
+      if (first_done == 0) first_done = j.progress().done();
+      last_done = j.progress().done();
+    }
+    return previews >= 2 && last_done > first_done;
+  });
+  EXPECT_GE(previews, 2);
+  EXPECT_GT(last_done, first_done);
+  auto png = Http::Of(c.Get(absl::StrCat("/api/v1/jobs/", on_b, "/preview.png?resolution=16")));
+  EXPECT_EQ(png.status, 200);
+  for (const std::string& id : ids)
+    Http::Of(c.Post(absl::StrCat("/api/v1/jobs/", id, "/cancel"), "{}", "application/json"));
 }
 
 }  // namespace
