@@ -1,5 +1,6 @@
 #include "client/nimbus_client.h"
 
+#include <grpcpp/generic/generic_stub.h>
 #include <grpcpp/grpcpp.h>
 
 #include <algorithm>
@@ -7,6 +8,7 @@
 #include <fstream>
 #include <condition_variable>
 #include <deque>
+#include <future>
 #include <mutex>
 #include <map>
 #include <thread>
@@ -122,6 +124,33 @@ absl::Status NimbusClient::WaitForReady(double seconds) {
   if (!impl_->channel->WaitForConnected(deadline))
     return absl::UnavailableError("no Nimbus server answered in time");
   return absl::OkStatus();
+}
+
+// Debian ships no health.proto; the request and response are one field
+// each: HealthCheckRequest.service (1, string), HealthCheckResponse.status
+// (1, enum), encoded and decoded here.
+absl::StatusOr<int> NimbusClient::Health(const std::string& service, double seconds) {
+  if (service.size() > 127) return absl::InvalidArgumentError("service: longer than 127 bytes");
+  std::string request;
+  if (!service.empty()) request = std::string("\x0a") + char(service.size()) + service;
+  grpc::Slice request_slice(request);
+  grpc::ByteBuffer request_bytes(&request_slice, 1), response_bytes;
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() +
+                   std::chrono::milliseconds(int64_t(seconds * 1000)));
+  std::promise<grpc::Status> finished;
+  grpc::GenericStub(impl_->channel)
+      .UnaryCall(&ctx, "/grpc.health.v1.Health/Check", grpc::StubOptions(), &request_bytes,
+                 &response_bytes, [&finished](grpc::Status s) { finished.set_value(s); });
+  if (auto s = finished.get_future().get(); !s.ok()) return FromGrpc(s);
+  std::vector<grpc::Slice> slices;
+  if (!response_bytes.Dump(&slices).ok()) return absl::DataLossError("unreadable health answer");
+  std::string bytes;
+  for (const grpc::Slice& piece : slices)
+    bytes.append(reinterpret_cast<const char*>(piece.begin()), piece.size());
+  if (bytes.empty()) return 0;  // UNKNOWN, the default value, is not sent
+  if (bytes.size() == 2 && bytes[0] == 0x08 && bytes[1] >= 0) return int(bytes[1]);
+  return absl::DataLossError("unexpected health answer");
 }
 
 absl::StatusOr<v1::Job> NimbusClient::Submit(const v1::JobSpec& spec,

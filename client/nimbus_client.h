@@ -90,6 +90,11 @@ class NimbusClient {
   /// Waits until the server answers, up to `seconds`.
   absl::Status WaitForReady(double seconds);
 
+  /// grpc.health.v1.Health/Check of `service` ("" is the whole server),
+  /// waiting at most `seconds`: the ServingStatus number (1 SERVING,
+  /// 2 NOT_SERVING). NOT_FOUND for a service the server does not know.
+  absl::StatusOr<int> Health(const std::string& service, double seconds);
+
  private:
   struct Impl;
   std::unique_ptr<Impl> impl_;

@@ -320,6 +320,7 @@ struct Options {
   std::string frames_dir;    // render
   std::string fetch_file;    // fetch
   std::string state_filter;  // jobs
+  std::string health_service;  // health
   int limit = 20;            // jobs
   WatchArgs watch;           // render, watch
   int body = 0;              // poke
@@ -693,6 +694,18 @@ int RunGet(const Options& o) {
   return 0;
 }
 
+// The server's grpc.health.v1 status: prints it, exits 0 only for SERVING
+// (a container or orchestrator probe).
+int RunHealth(const Options& o) {
+  auto conn = Connect(o.global);
+  if (!conn.ok()) return ExitFor(conn.status());
+  auto status = conn->client->Health(o.health_service, 5);
+  if (!status.ok()) return ExitFor(status.status());
+  static const char* const kNames[] = {"UNKNOWN", "SERVING", "NOT_SERVING", "SERVICE_UNKNOWN"};
+  std::cout << (*status >= 0 && *status < 4 ? kNames[*status] : "UNRECOGNISED") << "\n";
+  return *status == 1 ? 0 : kServerError;
+}
+
 int RunJobs(const Options& o) {
   auto conn = Connect(o.global);
   if (!conn.ok()) return ExitFor(conn.status());
@@ -867,6 +880,9 @@ std::vector<Command> AddCommands(CLI::App& app, Options& o) {
   auto* jobs = app.add_subcommand("jobs", "list jobs, newest first");
   jobs->add_option("--state", o.state_filter, "queued, running, succeeded, failed or cancelled");
   jobs->add_option("--limit", o.limit, "how many")->capture_default_str();
+  auto* health = app.add_subcommand("health", "print the server's gRPC health; exit 0 if SERVING");
+  health->add_option("--service", o.health_service,
+                     "a service (nimbus.v1.NimbusService follows the job store); default: the server");
   auto* cancel = app.add_subcommand("cancel", "cancel a queued or running job");
   cancel->add_option("job", o.job_id)->required();
   auto* poke = app.add_subcommand("poke", "push or drag a body of a running jelly job");
@@ -902,6 +918,7 @@ std::vector<Command> AddCommands(CLI::App& app, Options& o) {
           {fetch, RunFetch},
           {get, RunGet},
           {jobs, RunJobs},
+          {health, RunHealth},
           {cancel, RunCancel},
           {pin, [](const Options& o) { return RunPin(o, true); }},
           {unpin, [](const Options& o) { return RunPin(o, false); }},

@@ -11,8 +11,9 @@ PACKAGES=(
   # The shared job store of several replicas (libpqxx), and the throwaway
   # server its tests start (initdb, pg_ctl).
   libpqxx-dev postgresql
-  # The deploy/ manifest check (tests/deploy/validate_deploy.py).
-  python3-yaml
+  # The deploy/ manifest check (tests/deploy/validate_deploy.py), and the
+  # container image and its test (deploy/build_image.sh, deploy/test_containers.sh).
+  python3-yaml podman runc debootstrap
   libgtest-dev libgmock-dev libbenchmark-dev
   # Fractal fields: 16-bit PNG height maps; pictures (PNG, OpenEXR); libnoise
   # only for the benchmark's comparison (bench/fractal_field_bench.cc).

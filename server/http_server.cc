@@ -1,8 +1,10 @@
 #include "server/http_server.h"
 
+#include <grpcpp/generic/generic_stub.h>
 #include <spdlog/spdlog.h>
 #include <unistd.h>
 
+#include <future>
 #include <thread>
 
 #include "absl/strings/str_cat.h"
@@ -70,29 +72,62 @@ void SetSecurityHeaders(httplib::Response& res) {
                  "frame-ancestors 'none'; base-uri 'none'; form-action 'none'");
 }
 
+// grpc.health.v1.Health/Check of `service` ("" for the whole server),
+// asked through `channel` with the messages encoded by hand (field 1 of
+// the request is the service name, field 1 of the answer the status):
+// "SERVING", "NOT_SERVING", "SERVICE_UNKNOWN" or "UNKNOWN".
+std::string HealthStatus(std::shared_ptr<grpc::Channel> channel, const std::string& service) {
+  std::string request;
+  if (!service.empty())
+    request = absl::StrCat("\x0a", std::string(1, char(service.size())), service);
+  grpc::Slice slice(request);
+  grpc::ByteBuffer in(&slice, 1), out;
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(5));
+  grpc::GenericStub stub(std::move(channel));
+  std::promise<grpc::Status> done;
+  stub.UnaryCall(&ctx, "/grpc.health.v1.Health/Check", grpc::StubOptions(), &in, &out,
+                 [&done](grpc::Status st) { done.set_value(st); });
+  grpc::Status st = done.get_future().get();
+  std::vector<grpc::Slice> slices;
+  if (!st.ok() || !out.Dump(&slices).ok()) return "UNKNOWN";
+  std::string bytes;
+  for (const grpc::Slice& s : slices)
+    bytes.append(reinterpret_cast<const char*>(s.begin()), s.size());
+  const int status = bytes.size() == 2 && bytes[0] == 0x08 ? bytes[1] : 0;
+  switch (status) {
+    case 1:
+      return "SERVING";
+    case 2:
+      return "NOT_SERVING";
+    case 3:
+      return "SERVICE_UNKNOWN";
+    default:
+      return "UNKNOWN";
+  }
+}
+
 void RegisterOperatorRoutes(httplib::Server& server, ServiceMetrics* metrics,
-                            std::function<bool()> ready) {
+                            std::shared_ptr<grpc::Channel> channel) {
   server.Get("/metrics", [metrics](const httplib::Request&, httplib::Response& res) {
     res.set_content(metrics->Scrape(), "text/plain; version=0.0.4; charset=utf-8");
   });
-  // grpc.health.v1's statuses: the process serves (healthz), and the
-  // service is SERVING (readyz: NOT_SERVING once shutdown has begun).
-  server.Get("/healthz", [](const httplib::Request&, httplib::Response& res) {
-    res.set_content("{\"status\":\"SERVING\"}\n", "application/json");
-  });
-  server.Get("/readyz", [ready](const httplib::Request&, httplib::Response& res) {
-    const bool ok = ready();
-    res.status = ok ? 200 : 503;
-    res.set_content(ok ? "{\"status\":\"SERVING\"}\n" : "{\"status\":\"NOT_SERVING\"}\n",
-                    "application/json");
-  });
+  // grpc.health.v1 as it stands: the server overall (liveness), and
+  // nimbus.v1.NimbusService (readiness: NOT_SERVING while the job store
+  // does not answer and once shutdown has begun).
+  for (const auto& [path, service] : {std::pair<std::string, std::string>{"/healthz", ""},
+                                      {"/readyz", "nimbus.v1.NimbusService"}})
+    server.Get(path, [channel, service = service](const httplib::Request&, httplib::Response& res) {
+      const std::string status = HealthStatus(channel, service);
+      res.status = status == "SERVING" ? 200 : 503;
+      res.set_content(absl::StrCat("{\"status\":\"", status, "\"}\n"), "application/json");
+    });
 }
 
 }  // namespace
 
 absl::StatusOr<std::unique_ptr<HttpServer>> HttpServer::Start(
-    const HttpOptions& options, std::shared_ptr<grpc::Channel> channel, ServiceMetrics* metrics,
-    std::function<bool()> ready) {
+    const HttpOptions& options, std::shared_ptr<grpc::Channel> channel, ServiceMetrics* metrics) {
   auto server = MakeServer(options);
   if (!server.ok()) return server.status();
   auto impl = std::make_unique<Impl>();
@@ -108,7 +143,7 @@ absl::StatusOr<std::unique_ptr<HttpServer>> HttpServer::Start(
   impl->api->metrics = metrics;
   impl->api->max_streams = options.max_streams;
   http::RegisterApi(s, impl->api);
-  RegisterOperatorRoutes(s, metrics, std::move(ready));
+  RegisterOperatorRoutes(s, metrics, channel);
   std::error_code ec;
   if (!options.console_dir.empty() &&
       std::filesystem::is_regular_file(options.console_dir / "index.html", ec))

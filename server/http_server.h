@@ -40,12 +40,11 @@ struct HttpOptions {
 
 class HttpServer {
  public:
-  /// Binds and starts serving. `channel` reaches the gRPC service;
-  /// `ready` answers /readyz (the gRPC health status).
+  /// Binds and starts serving. `channel` reaches the gRPC service (and its
+  /// grpc.health.v1 service, which /healthz and /readyz ask).
   static absl::StatusOr<std::unique_ptr<HttpServer>> Start(const HttpOptions& options,
                                                            std::shared_ptr<grpc::Channel> channel,
-                                                           ServiceMetrics* metrics,
-                                                           std::function<bool()> ready);
+                                                           ServiceMetrics* metrics);
   ~HttpServer();
   int port() const;
   /// host:port as bound.

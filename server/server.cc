@@ -27,6 +27,7 @@
 #include "server/result_export.h"
 #include "server/result_store.h"
 #include "server/retention.h"
+#include "server/store_probe.h"
 #include "server/tls_files.h"
 #include "server/worker_pool.h"
 
@@ -43,8 +44,8 @@ struct NimbusServer::Impl {
   std::unique_ptr<RetentionSweeper> sweeper;
   std::unique_ptr<ServiceMetrics> metrics;
   std::unique_ptr<grpc::Server> server;
+  std::unique_ptr<StoreProbe> store_probe;  // destroyed before the server and store
   std::unique_ptr<HttpServer> http;
-  std::atomic<bool> serving{false};
   int port = 0;
   std::string address;
   std::mutex mu;
@@ -156,7 +157,6 @@ void ReportUnknownResults(JobStore& store, const std::filesystem::path& results_
 
 absl::StatusOr<std::unique_ptr<HttpServer>> StartHttp(grpc::Server& server,
                                                      ServiceMetrics* metrics,
-                                                     std::atomic<bool>* serving,
                                                      const ServerOptions& o) {
   HttpOptions http;
   http.listen = o.http_listen;
@@ -166,11 +166,34 @@ absl::StatusOr<std::unique_ptr<HttpServer>> StartHttp(grpc::Server& server,
   http.console_dir = o.console_dir.empty() ? DefaultConsoleDir() : o.console_dir;
   grpc::ChannelArguments args;
   args.SetMaxReceiveMessageSize(64 << 20);
-  return HttpServer::Start(http, server.InProcessChannel(args), metrics,
-                           [serving] { return serving->load(); });
+  return HttpServer::Start(http, server.InProcessChannel(args), metrics);
 }
 
 }  // namespace
+
+// Readiness follows the shared store: the service's health status is
+// NOT_SERVING while the store does not answer, SERVING again once it does.
+// The overall status (liveness) stays SERVING, so an orchestrator does not
+// restart every replica during a database outage.
+void NimbusServer::FollowStoreHealth(Impl& impl) {
+  grpc::HealthCheckServiceInterface* health = impl.server->GetHealthCheckService();
+  if (health == nullptr) return;
+  JobStore* store = impl.store.get();
+  constexpr int64_t kProbeMs = 1'000;
+  impl.store_probe = std::make_unique<StoreProbe>(
+      // A job id that never exists: NOT_FOUND is the store's answer.
+      [store] { return store->Get("~store-probe").status(); },
+      [health](bool up) {
+        health->SetServingStatus("nimbus.v1.NimbusService", up);
+        if (up) {
+          spdlog::info("event=store_reachable");
+        } else {
+          spdlog::warn("event=store_unreachable");
+        }
+      },
+      kProbeMs);
+  impl.store_probe->Start();
+}
 
 // The shared store's change feed: a submit on any replica wakes an idle
 // worker here at once, and watchers here of a job another replica runs get
@@ -320,9 +343,8 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
     health->SetServingStatus("nimbus.v1.NimbusService", true);
     health->SetServingStatus(true);
   }
-  impl->serving = true;
   if (!options.http_listen.empty()) {
-    auto http = StartHttp(*impl->server, impl->metrics.get(), &impl->serving, options);
+    auto http = StartHttp(*impl->server, impl->metrics.get(), options);
     if (!http.ok()) return http.status();
     impl->http = std::move(*http);
   }
@@ -331,7 +353,10 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
     const size_t colon = options.listen.rfind(':');
     impl->address = absl::StrCat(options.listen.substr(0, colon), ":", impl->port);
   }
-  if (shared_store) FollowOtherReplicas(*impl);
+  if (shared_store) {
+    FollowOtherReplicas(*impl);
+    FollowStoreHealth(*impl);
+  }
   impl->pool->Start();
   impl->sweeper->Start();
   spdlog::info(
@@ -369,8 +394,8 @@ void NimbusServer::Shutdown() {
     if (impl_->shut_down) return;
     impl_->shut_down = true;
   }
+  if (impl_->store_probe) impl_->store_probe->Stop();
   if (auto* health = impl_->server->GetHealthCheckService()) health->SetServingStatus(false);
-  impl_->serving = false;
   // Stop workers first so watchers see jobs go back to the queue, then
   // close the streams.
   // The feed's listener uses the pool and the hub: stop it first.

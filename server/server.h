@@ -118,6 +118,7 @@ class NimbusServer {
   struct Impl;
   explicit NimbusServer(std::unique_ptr<Impl> impl);
   static void FollowOtherReplicas(Impl& impl);
+  static void FollowStoreHealth(Impl& impl);
   std::unique_ptr<Impl> impl_;
 };
 

@@ -153,6 +153,48 @@ TEST(FlameImport, ImportedSpecsPassTheServersConverter) {
   EXPECT_TRUE(plan.ok()) << plan.status();
 }
 
+// flam3's xform (coefs and post given as "a d b e c f") maps a point by
+// x' = a x + b y + c, y' = d x + e y + f. A linear xform with a post is
+// post(pre(p)): pre (0.5, 0, 0, 0.5, 0.1, -0.4) gives (0.5x + 0.1,
+// 0.5y - 0.4); post (0, 1, -1, 0, 0.3, 0.2) then gives (-0.5y + 0.7,
+// 0.5x + 0.3). In Nimbus's plane (y mirrored, Y = -y) that is
+// X' = 0.5Y + 0.7, Y' = -0.5X - 0.3, one affine step.
+TEST(FlameImport, LinearXformWithPostIsPostAfterPre) {
+  auto got = ImportFlame(Flame("<xform weight=\"1\" color=\"0\" linear=\"1\" "
+                               "coefs=\"0.5 0 0 0.5 0.1 -0.4\" post=\"0 1 -1 0 0.3 0.2\"/>\n"),
+                         {});
+  ASSERT_TRUE(got.ok()) << got.status();
+  const v1::Map& m = got->spec.chaos_game().ifs().maps(0);
+  EXPECT_EQ(m.variations_size(), 0);
+  EXPECT_EQ(m.post_size(), 0);
+  ASSERT_EQ(m.steps_size(), 1);
+  const std::vector<double> want = {0, 0.5, 0, 0.7, -0.5, 0, 0, -0.3, 0, 0, 0, 0};
+  const std::vector<double> got_values = Values(m.steps(0));
+  ASSERT_EQ(got_values.size(), want.size());
+  for (size_t i = 0; i < want.size(); ++i) EXPECT_NEAR(got_values[i], want[i], 1e-12) << i;
+}
+
+// flam3's color_speed is the weight of the xform's colour in the blend
+// c' = (1 - s) c + s colour, given directly; without it symmetry gives
+// (1 - symmetry) / 2, so 0.5 by default.
+TEST(FlameImport, ColorSpeedIsTheBlend) {
+  auto got = ImportFlame(Flame("<xform weight=\"1\" color=\"0.5\" color_speed=\"0.3\" "
+                               "linear=\"1\" coefs=\"0.5 0 0 0.5 0 0\"/>\n"
+                               "<xform weight=\"1\" color=\"1\" color_speed=\"0.3\" "
+                               "linear=\"1\" coefs=\"0.5 0 0 0.5 0.5 0\"/>\n"),
+                         {});
+  ASSERT_TRUE(got.ok()) << got.status();
+  EXPECT_DOUBLE_EQ(got->spec.chaos_game().color().blend(), 0.3);
+  auto plan = spec::ConvertSpec(got->spec, spec::Limits{});
+  ASSERT_TRUE(plan.ok()) << plan.status();
+  ASSERT_NE(plan->point_run(), nullptr);
+  EXPECT_DOUBLE_EQ(plan->point_run()->color.blend, 0.3);
+  auto plain = ImportFlame(
+      Flame("<xform weight=\"1\" color=\"0.5\" linear=\"1\" coefs=\"0.5 0 0 0.5 0 0\"/>\n"), {});
+  ASSERT_TRUE(plain.ok()) << plain.status();
+  EXPECT_DOUBLE_EQ(plain->spec.chaos_game().color().blend(), 0.5);
+}
+
 struct BadCase {
   std::string xml, message;
 };

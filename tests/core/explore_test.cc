@@ -9,6 +9,7 @@
 #include "core/chaos/random_ifs.h"
 #include "core/grid/contact_sheet.h"
 #include "tests/support/contraction_oracle.h"
+#include "tests/support/look_oracles.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus {
@@ -247,6 +248,24 @@ TEST(ContactSheet, CopiesEachThumbnailIntoItsCell) {
   EXPECT_EQ(white, 8);  // the "1" glyph's pixels
   thumbs[2].width = 8;
   EXPECT_FALSE(ComposeContactSheet(thumbs, l, {}, false).ok());
+}
+
+// Coverage is the fraction of thumbnail pixels any point reached, counted
+// here from the developed thumbnail itself: with no glow and a background
+// no lit pixel can have, a lit pixel is one that differs from it.
+TEST(Explore, CoverageIsTheThumbnailsLitFraction) {
+  ExploreParams p = Small(2, 4);
+  p.look.glow = 0;
+  p.look.background = {-1, -1, -1};
+  p.min_coverage = 0.1;
+  const Explored run = Explore(p, 2);
+  ASSERT_EQ(run.kept.size(), 4u);
+  for (size_t i = 0; i < run.kept.size(); ++i) {
+    const double lit = testing::LitFraction(run.thumbs[i], p.look.background);
+    EXPECT_GE(lit, p.min_coverage) << i;
+    EXPECT_LT(lit, 1) << i;
+    EXPECT_DOUBLE_EQ(run.kept[i].coverage, lit) << "candidate " << i;
+  }
 }
 
 }  // namespace

@@ -1,7 +1,9 @@
 """Checks deploy/: every Kubernetes manifest parses as YAML and holds what
 deploy/README.md promises (probes on grpc.health.v1, the database URL from
-a Secret, a shared results volume, a dev PostgreSQL StatefulSet), and the
-Containerfile is multi-stage on Debian bookworm with a non-root user.
+a Secret, a shared results volume, a dev PostgreSQL StatefulSet), the
+Containerfile is multi-stage on Debian bookworm with a non-root user, and
+the manifests run the images as deploy/compose.sh (the tested containers)
+does: the same users, volumes, read-only root and health service.
 
     /usr/bin/python3 tests/deploy/validate_deploy.py deploy
 """
@@ -81,21 +83,78 @@ class Manifests(unittest.TestCase):
             self.assertTrue((DEPLOY / "k8s" / res).is_file(), res)
 
 
+def instructions(path):
+    """The Containerfile's instructions, continuation lines joined."""
+    text = path.read_text().replace("\\\n", " ")
+    return [l.strip() for l in text.splitlines() if l.strip() and not l.strip().startswith("#")]
+
+
+def last_user(path):
+    users = [l.split()[1] for l in instructions(path) if l.startswith("USER ")]
+    return int(users[-1].split(":")[0])
+
+
 class Containerfile(unittest.TestCase):
     def test_multi_stage_debian_non_root(self):
-        lines = [l.strip() for l in (DEPLOY / "Containerfile").read_text().splitlines()]
+        lines = instructions(DEPLOY / "Containerfile")
+        self.assertIn("ARG BASE=docker.io/library/debian:bookworm", lines)
         froms = [l for l in lines if l.startswith("FROM ")]
         self.assertGreaterEqual(len(froms), 2)
         for f in froms:
-            self.assertIn("debian:bookworm", f)
+            self.assertEqual(f.split()[1], "${BASE}", f)
         self.assertTrue(any(l.startswith("COPY --from=build") for l in lines))
-        users = [l for l in lines if l.startswith("USER ")]
-        self.assertTrue(users and not users[-1].split()[1].startswith(("root", "0")))
+        self.assertNotEqual(last_user(DEPLOY / "Containerfile"), 0)
 
-    def test_smoke_script_is_executable_and_skips_cleanly(self):
-        script = DEPLOY / "smoke_test.sh"
-        self.assertTrue(script.stat().st_mode & 0o111)
-        self.assertIn("SKIPPED", script.read_text())
+    def test_container_scripts_are_executable_and_never_skip(self):
+        for name in ("build_image.sh", "compose.sh", "test_containers.sh"):
+            script = DEPLOY / name
+            self.assertTrue(script.stat().st_mode & 0o111, name)
+        self.assertNotIn("SKIPPED", (DEPLOY / "test_containers.sh").read_text().replace(
+            "never reports SKIPPED", ""))
+
+
+class ManifestsMatchTheTestedContainers(unittest.TestCase):
+    docs = documents()
+    compose = (DEPLOY / "compose.sh").read_text()
+
+    def pod(self, kind, name):
+        return self.docs[(kind, name)]["spec"]["template"]["spec"]
+
+    def test_nimbusd_user_volumes_and_read_only_root(self):
+        pod = self.pod("Deployment", "nimbusd")
+        self.assertEqual(pod["securityContext"]["runAsUser"], last_user(DEPLOY / "Containerfile"))
+        (c,) = pod["containers"]
+        self.assertTrue(c["securityContext"]["readOnlyRootFilesystem"])
+        mounts = sorted(m["mountPath"] for m in c["volumeMounts"])
+        self.assertEqual(mounts, ["/results", "/tmp", "/var/lib/nimbus"])
+        volume_line = [l for l in instructions(DEPLOY / "Containerfile") if l.startswith("VOLUME")]
+        for path in ("/results", "/var/lib/nimbus"):
+            self.assertIn(f'"{path}"', volume_line[0])
+            self.assertIn(f':{path}"', self.compose)
+        self.assertIn("--tmpfs /tmp:", self.compose)
+        self.assertIn("--read-only", self.compose)
+        for arg in ("--data-dir=/var/lib/nimbus", "--results-dir=/results"):
+            self.assertIn(arg, c["args"])
+            self.assertIn(arg.replace("=", " "), self.compose)
+
+    def test_same_health_service_and_store_variable(self):
+        (c,) = self.pod("Deployment", "nimbusd")["containers"]
+        service = c["readinessProbe"]["grpc"]["service"]
+        self.assertIn(f"health_service={service}", self.compose)
+        self.assertIn("NIMBUS_STORE_URL=", self.compose)
+        self.assertIn("NIMBUS_STORE_URL", {e["name"] for e in c["env"]})
+
+    def test_dev_postgres_runs_the_image_of_deploy_postgres(self):
+        pod = self.pod("StatefulSet", "nimbus-postgres")
+        self.assertEqual(pod["securityContext"]["runAsUser"],
+                         last_user(DEPLOY / "postgres" / "Containerfile"))
+        (c,) = pod["containers"]
+        self.assertTrue(c["image"].startswith("nimbus-postgres:"))
+        env = {e["name"] for e in c["env"]}
+        self.assertLessEqual({"NIMBUS_DB_PASSWORD", "NIMBUS_DB_LISTEN"}, env)
+        entrypoint = (DEPLOY / "postgres" / "entrypoint.sh").read_text()
+        for name in env:
+            self.assertIn(f"${name}", entrypoint.replace("{", "").replace("}", ""))
 
 
 if __name__ == "__main__":

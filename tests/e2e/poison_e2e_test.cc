@@ -81,7 +81,11 @@ TEST_F(PoisonE2E, DamagedVdbIsRefusedAtUploadAndAtSubmit) {
   // Uploaded without a format, it is kept; a spec that reads it as a grid
   // is refused at submit, naming the field.
   ASSERT_TRUE(Upload("blob", cut).ok());
+  // Its other assets uploaded: a network server never reads a path.
+  const std::string cow = testing::ReadFileBytes(testing::SourcePath("examples/meshes/cow.obj"));
+  ASSERT_TRUE(Upload("cow.obj", cow).ok());
   v1::JobSpec spec = CowCloud();
+  spec::ForEachAsset(spec, [&](const std::string&, v1::Asset& a) { a.set_sha256(Sha256Hex(cow)); });
   v1::GridSource* grid =
       spec.mutable_set_ifs()->mutable_maps(0)->mutable_condensation()->mutable_grid();
   grid->mutable_asset()->set_sha256(sha);

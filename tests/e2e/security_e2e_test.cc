@@ -407,5 +407,25 @@ TEST_F(SecurityE2E, CliSpeaksTlsSendsTheTokenAndPinsAndDeletes) {
   EXPECT_EQ((*c)->Get(id).status().code(), absl::StatusCode::kNotFound);
 }
 
+// The result cache answers a principal only from its own jobs
+// (docs/result_cache.md): alice's resubmission is a hit, bob's submission
+// of the very same spec runs on its own.
+TEST_F(SecurityE2E, TheCacheNeverAnswersOnePrincipalWithAnothersResult) {
+  StartWithTokens();
+  auto alice = As(kAlice), bob = As(kBob);
+  const v1::Job first = Run(*alice, SmallJob());
+  auto hit = alice->Submit(SmallJob());
+  ASSERT_TRUE(hit.ok()) << hit.status();
+  EXPECT_EQ(hit->cached_from(), first.id());
+  auto other = bob->Submit(SmallJob());
+  ASSERT_TRUE(other.ok()) << other.status();
+  EXPECT_EQ(other->owner(), "bob");
+  EXPECT_EQ(other->cached_from(), "") << "bob was answered with alice's result";
+  auto done = bob->Watch(other->id(), {}, [](const v1::WatchJobResponse&) {});
+  ASSERT_TRUE(done.ok()) << done.status();
+  EXPECT_EQ(done->state(), v1::JOB_STATE_SUCCEEDED);
+  EXPECT_EQ(done->cached_from(), "");
+}
+
 }  // namespace
 }  // namespace nimbus

@@ -3,6 +3,9 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <cmath>
+
 #include "absl/strings/str_cat.h"
 #include "core/io/image_io.h"
 #include "core/io/vdb_io.h"
@@ -129,6 +132,55 @@ TEST(ImageRunner, PictureBesideTheVolumeWithAutoFrame) {
   EXPECT_EQ(exr->height, 40);
   auto grids = ReadVdbFile(ctx.result());
   ASSERT_TRUE(grids.ok()) << grids.status();
+}
+
+// Two near-constant maps chosen 80 % and 20 % of the time light two pixels
+// of a 2 x 2 grey picture with densities in the ratio 4 : 1 (N = 10^6
+// points: the counts are 800 000 and 200 000 to within 0.2 %). The spec's
+// tone mapping, worked by hand, gives the dimmer pixel
+//   LOG    ln(1 + 200 000) / ln(1 + 800 000) = 0.898,
+//   LINEAR 1/4,   GAMMA 2.2: (1/4)^(1/2.2) = 0.533,   SQRT: 0 (the faintest);
+// the brighter one is 1.
+TEST(ImageRunner, TheSpecsToneMappingShadesThePicture) {
+  struct Case {
+    const char* tone;
+    double dim;
+  };
+  for (const Case c : {Case{"TONE_MAPPING_LOG", std::log(200001.0) / std::log(800001.0)},
+                       Case{"TONE_MAPPING_LINEAR", 0.25},
+                       Case{"TONE_MAPPING_GAMMA", std::pow(0.25, 1 / 2.2)},
+                       Case{"TONE_MAPPING_SQRT", 0}}) {
+    SCOPED_TRACE(c.tone);
+    auto plan = Convert(absl::StrCat(R"({"name": "two", "grid": {"resolution": [8, 8, 2],
+        "bounds_min": {"x": 0, "y": 0, "z": -0.1}, "bounds_max": {"x": 1, "y": 1, "z": 0.1}},
+      "chaos_game": {"ifs": {"probability_mode": "PROBABILITY_MODE_EXPLICIT", "maps": [
+          {"probability": 0.8, "steps": [{"translate": {"x": 0.25, "y": 0.25}},
+                                         {"scale": {"uniform": 0.001}}]},
+          {"probability": 0.2, "steps": [{"translate": {"x": 0.75, "y": 0.75}},
+                                         {"scale": {"uniform": 0.001}}]}]},
+        "iterations": "1000000", "seed": "3"},
+      "image": {"width": 2, "height": 2, "image_only": true, "format": "IMAGE_FORMAT_PNG16",
+                "look": {"tone_mapping": ")",
+                                     c.tone, R"("}}})"));
+    ASSERT_TRUE(plan.ok()) << plan.status();
+    testing::FakeJobContext ctx;
+    ASSERT_TRUE(server::RunJobPlan(*plan, ctx).ok());
+    auto png = ReadPngPixels(ctx.result());
+    ASSERT_TRUE(png.ok()) << png.status();
+    ASSERT_EQ(png->width * png->height, 4);
+    std::vector<double> v;
+    for (int p = 0; p < 4; ++p) {
+      uint16_t top = 0;
+      for (int k = 0; k < png->channels; ++k)
+        top = std::max(top, png->samples[size_t(p * png->channels + k)]);
+      v.push_back(top / 65535.0);
+    }
+    std::sort(v.rbegin(), v.rend());
+    EXPECT_NEAR(v[0], 1, 1e-9);
+    EXPECT_NEAR(v[1], c.dim, 2e-3);
+    EXPECT_EQ(v[2], 0);
+    EXPECT_EQ(v[3], 0);
+  }
 }
 
 }  // namespace

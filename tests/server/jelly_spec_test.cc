@@ -16,6 +16,7 @@
 #include "server/memory_admission.h"
 #include "server/result_store.h"
 #include "tests/support/fake_job_context.h"
+#include "tests/support/jelly_oracles.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus::spec {
@@ -234,6 +235,132 @@ TEST(JellyRunner, SpecImpulsesActAtTheirFrame) {
   // fake context writes no hash, so frames before 5 are the same bytes.
   for (int f = 0; f < 5; ++f) EXPECT_EQ(plain[f], kicked[f]) << f;
   for (int f = 5; f < 8; ++f) EXPECT_NE(plain[f], kicked[f]) << f;
+}
+
+// One body and a grid of 1 cm voxels: VRR depth 1 from the origin puts the
+// frame's single leaf at the body's position (its map applied to the
+// origin is its translation), so the one lit voxel shows where it is.
+v1::JobSpec OneBody(const std::string& body, const std::string& world, const std::string& grid,
+                    int frames, int substeps) {
+  auto spec = ParseSpec(R"({"name": "one", "grid": )" + grid + R"(,
+    "jelly": {"bodies": [)" + body + "], " + world + R"(, "frames": )" +
+                            std::to_string(frames) + R"(, "fps": 10, "substeps": )" +
+                            std::to_string(substeps) + R"(, "depth": 1}})",
+                        SpecFormat::kJson);
+  EXPECT_TRUE(spec.ok()) << spec.status();
+  return spec.ok() ? *spec : v1::JobSpec();
+}
+
+// Runs a OneBody spec; its frames stay in the context's folder.
+std::unique_ptr<nimbus::testing::FakeJobContext> RunOneBody(const v1::JobSpec& spec) {
+  auto ctx = std::make_unique<nimbus::testing::FakeJobContext>();
+  auto job = ConvertSpec(spec, {});
+  EXPECT_TRUE(job.ok()) << job.status();
+  if (job.ok()) EXPECT_TRUE(server::RunJobPlan(*job, *ctx).ok());
+  return ctx;
+}
+
+struct LitVoxel {
+  Vec3 centre, velocity;
+  int lit = 0;
+};
+
+// The lit voxels of frame `f` of a finished run: their count, and the
+// world centre and velocity of the last one.
+LitVoxel FrameLeaf(const std::filesystem::path& dir, uint64_t f) {
+  LitVoxel out;
+  const auto path = dir / server::FrameFileName("one", f);
+  auto d = ReadVdbFile(path);
+  auto v = ReadVec3VdbFile(path, "v");
+  EXPECT_TRUE(d.ok() && v.ok()) << path;
+  if (!d.ok() || !v.ok()) return out;
+  const Int3 r = d->frame.resolution;
+  for (int x = 0; x < r.x; ++x)
+    for (int y = 0; y < r.y; ++y)
+      for (int z = 0; z < r.z; ++z) {
+        if (!(d->At(x, y, z) > 0)) continue;
+        ++out.lit;
+        out.centre = {d->origin_center.x + x * d->voxel_size.x,
+                      d->origin_center.y + y * d->voxel_size.y,
+                      d->origin_center.z + z * d->voxel_size.z};
+        out.velocity = v->At(x, y, z);
+      }
+  return out;
+}
+
+// Dropped from 1.5 m (dt = 10 ms) onto a ground at 0.5 with radius 0.1 and
+// no bounce: frame f (n = 10 f steps) is at 1.5 - g·dt²·n(n+1)/2 until the
+// step the fall reaches 0.6, then rests at 0.6; the velocity grid holds
+// the frame-to-frame difference times the frame rate.
+TEST(JellyRunner, ADroppedBodyFallsAndRestsWhereTheClosedFormSays) {
+  const v1::JobSpec spec = OneBody(
+      R"({"radius": 0.1, "scale": {"uniform": 0.5}, "position": {"y": 1.5}})",
+      R"("ground": {"height": 0.5, "restitution": 0, "friction": 0})",
+      R"({"resolution": [4, 200, 4], "bounds_min": {"x": -0.02, "y": 0, "z": -0.02},
+          "bounds_max": {"x": 0.02, "y": 2, "z": 0.02}})",
+      10, 10);
+  const auto ctx = RunOneBody(spec);
+  const auto dir = server::ExtraFilesDir(ctx->result());
+  const double g = 9.81, dt = 0.01;
+  const uint64_t land = nimbus::testing::SymplecticLandingStep(1.5, 0.6, g, dt);
+  ASSERT_GT(land, 40u);
+  ASSERT_LT(land, 50u);
+  auto height = [&](uint64_t n) {
+    return n < land ? nimbus::testing::SymplecticFallHeight(1.5, g, dt, n) : 0.6;
+  };
+  for (uint64_t f = 0; f < 10; ++f) {
+    SCOPED_TRACE(::testing::Message() << "frame " << f);
+    const LitVoxel leaf = FrameLeaf(dir, f);
+    ASSERT_EQ(leaf.lit, 1);
+    EXPECT_NEAR(leaf.centre.y, height(10 * f), 0.005 + 1e-6);
+    EXPECT_NEAR(leaf.centre.x, 0, 0.005 + 1e-6);
+    const double vy = f == 0 ? 0 : (height(10 * f) - height(10 * (f - 1))) * 10;
+    EXPECT_NEAR(leaf.velocity.y, vy, 1e-4);
+  }
+}
+
+// A body of mass 1 on an anchored spring of k = 4 (ω = 2 rad/s), released
+// 0.3 from the anchor with no gravity: x(t) = 0.3·cos(2t); 1.5 s is most
+// of a half period, so the body swings through the anchor to the far side.
+TEST(JellyRunner, ABodyOnASpringSwingsAsTheHarmonicOscillator) {
+  const v1::JobSpec spec = OneBody(
+      R"({"scale": {"uniform": 0.5}, "position": {"x": 0.3, "y": 1}})",
+      R"("gravity": {}, "springs": [{"body_a": 0, "anchor": {"y": 1}, "rest_length": 0,
+          "stiffness": 4}])",
+      R"({"resolution": [80, 4, 4], "bounds_min": {"x": -0.4, "y": 0.98, "z": -0.02},
+          "bounds_max": {"x": 0.4, "y": 1.02, "z": 0.02}})",
+      16, 50);
+  const auto ctx = RunOneBody(spec);
+  const auto dir = server::ExtraFilesDir(ctx->result());
+  for (uint64_t f = 0; f < 16; ++f) {
+    SCOPED_TRACE(::testing::Message() << "frame " << f);
+    const LitVoxel leaf = FrameLeaf(dir, f);
+    ASSERT_EQ(leaf.lit, 1);
+    // Half a voxel, plus symplectic Euler's amplitude error 0.3·ω·dt/2.
+    EXPECT_NEAR(leaf.centre.x, 0.3 * std::cos(2 * 0.1 * double(f)), 0.005 + 0.002);
+  }
+}
+
+// A spec impulse J = 0.2 on a body of mass 2 at rest, with no gravity,
+// shown first by frame 3: the body stays until frame 2, then moves at
+// J/m = 0.1 m/s, 1 cm per frame at 10 fps, and the velocity grid says so.
+TEST(JellyRunner, ASpecImpulseStartsTheBodyAtImpulseOverMass) {
+  const v1::JobSpec spec = OneBody(
+      R"({"mass": 2, "scale": {"uniform": 0.5}, "position": {"y": 1}})",
+      R"("gravity": {}, "impulses": [{"frame": 3, "push": {"body": 0, "impulse": {"x": 0.2}}}])",
+      R"({"resolution": [16, 2, 2], "bounds_min": {"x": -0.01, "y": 0.995, "z": -0.005},
+          "bounds_max": {"x": 0.07, "y": 1.005, "z": 0.005}})",
+      8, 10);
+  const auto ctx = RunOneBody(spec);
+  const auto dir = server::ExtraFilesDir(ctx->result());
+  for (uint64_t f = 0; f < 8; ++f) {
+    SCOPED_TRACE(::testing::Message() << "frame " << f);
+    const LitVoxel leaf = FrameLeaf(dir, f);
+    ASSERT_EQ(leaf.lit, 1);
+    const double x = f < 3 ? 0 : 0.01 * double(f - 2);
+    EXPECT_NEAR(leaf.centre.x, x, 0.0025 + 1e-6);
+    EXPECT_NEAR(leaf.velocity.x, f < 3 ? 0 : 0.1, 1e-5);
+  }
 }
 
 }  // namespace

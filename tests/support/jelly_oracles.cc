@@ -1,5 +1,6 @@
 #include "tests/support/jelly_oracles.h"
 
+#include <algorithm>
 #include <cmath>
 
 namespace nimbus::testing {
@@ -35,6 +36,20 @@ Vec3 VrrLeafByAddress(const std::vector<Affine3>& maps, uint32_t depth,
     word /= maps.size();
   }
   return p;
+}
+
+double SymplecticFallHeight(double y0, double g, double dt, uint64_t n) {
+  const double steps = double(n);
+  return y0 - g * dt * dt * steps * (steps + 1) / 2;
+}
+
+uint64_t SymplecticLandingStep(double y0, double floor, double g, double dt) {
+  // The largest n with y_n >= floor solves g·dt²·n(n+1)/2 = y0 - floor.
+  const double drop = 2 * (y0 - floor) / (g * dt * dt);
+  uint64_t n = uint64_t(std::max(0.0, std::floor((std::sqrt(1 + 4 * drop) - 1) / 2)));
+  while (SymplecticFallHeight(y0, g, dt, n) >= floor) ++n;
+  while (n > 1 && SymplecticFallHeight(y0, g, dt, n - 1) < floor) --n;
+  return n;
 }
 
 }  // namespace nimbus::testing
