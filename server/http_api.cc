@@ -19,21 +19,33 @@ constexpr int kCallSeconds = 60;
 
 int HttpCode(grpc::StatusCode code) {
   switch (code) {
-    case grpc::OK: return 200;
+    case grpc::OK:
+      return 200;
     case grpc::INVALID_ARGUMENT:
-    case grpc::OUT_OF_RANGE: return 400;
-    case grpc::UNAUTHENTICATED: return 401;
-    case grpc::PERMISSION_DENIED: return 403;
-    case grpc::NOT_FOUND: return 404;
+    case grpc::OUT_OF_RANGE:
+      return 400;
+    case grpc::UNAUTHENTICATED:
+      return 401;
+    case grpc::PERMISSION_DENIED:
+      return 403;
+    case grpc::NOT_FOUND:
+      return 404;
     case grpc::ALREADY_EXISTS:
     case grpc::ABORTED:
-    case grpc::FAILED_PRECONDITION: return 409;
-    case grpc::RESOURCE_EXHAUSTED: return 429;
-    case grpc::CANCELLED: return 499;
-    case grpc::UNIMPLEMENTED: return 501;
-    case grpc::UNAVAILABLE: return 503;
-    case grpc::DEADLINE_EXCEEDED: return 504;
-    default: return 500;
+    case grpc::FAILED_PRECONDITION:
+      return 409;
+    case grpc::RESOURCE_EXHAUSTED:
+      return 429;
+    case grpc::CANCELLED:
+      return 499;
+    case grpc::UNIMPLEMENTED:
+      return 501;
+    case grpc::UNAVAILABLE:
+      return 503;
+    case grpc::DEADLINE_EXCEEDED:
+      return 504;
+    default:
+      return 500;
   }
 }
 
@@ -75,8 +87,8 @@ bool ParseBody(const httplib::Request& req, httplib::Response& res, google::prot
   auto st = google::protobuf::util::JsonStringToMessage(req.body, &m, options);
   if (st.ok()) return true;
   SendError(res, grpc::INVALID_ARGUMENT,
-            absl::StrCat("body: not a ", m.GetDescriptor()->full_name(), " in JSON: ",
-                         std::string(st.message())));
+            absl::StrCat("body: not a ", m.GetDescriptor()->full_name(),
+                         " in JSON: ", std::string(st.message())));
   return false;
 }
 
@@ -153,7 +165,8 @@ grpc::Status FindFile(ApiState& s, const httplib::Request& req, const std::strin
   const v1::ResultInfo& result = job.job().result();
   if (name.empty()) {
     if (result.file_name().empty())
-      return grpc::Status(grpc::FAILED_PRECONDITION, absl::StrCat("job ", id, " has no result yet"));
+      return grpc::Status(grpc::FAILED_PRECONDITION,
+                          absl::StrCat("job ", id, " has no result yet"));
     out = {result.file_name(), result.size_bytes(), result.sha256()};
     return grpc::Status::OK;
   }
@@ -162,8 +175,8 @@ grpc::Status FindFile(ApiState& s, const httplib::Request& req, const std::strin
       out = {f.file_name(), f.size_bytes(), f.sha256()};
       return grpc::Status::OK;
     }
-  return grpc::Status(grpc::NOT_FOUND, absl::StrCat("job ", id, " has no result file ",
-                                                    JsonEscaped(name)));
+  return grpc::Status(grpc::NOT_FOUND,
+                      absl::StrCat("job ", id, " has no result file ", JsonEscaped(name)));
 }
 
 // Streams [offset, offset + length) of the file through FetchResult.
@@ -289,7 +302,8 @@ void RegisterApi(httplib::Server& server, std::shared_ptr<ApiState> s) {
     constexpr absl::string_view kJobs = "/api/v1/jobs/";
     if (req.path.rfind(kJobs.data(), 0) != 0) return httplib::Server::HandlerResponse::Unhandled;
     const std::string rest = req.path.substr(kJobs.size());
-    if (PlausibleId(rest.substr(0, rest.find('/')))) return httplib::Server::HandlerResponse::Unhandled;
+    if (PlausibleId(rest.substr(0, rest.find('/'))))
+      return httplib::Server::HandlerResponse::Unhandled;
     SendError(res, grpc::NOT_FOUND, "no such job");
     return httplib::Server::HandlerResponse::Handled;
   });
@@ -318,14 +332,16 @@ void RegisterApi(httplib::Server& server, std::shared_ptr<ApiState> s) {
   server.Get(job + "/files/([^/]+)", [s](const httplib::Request& req, httplib::Response& res) {
     Download(s, req, res, req.matches[2]);
   });
-  server.Get(job + "/preview.png", [s](const auto& req, auto& res) { Preview(*s, req, res, true); });
+  server.Get(job + "/preview.png",
+             [s](const auto& req, auto& res) { Preview(*s, req, res, true); });
   server.Get(job + "/preview.density",
              [s](const auto& req, auto& res) { Preview(*s, req, res, false); });
   // What this server offers beyond the job calls, so clients (the console)
   // show the queue's pages only where the server has them.
   server.Get("/api/v1/info", [](const httplib::Request&, httplib::Response& res) {
-    res.set_content("{\"api\":\"v1\",\"features\":[\"jobs\",\"previews\",\"stream\",\"metrics\"]}\n",
-                    "application/json");
+    res.set_content(
+        "{\"api\":\"v1\",\"features\":[\"jobs\",\"previews\",\"stream\",\"metrics\"]}\n",
+        "application/json");
   });
   server.Get("/api/v1/workers", [](const httplib::Request&, httplib::Response& res) {
     SendError(res, grpc::UNIMPLEMENTED, "no worker registry on this server");
@@ -333,9 +349,12 @@ void RegisterApi(httplib::Server& server, std::shared_ptr<ApiState> s) {
   RegisterStreams(server, s);
   server.set_error_handler([](const httplib::Request& req, httplib::Response& res) {
     if (!res.body.empty()) return;
-    if (res.status == 404) SendError(res, grpc::NOT_FOUND, "no such path");
-    else if (res.status == 413) SendError(res, grpc::RESOURCE_EXHAUSTED, "request body too large");
-    else return;
+    if (res.status == 404)
+      SendError(res, grpc::NOT_FOUND, "no such path");
+    else if (res.status == 413)
+      SendError(res, grpc::RESOURCE_EXHAUSTED, "request body too large");
+    else
+      return;
     if (res.status == 429) res.status = 413;
   });
 }

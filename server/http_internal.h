@@ -2,13 +2,12 @@
 // the shared state of its handlers and the helpers between them.
 #pragma once
 
+#include <grpcpp/grpcpp.h>
 #include <httplib.h>
 
 #include <atomic>
 #include <memory>
 #include <string>
-
-#include <grpcpp/grpcpp.h>
 
 #include "absl/status/statusor.h"
 #include "nimbus/v1/nimbus_service.grpc.pb.h"

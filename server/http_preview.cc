@@ -38,8 +38,7 @@ absl::StatusOr<v1::Preview> LatestPreview(ApiState& state, const httplib::Reques
   }
   grpc::Status st = reader->Finish();
   if (found) return std::move(*found);
-  if (st.error_code() == grpc::DEADLINE_EXCEEDED || st.ok() ||
-      st.error_code() == grpc::CANCELLED)
+  if (st.error_code() == grpc::DEADLINE_EXCEEDED || st.ok() || st.error_code() == grpc::CANCELLED)
     return absl::NotFoundError(absl::StrCat("job ", job_id, " has no preview at resolution ",
                                             resolution, " (previews exist while a job runs)"));
   return absl::Status(absl::StatusCode(st.error_code()), st.error_message());

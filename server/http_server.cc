@@ -55,9 +55,9 @@ absl::StatusOr<std::unique_ptr<httplib::Server>> MakeServer(const HttpOptions& o
       o.tls_cert_file.c_str(), o.tls_key_file.c_str(),
       o.tls_client_ca_file.empty() ? nullptr : o.tls_client_ca_file.c_str());
   if (!server->is_valid())
-    return absl::InvalidArgumentError(absl::StrCat(
-        "--http: cannot serve HTTPS with --tls-cert ", o.tls_cert_file, " and --tls-key ",
-        o.tls_key_file));
+    return absl::InvalidArgumentError(absl::StrCat("--http: cannot serve HTTPS with --tls-cert ",
+                                                   o.tls_cert_file, " and --tls-key ",
+                                                   o.tls_key_file));
   return server;
 }
 
@@ -155,7 +155,8 @@ absl::StatusOr<std::unique_ptr<HttpServer>> HttpServer::Start(
   if (colon == std::string::npos)
     return absl::InvalidArgumentError(absl::StrCat("--http ", options.listen, ": not host:port"));
   std::string host = options.listen.substr(0, colon);
-  if (host.size() > 1 && host.front() == '[' && host.back() == ']') host = host.substr(1, host.size() - 2);
+  if (host.size() > 1 && host.front() == '[' && host.back() == ']')
+    host = host.substr(1, host.size() - 2);
   int port = 0;
   try {
     port = std::stoi(options.listen.substr(colon + 1));

@@ -104,9 +104,9 @@ void OpenStream(std::shared_ptr<ApiState> state, const httplib::Request& req,
   stream->reader = state->stub->WatchJob(stream->ctx.get(), watch);
   res.set_header("Cache-Control", "no-store");
   res.set_header("X-Accel-Buffering", "no");
-  res.set_chunked_content_provider(
-      "text/event-stream",
-      [stream](size_t, httplib::DataSink& sink) { return Pump(*stream, sink); });
+  res.set_chunked_content_provider("text/event-stream", [stream](size_t, httplib::DataSink& sink) {
+    return Pump(*stream, sink);
+  });
 }
 
 }  // namespace

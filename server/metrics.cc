@@ -26,11 +26,16 @@ using Clock = std::chrono::steady_clock;
 
 const char* StateLabel(JobState s) {
   switch (s) {
-    case JobState::kQueued: return "queued";
-    case JobState::kRunning: return "running";
-    case JobState::kSucceeded: return "succeeded";
-    case JobState::kFailed: return "failed";
-    case JobState::kCancelled: return "cancelled";
+    case JobState::kQueued:
+      return "queued";
+    case JobState::kRunning:
+      return "running";
+    case JobState::kSucceeded:
+      return "succeeded";
+    case JobState::kFailed:
+      return "failed";
+    case JobState::kCancelled:
+      return "cancelled";
   }
   return "unknown";
 }
@@ -65,29 +70,62 @@ struct ServiceMetrics::Impl {
   JobStore* store;
   prometheus::Registry registry;
   prometheus::Family<prometheus::Gauge>& jobs =
-      prometheus::BuildGauge().Name("nimbus_jobs").Help("Jobs in the store by state and kind (shards not counted)").Register(registry);
-  prometheus::Family<prometheus::Gauge>& queue_depth =
-      prometheus::BuildGauge().Name("nimbus_queue_depth").Help("Jobs waiting for a worker").Register(registry);
+      prometheus::BuildGauge()
+          .Name("nimbus_jobs")
+          .Help("Jobs in the store by state and kind (shards not counted)")
+          .Register(registry);
+  prometheus::Family<prometheus::Gauge>& queue_depth = prometheus::BuildGauge()
+                                                           .Name("nimbus_queue_depth")
+                                                           .Help("Jobs waiting for a worker")
+                                                           .Register(registry);
   prometheus::Family<prometheus::Histogram>& duration =
-      prometheus::BuildHistogram().Name("nimbus_job_duration_seconds").Help("Run time of jobs seen to end, from their last start to their end, by kind").Register(registry);
+      prometheus::BuildHistogram()
+          .Name("nimbus_job_duration_seconds")
+          .Help("Run time of jobs seen to end, from their last start to their end, by kind")
+          .Register(registry);
   prometheus::Family<prometheus::Counter>& work =
-      prometheus::BuildCounter().Name("nimbus_job_work_units_total").Help("Work units (points, set iterations, pages, frames, steps) of succeeded jobs, by kind").Register(registry);
+      prometheus::BuildCounter()
+          .Name("nimbus_job_work_units_total")
+          .Help(
+              "Work units (points, set iterations, pages, frames, steps) of succeeded jobs, by "
+              "kind")
+          .Register(registry);
   prometheus::Family<prometheus::Counter>& preview_bytes =
-      prometheus::BuildCounter().Name("nimbus_http_preview_bytes_total").Help("Preview bytes (PNG and density) sent by the HTTP port").Register(registry);
+      prometheus::BuildCounter()
+          .Name("nimbus_http_preview_bytes_total")
+          .Help("Preview bytes (PNG and density) sent by the HTTP port")
+          .Register(registry);
   prometheus::Family<prometheus::Counter>& download_bytes =
-      prometheus::BuildCounter().Name("nimbus_http_download_bytes_total").Help("Result bytes sent by the HTTP port").Register(registry);
+      prometheus::BuildCounter()
+          .Name("nimbus_http_download_bytes_total")
+          .Help("Result bytes sent by the HTTP port")
+          .Register(registry);
   prometheus::Family<prometheus::Counter>& refusals =
-      prometheus::BuildCounter().Name("nimbus_admission_refusals_total").Help("SubmitJob calls refused, by status code").Register(registry);
+      prometheus::BuildCounter()
+          .Name("nimbus_admission_refusals_total")
+          .Help("SubmitJob calls refused, by status code")
+          .Register(registry);
   prometheus::Family<prometheus::Histogram>& store_latency =
-      prometheus::BuildHistogram().Name("nimbus_store_call_duration_seconds").Help("Job store calls made by the metrics collector, by call").Register(registry);
+      prometheus::BuildHistogram()
+          .Name("nimbus_store_call_duration_seconds")
+          .Help("Job store calls made by the metrics collector, by call")
+          .Register(registry);
   prometheus::Family<prometheus::Counter>& grpc_calls =
-      prometheus::BuildCounter().Name("nimbus_grpc_calls_total").Help("gRPC calls by method and status code (HTTP API calls included)").Register(registry);
+      prometheus::BuildCounter()
+          .Name("nimbus_grpc_calls_total")
+          .Help("gRPC calls by method and status code (HTTP API calls included)")
+          .Register(registry);
   prometheus::Family<prometheus::Histogram>& grpc_latency =
-      prometheus::BuildHistogram().Name("nimbus_grpc_call_duration_seconds").Help("gRPC call duration by method").Register(registry);
-  prometheus::Family<prometheus::Gauge>& workers =
-      prometheus::BuildGauge().Name("nimbus_workers_alive").Help("Job workers of this replica").Register(registry);
+      prometheus::BuildHistogram()
+          .Name("nimbus_grpc_call_duration_seconds")
+          .Help("gRPC call duration by method")
+          .Register(registry);
+  prometheus::Family<prometheus::Gauge>& workers = prometheus::BuildGauge()
+                                                       .Name("nimbus_workers_alive")
+                                                       .Help("Job workers of this replica")
+                                                       .Register(registry);
 
-  std::mutex scrape_mu;  // one scrape at a time: the caches below
+  std::mutex scrape_mu;                                  // one scrape at a time: the caches below
   std::unordered_map<std::string, std::string> kind_of;  // job id -> kind
   std::set<std::string> ended;                           // job ids observed ended
   std::set<std::pair<std::string, std::string>> job_labels;
@@ -119,7 +157,8 @@ void ServiceMetrics::Impl::RefreshJobs() {
       seen_ended.insert(r.id);
       if (ended.count(r.id)) continue;
       if (r.start_time > 0 && r.end_time >= r.start_time)
-        duration.Add({{"kind", kind}}, DurationBuckets()).Observe((r.end_time - r.start_time) / 1e3);
+        duration.Add({{"kind", kind}}, DurationBuckets())
+            .Observe((r.end_time - r.start_time) / 1e3);
       if (r.state == JobState::kSucceeded)
         work.Add({{"kind", kind}}).Increment(double(r.progress_done));
     }

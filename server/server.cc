@@ -155,9 +155,8 @@ void ReportUnknownResults(JobStore& store, const std::filesystem::path& results_
       absl::StrJoin(unknown->ids.begin(), unknown->ids.begin() + shown, " "));
 }
 
-absl::StatusOr<std::unique_ptr<HttpServer>> StartHttp(grpc::Server& server,
-                                                     ServiceMetrics* metrics,
-                                                     const ServerOptions& o) {
+absl::StatusOr<std::unique_ptr<HttpServer>> StartHttp(grpc::Server& server, ServiceMetrics* metrics,
+                                                      const ServerOptions& o) {
   HttpOptions http;
   http.listen = o.http_listen;
   http.tls_cert_file = o.tls_cert_file;

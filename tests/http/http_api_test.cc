@@ -12,8 +12,8 @@
 #include <sstream>
 #include <thread>
 
-#include "absl/strings/str_cat.h"
 #include "absl/strings/match.h"
+#include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
 #include "core/io/image_io.h"
 #include "tests/support/e2e_clients.h"
@@ -166,7 +166,7 @@ TEST_F(HttpApi, SubmitGetListDownloadWithRangeMatchesGrpcFetch) {
   EXPECT_EQ(whole.get_header_value("X-Nimbus-Sha256"), done.result().sha256());
   // A resumed download (curl -C - sends "Range: bytes=N-").
   auto tail = Client().Get(path, {{"Range", "bytes=100-"}});
-    EXPECT_EQ(tail.status, 206);
+  EXPECT_EQ(tail.status, 206);
   EXPECT_EQ(tail.body, expected.substr(100));
   EXPECT_EQ(tail.get_header_value("Content-Range"),
             absl::StrCat("bytes 100-", expected.size() - 1, "/", expected.size()));
@@ -373,11 +373,15 @@ TEST_F(HttpApi, MetricsPassPromtoolAndCountJobs) {
   auto metrics = Client("").Get("/metrics");
   ASSERT_EQ(metrics.status, 200);
   const std::string& text = metrics.body;
-  EXPECT_NE(text.find("nimbus_jobs{kind=\"chaos_game\",state=\"succeeded\"} 2\n"), std::string::npos)
+  EXPECT_NE(text.find("nimbus_jobs{kind=\"chaos_game\",state=\"succeeded\"} 2\n"),
+            std::string::npos)
       << text;
-  EXPECT_NE(text.find("nimbus_grpc_calls_total{code=\"OK\",method=\"nimbus.v1.NimbusService/SubmitJob\"} 2"),
+  EXPECT_NE(
+      text.find(
+          "nimbus_grpc_calls_total{code=\"OK\",method=\"nimbus.v1.NimbusService/SubmitJob\"} 2"),
+      std::string::npos);
+  EXPECT_NE(text.find("nimbus_job_duration_seconds_count{kind=\"chaos_game\"} 2"),
             std::string::npos);
-  EXPECT_NE(text.find("nimbus_job_duration_seconds_count{kind=\"chaos_game\"} 2"), std::string::npos);
   std::ofstream(dir_ / "metrics.txt") << text;
   const std::string cmd = absl::StrCat("promtool check metrics < ", (dir_ / "metrics.txt").string(),
                                        " > ", (dir_ / "promtool.txt").string(), " 2>&1");
@@ -394,10 +398,23 @@ TEST(HttpReplicas, AJobRunningOnBShowsLiveOnA) {
   ASSERT_TRUE(url.ok()) << url.status();
   testing::TempDir dir;
   auto args = [&](const std::string& id) {
-    return std::vector<std::string>{"--store", *url, "--results-dir", (dir / "results").string(),
-                                    "--replica-id", id, "--workers", "1", "--threads-per-job", "1",
-                                    "--log-level", "warn", "--min-free-disk-mib", "0",
-                                    "--http", "127.0.0.1:0", "--http-port-file",
+    return std::vector<std::string>{"--store",
+                                    *url,
+                                    "--results-dir",
+                                    (dir / "results").string(),
+                                    "--replica-id",
+                                    id,
+                                    "--workers",
+                                    "1",
+                                    "--threads-per-job",
+                                    "1",
+                                    "--log-level",
+                                    "warn",
+                                    "--min-free-disk-mib",
+                                    "0",
+                                    "--http",
+                                    "127.0.0.1:0",
+                                    "--http-port-file",
                                     (dir / (id + ".http")).string()};
   };
   testing::NimbusdProcess a(dir / "a", args("A")), b(dir / "b", args("B"));
