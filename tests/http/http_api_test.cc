@@ -19,6 +19,7 @@
 #include "tests/support/e2e_clients.h"
 #include "tests/support/nimbusd_process.h"
 #include "tests/support/postgres_server.h"
+#include "tests/support/test_pki.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus {
@@ -386,6 +387,43 @@ TEST_F(HttpApi, MetricsPassPromtoolAndCountJobs) {
   const std::string cmd = absl::StrCat("promtool check metrics < ", (dir_ / "metrics.txt").string(),
                                        " > ", (dir_ / "promtool.txt").string(), " 2>&1");
   EXPECT_EQ(std::system(cmd.c_str()), 0) << ReadAll(dir_ / "promtool.txt");
+}
+
+// The HTTP port speaks HTTPS with the gRPC port's certificate, and follows
+// its rule that a port beyond loopback needs tokens.
+TEST(HttpTls, SameCertificateAndLoopbackRule) {
+  testing::TempDir dir;
+  auto pki = testing::MakeTestPki(dir / "pki");
+  ASSERT_TRUE(pki.ok()) << pki.status();
+  testing::NimbusdProcess server(dir / "data", {"--log-level", "warn", "--min-free-disk-mib", "0",
+                                                "--tls-cert", pki->server_cert.string(),
+                                                "--tls-key", pki->server_key.string(), "--http",
+                                                "127.0.0.1:0", "--http-port-file",
+                                                (dir / "http_port").string()});
+  ASSERT_TRUE(server.Start().ok());
+  const int port = std::stoi(ReadAll(dir / "http_port"));
+  httplib::SSLClient tls("127.0.0.1", port);
+  tls.set_ca_cert_path(pki->ca_cert.c_str());
+  tls.enable_server_certificate_verification(true);
+  auto ok = Http::Of(tls.Get("/api/v1/jobs"));
+  EXPECT_EQ(ok.status, 200) << ok.body;
+  httplib::SSLClient stranger("127.0.0.1", port);
+  stranger.set_ca_cert_path(pki->other_ca_cert.c_str());
+  stranger.enable_server_certificate_verification(true);
+  EXPECT_EQ(Http::Of(stranger.Get("/api/v1/jobs")).status, -1);
+  httplib::Client plain("127.0.0.1", port);
+  plain.set_read_timeout(5, 0);
+  auto p = Http::Of(plain.Get("/api/v1/jobs"));
+  EXPECT_NE(p.status, 200);
+  server.Stop();
+
+  // Beyond loopback without tokens nimbusd refuses to start.
+  testing::NimbusdProcess open(dir / "data2", {"--log-level", "warn", "--http", "0.0.0.0:0",
+                                               "--http-port-file", (dir / "p2").string()});
+  open.set_log_file(dir / "open.log");
+  EXPECT_FALSE(open.Start().ok());
+  EXPECT_NE(ReadAll(dir / "open.log").find("refusing to listen on 0.0.0.0:0"), std::string::npos)
+      << ReadAll(dir / "open.log");
 }
 
 // Two replicas on one PostgreSQL store: a job that replica B runs shows
