@@ -22,6 +22,7 @@
 #include <set>
 #include <string>
 #include <thread>
+#include <variant>
 #include <vector>
 
 #include "absl/strings/str_cat.h"
@@ -31,6 +32,7 @@
 #include "absl/strings/str_split.h"
 #include "client/flame_import.h"
 #include "client/nimbus_client.h"
+#include "client/output_names.h"
 #include "client/preview_files.h"
 #include "core/base/heap_tuning.h"
 #include "core/base/status_macros.h"
@@ -121,6 +123,9 @@ absl::StatusOr<Connection> Connect(const GlobalOptions& g, bool private_if_busy 
   // One user, one job: no reserve to keep for others. A full disk still
   // fails the render with "disk full while writing the result".
   o.min_free_disk_mib = 0;
+  // When the command ends, nothing of this process is left to serve: open
+  // streams are cancelled at once instead of drained.
+  o.drain_ms = 0;
   auto server = nimbus::server::NimbusServer::Start(o);
   if (!server.ok() && absl::IsFailedPrecondition(server.status()) && private_if_busy &&
       g.data_dir.empty()) {
@@ -134,22 +139,6 @@ absl::StatusOr<Connection> Connect(const GlobalOptions& g, bool private_if_busy 
   c.embedded = std::move(*server);
   c.client = std::make_unique<NimbusClient>(c.embedded->InProcessChannel());
   return c;
-}
-
-// Ends a one-shot command (render) whose result is on disk. An embedded
-// server on the user's data dir has nothing left to do then: the job is
-// committed in its store (SQLite, whose journal makes leaving it as safe
-// as a crash) and the result renamed into place. Stopping it anyway
-// (threads joined, gRPC and the store closed, destructors, libraries
-// unloaded) took some 25 ms, an eighth of a small render. A private
-// data dir is removed first: dropping the one reference runs its deleter.
-[[noreturn]] void ExitWithoutTeardown(Connection& c, int rc) {
-  c.scratch.reset();
-  spdlog::default_logger()->flush();
-  std::cout.flush();
-  std::cerr.flush();
-  std::fflush(nullptr);
-  std::_Exit(rc);
 }
 
 // A job's main result to `path`: an embedded server's store hands it over
@@ -382,52 +371,69 @@ class CancelOnInterrupt {
   std::thread thread_;
 };
 
-// The one place that reads a converted spec (the job plan): `nimbus
-// validate`'s summary. Memory is priced as for a two-thread run.
-int PrintValidation(const std::string& spec_path, const v1::JobSpec& spec) {
-  const nimbus::spec::Limits limits;
-  auto plan = nimbus::spec::ConvertSpec(spec, limits);
-  if (!plan.ok()) return ExitFor(plan.status());
-  auto memory = nimbus::server::AdmitMemory(*plan, limits, 2);
-  if (!memory.ok()) return ExitFor(memory.status());
-  const auto r = plan->frame.resolution;
-  std::cout << spec_path << ": ok\n"
-            << "  name: " << plan->name << "\n";
-  if (!plan->explore()) std::cout << "  grid: " << r.x << " x " << r.y << " x " << r.z << "\n";
-  const std::string peak = absl::StrFormat("  peak memory (estimate): %.1f MiB\n",
-                                           double(memory->estimated_bytes) / (1 << 20));
-  if (const nimbus::SetIfsPlan* p = plan->set_ifs()) {
+// `nimbus validate`'s lines for each kind of job plan, after its name; one
+// overload per kind, so a new kind without its summary does not compile.
+struct KindSummary {
+  const nimbus::JobPlan& plan;
+  const v1::JobSpec& spec;
+  std::string peak;  // the "peak memory" line
+
+  void Grid() const {
+    const auto r = plan.frame.resolution;
+    std::cout << "  grid: " << r.x << " x " << r.y << " x " << r.z << "\n";
+  }
+  void Hash() const { std::cout << "  spec sha256: " << nimbus::spec::SpecHash(spec) << "\n"; }
+  void PointRun(const nimbus::ChaosGameParams& run) const {
+    Grid();
+    std::cout << "  maps: " << run.ifs.maps.size() << "\n";
+    for (size_t i = 0; i < run.ifs.maps.size(); ++i)
+      std::cout << absl::StrFormat("    [%d] p=%.4f contraction=%.4f %s\n", i,
+                                   run.ifs.probabilities[i], plan.contraction_factors[i],
+                                   run.ifs.maps[i].name);
+    std::cout << "  iterations: " << run.iterations << "\n" << peak;
+    Hash();
+  }
+  void operator()(const nimbus::ChaosGamePlan& p) const { PointRun(p.params); }
+  void operator()(const nimbus::IfsMatrixPlan& p) const { PointRun(p.run); }
+  void operator()(const nimbus::SetIfsPlan& p) const {
     static const char* kKinds[] = {"median", "rotated median", "constant", "point"};
-    std::cout << "  set maps: " << p->maps.size() << "\n";
-    for (size_t i = 0; i < p->maps.size(); ++i)
-      std::cout << absl::StrFormat("    [%s] p=%.4f %s\n", p->labels[i], p->probabilities[i],
-                                   kKinds[int(p->maps[i].kind)]);
-    if (p->book)
-      std::cout << "  book: depth " << p->depth << ", " << p->pages << " pages\n";
+    Grid();
+    std::cout << "  set maps: " << p.maps.size() << "\n";
+    for (size_t i = 0; i < p.maps.size(); ++i)
+      std::cout << absl::StrFormat("    [%s] p=%.4f %s\n", p.labels[i], p.probabilities[i],
+                                   kKinds[int(p.maps[i].kind)]);
+    if (p.book)
+      std::cout << "  book: depth " << p.depth << ", " << p.pages << " pages\n";
     else
-      std::cout << "  set iterations: " << p->iterations << " after " << p->warmup << " warm-up\n";
+      std::cout << "  set iterations: " << p.iterations << " after " << p.warmup << " warm-up\n";
     std::cout << peak;
-  } else if (const nimbus::FractalFieldPlan* f = plan->fractal_field()) {
+  }
+  void operator()(const nimbus::FractalFieldPlan& f) const {
     static const char* kInterp[] = {"n-linear", "pseudo n-cubic", "quintic", "cubic"};
-    std::cout << "  field: " << f->field.dims << "D, " << f->field.meshes.size() << " meshes, "
-              << kInterp[int(f->field.interpolation)] << ", "
-              << (f->output == nimbus::FieldOutputKind::kTerrain ? "terrain" : "density")
-              << (f->shape ? ", shaped" : "") << "\n";
-    for (size_t k = 0; k < f->field.meshes.size(); ++k)
+    Grid();
+    std::cout << "  field: " << f.field.dims << "D, " << f.field.meshes.size() << " meshes, "
+              << kInterp[int(f.field.interpolation)] << ", "
+              << (f.output == nimbus::FieldOutputKind::kTerrain ? "terrain" : "density")
+              << (f.shape ? ", shaped" : "") << "\n";
+    for (size_t k = 0; k < f.field.meshes.size(); ++k)
       std::cout << absl::StrFormat("    [%d] cell=%.6g weight=%.6g\n", k,
-                                   f->field.meshes[k].cell[0], f->field.meshes[k].weight);
-    if (f->animation.frames > 0)
-      std::cout << "  frames: " << f->animation.frames << (f->animation.loop ? " (loop)" : "")
+                                   f.field.meshes[k].cell[0], f.field.meshes[k].weight);
+    if (f.animation.frames > 0)
+      std::cout << "  frames: " << f.animation.frames << (f.animation.loop ? " (loop)" : "")
                 << "\n";
-    std::cout << peak << "  spec sha256: " << nimbus::spec::SpecHash(spec) << "\n";
-  } else if (const nimbus::JellyPlan* p = plan->jelly()) {
-    std::cout << "  bodies: " << p->sim.bodies.size() << ", springs: " << p->sim.springs.size()
+    std::cout << peak;
+    Hash();
+  }
+  void operator()(const nimbus::JellyPlan& p) const {
+    Grid();
+    std::cout << "  bodies: " << p.sim.bodies.size() << ", springs: " << p.sim.springs.size()
               << "\n"
-              << absl::StrFormat("  frames: %u at %g fps, %u substeps (dt %g s)\n", p->frames,
-                                 p->fps, p->substeps, p->sim.dt)
+              << absl::StrFormat("  frames: %u at %g fps, %u substeps (dt %g s)\n", p.frames,
+                                 p.fps, p.substeps, p.sim.dt)
               << peak;
-  } else if (const nimbus::ExplorePlan* e = plan->explore()) {
-    const nimbus::ExploreParams& p = e->params;
+  }
+  void operator()(const nimbus::ExplorePlan& e) const {
+    const nimbus::ExploreParams& p = e.params;
     const bool sv = p.measure == nimbus::ContractionMeasure::kSingularValue;
     std::cout << absl::StrFormat("  explore: %d candidates, %dD IFS of %d-%d maps, seed %d\n",
                                  p.count, p.draw.dimensions, p.draw.min_maps, p.draw.max_maps,
@@ -437,17 +443,24 @@ int PrintValidation(const std::string& spec_path, const v1::JobSpec& spec) {
                                  p.max_attempts)
               << absl::StrFormat("  thumbnails: %d px, %d iterations each\n", p.thumbnail_size,
                                  p.thumbnail_iterations)
-              << peak << "  spec sha256: " << nimbus::spec::SpecHash(spec) << "\n";
-  } else {
-    const nimbus::ChaosGameParams& run = *plan->point_run();
-    std::cout << "  maps: " << run.ifs.maps.size() << "\n";
-    for (size_t i = 0; i < run.ifs.maps.size(); ++i)
-      std::cout << absl::StrFormat("    [%d] p=%.4f contraction=%.4f %s\n", i,
-                                   run.ifs.probabilities[i], plan->contraction_factors[i],
-                                   run.ifs.maps[i].name);
-    std::cout << "  iterations: " << run.iterations << "\n"
-              << peak << "  spec sha256: " << nimbus::spec::SpecHash(spec) << "\n";
+              << peak;
+    Hash();
   }
+};
+
+// The one place that reads a converted spec (the job plan): `nimbus
+// validate`'s summary. Memory is priced as for a two-thread run.
+int PrintValidation(const std::string& spec_path, const v1::JobSpec& spec) {
+  const nimbus::spec::Limits limits;
+  auto plan = nimbus::spec::ConvertSpec(spec, limits);
+  if (!plan.ok()) return ExitFor(plan.status());
+  auto memory = nimbus::server::AdmitMemory(*plan, limits, 2);
+  if (!memory.ok()) return ExitFor(memory.status());
+  std::cout << spec_path << ": ok\n"
+            << "  name: " << plan->name << "\n";
+  const std::string peak = absl::StrFormat("  peak memory (estimate): %.1f MiB\n",
+                                           double(memory->estimated_bytes) / (1 << 20));
+  std::visit(KindSummary{*plan, spec, peak}, plan->kind);
   for (const auto& w : plan->warnings) std::cout << "  warning: " << w << "\n";
   return 0;
 }
@@ -494,12 +507,16 @@ struct SpecSession {
   v1::JobSpec spec;
 };
 
-absl::StatusOr<SpecSession> OpenWithSpec(const Options& o, bool private_if_busy) {
+// `check` sees the spec before a server is reached.
+absl::StatusOr<SpecSession> OpenWithSpec(
+    const Options& o, bool private_if_busy,
+    const std::function<absl::Status(const v1::JobSpec&)>& check = nullptr) {
   SpecSession s;
   NIMBUS_ASSIGN_OR_RETURN(s.spec, nimbus::spec::LoadSpecFile(o.spec_path));
   // Command-line overrides of the spec (docs/result_cache.md, docs/sharding.md).
   if (o.no_cache) s.spec.set_no_cache(true);
   if (o.shards > 0) s.spec.set_shards(o.shards);
+  if (check) NIMBUS_RETURN_IF_ERROR(check(s.spec));
   NIMBUS_ASSIGN_OR_RETURN(s.conn, Connect(o.global, private_if_busy));
   NIMBUS_RETURN_IF_ERROR(
       s.conn.client->UploadSpecAssets(s.spec, std::filesystem::path(o.spec_path).parent_path()));
@@ -522,8 +539,20 @@ absl::StatusOr<std::filesystem::path> PrepareOutputs(const Options& o) {
   return std::filesystem::path(o.frames_dir);
 }
 
+// "wrote x.png" for one further file, "wrote 12 further files, the last
+// x.0012.vdb" for several.
+std::string FurtherFilesLine(const FrameFetcher& files) {
+  if (files.count() == 1) return absl::StrCat("wrote ", files.last().string(), "\n");
+  return absl::StrFormat("wrote %d further files, the last %s\n", files.count(),
+                         files.last().string());
+}
+
 int RunRender(const Options& o) {
-  auto session = OpenWithSpec(o, /*private_if_busy=*/true);
+  std::filesystem::path main_path;
+  auto session = OpenWithSpec(o, /*private_if_busy=*/true, [&](const v1::JobSpec& spec) {
+    NIMBUS_ASSIGN_OR_RETURN(main_path, nimbus::client::MainOutputPath(o.out_path, spec));
+    return absl::OkStatus();
+  });
   if (!session.ok()) return ExitFor(session.status());
   NimbusClient& client = *session->conn.client;
   auto job = client.Submit(session->spec);
@@ -546,14 +575,11 @@ int RunRender(const Options& o) {
   // The final list carries every file with its committed hash.
   if (auto full = client.Get(job->id()); full.ok())
     if (auto s = frames.FetchNew(*full); !s.ok()) return ExitFor(s);
-  if (auto s = FetchMain(session->conn, job->id(), o.out_path); !s.ok()) return ExitFor(s);
-  std::cerr << absl::StrFormat("wrote %s (%s bytes, sha256 %s)\n", o.out_path,
+  if (auto s = FetchMain(session->conn, job->id(), main_path); !s.ok()) return ExitFor(s);
+  std::cerr << absl::StrFormat("wrote %s (%s bytes, sha256 %s)\n", main_path.string(),
                                Human(double(final_job->result().size_bytes())),
                                final_job->result().sha256());
-  if (frames.count() > 0)
-    std::cerr << absl::StrFormat("wrote %d frames, the last %s\n", frames.count(),
-                                 frames.last().string());
-  if (session->conn.embedded) ExitWithoutTeardown(session->conn, 0);
+  if (frames.count() > 0) std::cerr << FurtherFilesLine(frames);
   return 0;
 }
 
@@ -672,6 +698,14 @@ int RunWatch(const Options& o) {
 int RunFetch(const Options& o) {
   auto conn = Connect(o.global);
   if (!conn.ok()) return ExitFor(conn.status());
+  std::string file_name = o.fetch_file;
+  if (file_name.empty()) {
+    auto job = conn->client->Get(o.job_id);
+    if (!job.ok()) return ExitFor(job.status());
+    file_name = job->result().file_name();
+  }
+  if (auto s = nimbus::client::CheckOutputExtension(o.out_path, file_name); !s.ok())
+    return ExitFor(s);
   const absl::Status s = o.fetch_file.empty()
                              ? FetchMain(*conn, o.job_id, o.out_path)
                              : conn->client->Fetch(o.job_id, o.out_path, o.fetch_file);
@@ -831,7 +865,10 @@ void AddWatchFlags(CLI::App* c, WatchArgs& w) {
 std::vector<Command> AddCommands(CLI::App& app, Options& o) {
   auto* render = app.add_subcommand("render", "submit a spec, show progress, fetch the .vdb");
   render->add_option("spec", o.spec_path, "spec file (.json or text format)")->required();
-  render->add_option("-o,--output", o.out_path, "output .vdb path")->required();
+  render->add_option("-o,--output", o.out_path,
+                     "main result path: .vdb, or .png/.exr for a picture-only job (a picture "
+                     "beside a volume goes next to it)")
+      ->required();
   render->add_option("--frames", o.frames_dir,
                      "folder for further result files (book pages, OUT.0001.vdb ...); "
                      "default: next to -o");
@@ -873,7 +910,8 @@ std::vector<Command> AddCommands(CLI::App& app, Options& o) {
   AddWatchFlags(watch, o.watch);
   auto* fetch = app.add_subcommand("fetch", "download a finished job's .vdb");
   fetch->add_option("job", o.job_id)->required();
-  fetch->add_option("-o,--output", o.out_path, "output .vdb path")->required();
+  fetch->add_option("-o,--output", o.out_path, "output path, with the file's extension")
+      ->required();
   fetch->add_option("--file", o.fetch_file, "one of the job's further files (e.g. NAME.0003.vdb)");
   auto* get = app.add_subcommand("get", "print a job as JSON");
   get->add_option("job", o.job_id)->required();

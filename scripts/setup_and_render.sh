@@ -7,7 +7,9 @@ cd "$(dirname "$0")/.."
 SPEC=${1:-examples/sierpinski_tetrahedron.json}
 OUT=${2:-out/$(basename "${SPEC%.*}").vdb}
 scripts/install_deps.sh
-scripts/build.sh
+# The programs and the OpenVDB module they load; (linking the server also
+# builds the PostgreSQL module). scripts/test.sh builds the rest.
+scripts/build.sh nimbusd nimbus nimbus_vdb
 mkdir -p "$(dirname "$OUT")" out/previews
 PORT=${NIMBUS_PORT:-50051}
 build/bin/nimbusd --listen "127.0.0.1:$PORT" --data-dir out/nimbus-data &

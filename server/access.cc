@@ -15,7 +15,7 @@ std::optional<absl::string_view> AuthorizationOf(const grpc::CallbackServerConte
   return absl::string_view(it->second.data(), it->second.size());
 }
 
-absl::StatusOr<JobRecord> LoadVisibleJob(JobStore& store, const Principal& p,
+absl::StatusOr<JobRecord> LoadVisibleJob(JobQueue& store, const Principal& p,
                                          const std::string& id) {
   auto rec = store.Get(id);
   if (!rec.ok()) return rec.status();
@@ -39,7 +39,7 @@ absl::Status CheckAssetOwnership(const v1::JobSpec& spec, const Principal& p,
   return result;
 }
 
-absl::Status CheckJobQuotas(JobStore& store, const Principal& p, const Quotas& q) {
+absl::Status CheckJobQuotas(JobHoldings& store, const Principal& p, const Quotas& q) {
   if (q.jobs == 0 && q.result_bytes == 0) return absl::OkStatus();
   auto usage = store.Usage(p.name);
   if (!usage.ok()) return usage.status();

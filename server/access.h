@@ -29,7 +29,7 @@ inline bool CanSee(const Principal& p, const std::string& owner) {
 
 /// The job `id` if `p` may see it. Another principal's job is NOT_FOUND
 /// with the very message an unknown id gets, so ids cannot be probed.
-absl::StatusOr<JobRecord> LoadVisibleJob(JobStore& store, const Principal& p,
+absl::StatusOr<JobRecord> LoadVisibleJob(JobQueue& store, const Principal& p,
                                          const std::string& id);
 
 /// NOT_FOUND, by field, for an uploaded asset the spec names that `p` does
@@ -39,7 +39,7 @@ absl::Status CheckAssetOwnership(const v1::JobSpec& spec, const Principal& p,
 
 /// RESOURCE_EXHAUSTED when `p` may not queue another job: too many queued
 /// and running jobs, or results over the result quota.
-absl::Status CheckJobQuotas(JobStore& store, const Principal& p, const Quotas& q);
+absl::Status CheckJobQuotas(JobHoldings& store, const Principal& p, const Quotas& q);
 
 /// RESOURCE_EXHAUSTED when storing `size` more bytes of `sha256` would take
 /// `p` over the asset quota (bytes it already owns cost nothing).

@@ -1,6 +1,7 @@
-// The job store interface: durable job records with claims and leases, so a
-// shared PostgreSQL backend with several replicas can replace the embedded
-// SQLite one without touching the service or the workers.
+// The job store interfaces: durable job records with claims and leases (the
+// queue) and the extensions some job kinds need beside it, so a shared
+// PostgreSQL backend with several replicas can replace the embedded SQLite
+// one without touching the service or the workers.
 #pragma once
 
 #include <chrono>
@@ -169,10 +170,18 @@ struct PreviewWish {
 };
 using JobChangeListener = std::function<void(const JobChange&)>;
 
-/// @brief Durable job records. All methods are thread-safe.
-class JobStore {
+// A store implements the queue (JobQueue) and, beside it, one small
+// interface per extension: what results and quotas hold (JobHoldings),
+// jelly pokes (PokeStore), shards (ShardStore), the result cache
+// (ResultCacheIndex) and previews across replicas (PreviewStore). Code that
+// needs one extension takes that interface alone. All methods are
+// thread-safe.
+
+/// @brief The queue: create, get, list, claim, lease, complete, cancel, and
+/// the feed of changes to it.
+class JobQueue {
  public:
-  virtual ~JobStore() = default;
+  virtual ~JobQueue() = default;
 
   /// Inserts a QUEUED job. A name longer than kMaxJobNameBytes is
   /// INVALID_ARGUMENT; warnings are bounded (server/bounded_text.h). When
@@ -220,6 +229,20 @@ class JobStore {
   /// again (its lease holder is gone). Returns how many were requeued.
   virtual absl::StatusOr<int> RequeueRunning() = 0;
 
+  /// Cross-replica change feed: `listener` runs, on a thread of the
+  /// store's, after every committed change to any job by any process
+  /// sharing the store, including this one. Null stops the feed (call it
+  /// before whatever the listener uses goes away). A store only one process
+  /// uses has no feed: by default this does nothing.
+  virtual void SetChangeListener(JobChangeListener listener) { (void)listener; }
+};
+
+/// @brief What jobs and their results hold: quotas, pins, deletion and
+/// the retention sweep.
+class JobHoldings {
+ public:
+  virtual ~JobHoldings() = default;
+
   /// Quota accounting for one principal.
   virtual absl::StatusOr<OwnerUsage> Usage(const std::string& owner) = 0;
   /// Pins or unpins a job's result; returns the job. NOT_FOUND for an
@@ -236,6 +259,13 @@ class JobStore {
   /// Serialised specs of the jobs whose assets must be kept: QUEUED,
   /// RUNNING and pinned ones.
   virtual absl::StatusOr<std::vector<std::string>> SpecsInUse() = 0;
+};
+
+/// @brief Pokes on running jelly jobs (docs/jelly.md).
+class PokeStore {
+ public:
+  virtual ~PokeStore() = default;
+
   /// Records a poke for a RUNNING job, without a frame yet; returns it
   /// with its seq. NOT_FOUND for an unknown id, FAILED_PRECONDITION when
   /// the job is not running.
@@ -246,26 +276,39 @@ class JobStore {
   virtual absl::StatusOr<std::vector<PokeRecord>> TakePokes(const std::string& id,
                                                             const std::string& worker_id,
                                                             int64_t frame) = 0;
+};
+
+/// @brief The shards of sharded jobs (docs/sharding.md); the queue creates,
+/// claims and completes them as jobs.
+class ShardStore {
+ public:
+  virtual ~ShardStore() = default;
+
   /// The shards of `parent_id` in shard order (NOT_FOUND for an unknown id).
   virtual absl::StatusOr<std::vector<JobRecord>> ListShards(const std::string& parent_id) = 0;
+};
+
+/// @brief Finished jobs by spec hash (docs/result_cache.md).
+class ResultCacheIndex {
+ public:
+  virtual ~ResultCacheIndex() = default;
+
   /// The newest SUCCEEDED, unexpired, top-level job of `owner` with this
   /// spec hash, or nullopt (result cache).
   virtual absl::StatusOr<std::optional<JobRecord>> FindCached(const std::string& spec_sha256,
                                                               const std::string& owner) = 0;
+};
 
-  /// Cross-replica change feed: `listener` runs, on a thread of the
-  /// store's, after every committed change to any job by any process
-  /// sharing the store, including this one. Null stops the feed (call it
-  /// before whatever the listener uses goes away). A store only one process
-  /// uses has no feed: by default this does nothing.
-  virtual void SetChangeListener(JobChangeListener listener) { (void)listener; }
+/// @brief Previews across replicas. A watcher's replica records what it wants
+/// (WishPreviews); the replica running the job reads the wishes at each
+/// heartbeat, makes those previews and stores the newest one per
+/// resolution (PutPreview, announced on the feed); watchers' replicas read
+/// it (LatestPreview). In a store only one process uses, the job hub
+/// carries previews in memory and these do nothing (the defaults).
+class PreviewStore {
+ public:
+  virtual ~PreviewStore() = default;
 
-  // Previews across replicas. A watcher's replica records what it wants
-  // (WishPreviews); the replica running the job reads the wishes at each
-  // heartbeat, makes those previews and stores the newest one per
-  // resolution (PutPreview, announced on the feed); watchers' replicas read
-  // it (LatestPreview). In a store only one process uses, the job hub
-  // carries previews in memory and these do nothing.
   /// Wishes for `id`'s previews, valid until `until` unless renewed.
   virtual absl::Status WishPreviews(const std::string& id, const std::vector<PreviewWish>& wishes,
                                     TimeMs until) {
@@ -291,6 +334,14 @@ class JobStore {
     return absl::NotFoundError(absl::StrCat("no stored preview of job ", id));
   }
 };
+
+/// @brief A whole job store: the queue and every extension.
+class JobStore : public JobQueue,
+                 public JobHoldings,
+                 public PokeStore,
+                 public ShardStore,
+                 public ResultCacheIndex,
+                 public PreviewStore {};
 
 /// Id of shard `index` of `parent_id`: "<parent id>.shard-<index>".
 inline std::string ShardJobId(const std::string& parent_id, uint32_t index) {

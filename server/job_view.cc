@@ -4,6 +4,7 @@
 #include <chrono>
 
 #include "absl/strings/str_split.h"
+#include "proto/result_files.h"
 #include "server/bounded_text.h"
 
 namespace nimbus::server {
@@ -71,7 +72,10 @@ v1::Job ToProto(const JobRecord& r, bool with_spec) {
   if (r.state == JobState::kSucceeded) {
     j.mutable_result()->set_size_bytes(r.result_size);
     j.mutable_result()->set_sha256(r.result_sha256);
-    j.mutable_result()->set_file_name(name + ".vdb");
+    v1::JobSpec spec;
+    if (!with_spec) spec.ParseFromString(r.spec);
+    j.mutable_result()->set_file_name(
+        name + spec::MainResultExtension(with_spec ? j.spec() : spec));
   }
   j.set_attempts(r.attempts);
   if (r.state == JobState::kRunning) j.set_worker(r.worker_id);

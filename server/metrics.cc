@@ -67,7 +67,7 @@ prometheus::Histogram::BucketBoundaries LatencyBuckets() {
 }  // namespace
 
 struct ServiceMetrics::Impl {
-  JobStore* store;
+  JobQueue* store;
   prometheus::Registry registry;
   prometheus::Family<prometheus::Gauge>& jobs =
       prometheus::BuildGauge()
@@ -130,7 +130,7 @@ struct ServiceMetrics::Impl {
   std::set<std::string> ended;                           // job ids observed ended
   std::set<std::pair<std::string, std::string>> job_labels;
 
-  explicit Impl(JobStore* s) : store(s) {}
+  explicit Impl(JobQueue* s) : store(s) {}
   void RefreshJobs();
 };
 
@@ -175,7 +175,7 @@ void ServiceMetrics::Impl::RefreshJobs() {
   queue_depth.Add({}).Set(queued);
 }
 
-ServiceMetrics::ServiceMetrics(JobStore* store, int local_workers)
+ServiceMetrics::ServiceMetrics(JobQueue* store, int local_workers)
     : impl_(std::make_unique<Impl>(store)) {
   impl_->workers.Add({}).Set(local_workers);
   impl_->preview_bytes.Add({});

@@ -14,13 +14,13 @@ class ServerInterceptorFactoryInterface;
 
 namespace nimbus::server {
 
-class JobStore;
+class JobQueue;
 
 class ServiceMetrics {
  public:
-  /// `store` is read at each scrape; `local_workers` is this replica's
+  /// `store` (its List) is read at each scrape; `local_workers` is this replica's
   /// worker count (nimbus_workers_alive).
-  ServiceMetrics(JobStore* store, int local_workers);
+  ServiceMetrics(JobQueue* store, int local_workers);
   ~ServiceMetrics();
 
   /// Counts every gRPC call by method and status code (and SubmitJob's

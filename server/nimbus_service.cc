@@ -542,9 +542,7 @@ grpc::Status NimbusServiceImpl::Admit(const Principal& caller, const v1::SubmitJ
   nj.progress_total = job->work.total;
   for (const auto& w : job->warnings) nj.warnings += w + "\n";
   nj.owner = caller.name;
-  // Jelly results also depend on the pokes a running job receives, which
-  // are not in the spec: they are never cache entries.
-  if (job->jelly() == nullptr) nj.spec_sha256 = spec::SpecHash(req.spec());
+  if (job->result_cacheable()) nj.spec_sha256 = spec::SpecHash(req.spec());
   // A finished twin answers at once, without memory admission.
   const bool cached = !req.spec().no_cache() && !nj.spec_sha256.empty() && AnswerFromCache(nj);
   if (!cached) {

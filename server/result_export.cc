@@ -122,7 +122,7 @@ absl::Status ResultNotReadyError(const JobRecord& rec) {
                    "; results exist only for JOB_STATE_SUCCEEDED"));
 }
 
-absl::Status ExportResult(JobStore& store, ResultStore& results, const std::string& job_id,
+absl::Status ExportResult(JobQueue& store, ResultStore& results, const std::string& job_id,
                           const std::filesystem::path& path, int64_t retention_ms) {
   NIMBUS_ASSIGN_OR_RETURN(const JobRecord rec, store.Get(job_id));
   if (rec.result_expire_time != 0) return ResultExpiredError(rec, retention_ms);

@@ -33,7 +33,7 @@ absl::Status ResultNotReadyError(const JobRecord& rec);
 /// NOT_FOUND for an unknown job, FAILED_PRECONDITION for one that has not
 /// succeeded or whose result expired. Blocking I/O: never call it on a
 /// gRPC thread.
-absl::Status ExportResult(JobStore& store, ResultStore& results, const std::string& job_id,
+absl::Status ExportResult(JobQueue& store, ResultStore& results, const std::string& job_id,
                           const std::filesystem::path& path, int64_t retention_ms = 0);
 
 }  // namespace nimbus::server

@@ -23,8 +23,8 @@ struct SweepCounts {
 /// @brief Sweeps every `interval_ms` while started.
 class RetentionSweeper {
  public:
-  RetentionSweeper(JobStore* store, ResultStore* results, AssetStore* assets, int64_t retention_ms,
-                   int64_t interval_ms)
+  RetentionSweeper(JobHoldings* store, ResultStore* results, AssetStore* assets,
+                   int64_t retention_ms, int64_t interval_ms)
       : store_(store),
         results_(results),
         assets_(assets),
@@ -39,7 +39,7 @@ class RetentionSweeper {
   SweepCounts SweepOnce(TimeMs now);
 
  private:
-  JobStore* store_;
+  JobHoldings* store_;
   ResultStore* results_;
   AssetStore* assets_;
   int64_t retention_ms_;

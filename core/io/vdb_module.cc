@@ -2,27 +2,21 @@
 // vdb_module.h for why OpenVDB is a module).
 #include "core/io/vdb_module.h"
 
-#include "absl/strings/str_cat.h"
 #include "core/base/module_loader.h"
-#include "core/base/status_macros.h"
 
 namespace nimbus {
 
 namespace {
 
 absl::StatusOr<const VdbModule*> Load() {
-  NIMBUS_ASSIGN_OR_RETURN(void* entry,
-                          LoadModuleEntry({"OpenVDB support", kVdbModuleName, kVdbModuleEntry,
-                                           "NIMBUS_VDB_MODULE"}));
-  const VdbModule* table = reinterpret_cast<VdbModuleEntry*>(entry)();
-  if (table == nullptr || table->abi != kVdbModuleAbi)
-    return absl::FailedPreconditionError(absl::StrCat(kVdbModuleName, ": table version ",
-                                                      table ? table->abi : 0, ", expected ",
-                                                      kVdbModuleAbi));
-  return table;
+  return LoadVdbModuleTable<VdbModule>(kVdbModuleEntry, kVdbModuleAbi);
 }
 
 }  // namespace
+
+absl::StatusOr<void*> LoadVdbModuleSymbol(const char* symbol) {
+  return LoadModuleEntry({"OpenVDB support", kVdbModuleName, symbol, "NIMBUS_VDB_MODULE"});
+}
 
 absl::StatusOr<const VdbModule*> LoadVdbModule() {
   // A function-local static: initialised once, other threads wait for it.

@@ -14,20 +14,10 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
+#include "absl/strings/str_cat.h"
 #include "core/io/vdb_io.h"
 
 namespace nimbus {
-
-// Types of the engine families above io (matrix, sets), declared here only
-// so that the table can name them.
-class ComponentAccumulator;
-enum class ComponentGridType;
-struct TriangleMesh;
-struct VoxelizeOptions;
-struct VoxelizeResult;
-struct GridSetOptions;
-class VoxelSet;
-class Interrupter;
 
 /// File name of the module, looked for in $NIMBUS_VDB_MODULE (a full path),
 /// then beside the running program, then in ../lib/nimbus/ from it.
@@ -36,11 +26,13 @@ inline constexpr char kVdbModuleName[] = "libnimbus_vdb.so";
 inline constexpr char kVdbModuleEntry[] = "NimbusVdbModule";
 /// Bumped whenever the table below changes, so a stale module is refused
 /// rather than called through the wrong slots.
-inline constexpr int kVdbModuleAbi = 1;
+inline constexpr int kVdbModuleAbi = 2;
 
-/// @brief The module's functions, each the OpenVDB implementation of the
-/// public function of the same name (vdb_io.h, component_grid.h,
-/// voxelize.h). Both sides are built together, so C++ types may cross.
+/// @brief The module's io functions, each the OpenVDB implementation of
+/// the public function of the same name in vdb_io.h. Both sides are built
+/// together, so C++ types may cross. The families above io keep their own
+/// tables, under entries of their own, beside their code
+/// (core/matrix/component_vdb_module.h, core/sets/voxelize_vdb_module.h).
 struct VdbModule {
   int abi = 0;
   absl::Status (*write_density)(const std::filesystem::path&, const CountGrid&,
@@ -60,20 +52,6 @@ struct VdbModule {
   absl::StatusOr<DenseVec3Volume> (*read_vec3_file)(const std::filesystem::path&,
                                                     const std::string&);
   absl::Status (*check_untrusted)(const std::filesystem::path&, const std::filesystem::path&);
-  // core/matrix/component_grid.h
-  absl::Status (*write_density_and_component)(const std::filesystem::path&,
-                                              const ComponentAccumulator&, const GridFrame&,
-                                              const DensityOptions&, ComponentGridType,
-                                              const Metadata&, const std::filesystem::path&);
-  absl::StatusOr<std::vector<int32_t>> (*read_component_grid)(const std::filesystem::path&,
-                                                              Int3);
-  // core/sets/voxelize.h
-  absl::StatusOr<VoxelizeResult> (*voxelize_mesh)(const TriangleMesh&, const GridFrame&,
-                                                  const VoxelizeOptions&, Interrupter*);
-  absl::Status (*save_mesh_level_set)(const TriangleMesh&, const GridFrame&,
-                                      const std::filesystem::path&, const std::string&);
-  absl::StatusOr<VoxelSet> (*load_grid_set)(const std::filesystem::path&, const GridFrame&,
-                                            const GridSetOptions&, Interrupter*);
 };
 
 /// The entry's type: returns the module's table (static, never freed).
@@ -84,5 +62,24 @@ using VdbModuleEntry = const VdbModule*();
 /// never unloaded; FAILED_PRECONDITION naming every path tried when it is
 /// not installed.
 absl::StatusOr<const VdbModule*> LoadVdbModule();
+
+/// The module's extern "C" entry `symbol` (a family's table), loaded as
+/// LoadVdbModule loads the module; FAILED_PRECONDITION as there.
+absl::StatusOr<void*> LoadVdbModuleSymbol(const char* symbol);
+
+/// A family's table from entry `symbol` (a function returning a static
+/// `const Table*` whose `abi` must equal `abi`); FAILED_PRECONDITION for a
+/// missing module or a stale table. Call it once and keep the result.
+template <class Table>
+absl::StatusOr<const Table*> LoadVdbModuleTable(const char* symbol, int abi) {
+  absl::StatusOr<void*> entry = LoadVdbModuleSymbol(symbol);
+  if (!entry.ok()) return entry.status();
+  const Table* table = reinterpret_cast<const Table* (*)()>(*entry)();
+  if (table == nullptr || table->abi != abi)
+    return absl::FailedPreconditionError(absl::StrCat(kVdbModuleName, ": ", symbol,
+                                                      " table version ", table ? table->abi : 0,
+                                                      ", expected ", abi));
+  return table;
+}
 
 }  // namespace nimbus

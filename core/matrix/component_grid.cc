@@ -2,6 +2,7 @@
 
 #include "core/base/status_macros.h"
 #include "core/io/vdb_module.h"
+#include "core/matrix/component_vdb_module.h"
 
 namespace nimbus {
 
@@ -40,19 +41,28 @@ uint64_t ComponentAccumulator::MaxMemoryBytes(Int3 resolution) {
 }
 
 // The label grids are OpenVDB's: written and read in the module.
+namespace {
+
+absl::StatusOr<const ComponentVdbTable*> ComponentVdb() {
+  static const absl::StatusOr<const ComponentVdbTable*> table =
+      LoadVdbModuleTable<ComponentVdbTable>(kComponentVdbEntry, kComponentVdbAbi);
+  return table;
+}
+
+}  // namespace
 
 absl::Status WriteDensityAndComponentVdb(const std::filesystem::path& path,
                                          const ComponentAccumulator& acc, const GridFrame& frame,
                                          const DensityOptions& options, ComponentGridType type,
                                          const Metadata& metadata,
                                          const std::filesystem::path& int32_path) {
-  NIMBUS_ASSIGN_OR_RETURN(const VdbModule* vdb, LoadVdbModule());
+  NIMBUS_ASSIGN_OR_RETURN(const ComponentVdbTable* vdb, ComponentVdb());
   return vdb->write_density_and_component(path, acc, frame, options, type, metadata, int32_path);
 }
 
 absl::StatusOr<std::vector<int32_t>> ReadComponentGrid(const std::filesystem::path& path,
                                                        Int3 resolution) {
-  NIMBUS_ASSIGN_OR_RETURN(const VdbModule* vdb, LoadVdbModule());
+  NIMBUS_ASSIGN_OR_RETURN(const ComponentVdbTable* vdb, ComponentVdb());
   return vdb->read_component_grid(path, resolution);
 }
 

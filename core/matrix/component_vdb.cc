@@ -7,6 +7,7 @@
 #include "core/io/vdb_impl.h"
 #include "core/io/vdb_internal.h"
 #include "core/matrix/component_grid.h"
+#include "core/matrix/component_vdb_module.h"
 
 namespace nimbus {
 
@@ -118,3 +119,11 @@ absl::StatusOr<std::vector<int32_t>> ReadComponentGrid(const std::filesystem::pa
 }  // namespace vdb_impl
 
 }  // namespace nimbus
+
+extern "C" __attribute__((visibility("default"))) const nimbus::ComponentVdbTable*
+NimbusComponentVdb() {
+  static const nimbus::ComponentVdbTable table{
+      nimbus::kComponentVdbAbi, &nimbus::vdb_impl::WriteDensityAndComponentVdb,
+      &nimbus::vdb_impl::ReadComponentGrid};
+  return &table;
+}

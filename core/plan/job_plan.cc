@@ -19,13 +19,31 @@ const ChaosGameParams* JobPlan::point_run() const {
 }
 
 const ChaosGameParams* JobPlan::shardable_run() const {
-  // A component grid runs one game per component and keeps their labels.
-  if (const IfsMatrixPlan* m = ifs_matrix(); m && m->component_grid != ComponentGridType::kNone)
-    return nullptr;
-  // Pictures and auto-framing run extra passes the shard runner does not.
-  if (const ChaosGamePlan* c = std::get_if<ChaosGamePlan>(&kind); c && (c->image || c->auto_frame))
-    return nullptr;
-  return point_run();
+  using Run = const ChaosGameParams*;
+  return std::visit(
+      Overloaded{// Pictures and auto-framing run extra passes the shard runner does not.
+                 [](const ChaosGamePlan& p) -> Run {
+                   return p.image || p.auto_frame ? nullptr : &p.params;
+                 },
+                 // A component grid runs one game per component and keeps their labels.
+                 [](const IfsMatrixPlan& p) -> Run {
+                   return p.component_grid != ComponentGridType::kNone ? nullptr : &p.run;
+                 },
+                 [](const SetIfsPlan&) -> Run { return nullptr; },
+                 [](const FractalFieldPlan&) -> Run { return nullptr; },
+                 [](const JellyPlan&) -> Run { return nullptr; },
+                 [](const ExplorePlan&) -> Run { return nullptr; }},
+      kind);
+}
+
+bool JobPlan::result_cacheable() const {
+  return std::visit(Overloaded{[](const ChaosGamePlan&) { return true; },
+                               [](const IfsMatrixPlan&) { return true; },
+                               [](const SetIfsPlan&) { return true; },
+                               [](const FractalFieldPlan&) { return true; },
+                               [](const JellyPlan&) { return false; },
+                               [](const ExplorePlan&) { return true; }},
+                    kind);
 }
 
 std::string_view KindName(const JobKindPlan& kind) {

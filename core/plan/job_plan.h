@@ -101,6 +101,10 @@ struct JobPlan {
   /// The one chaos game a sharded job splits (docs/sharding.md): a plain
   /// chaos game, or an IFS matrix without a component grid; null otherwise.
   const ChaosGameParams* shardable_run() const;
+  /// Whether the spec alone determines the result, so that a finished twin
+  /// may answer for it (docs/result_cache.md): false for jelly, whose
+  /// running jobs also take pokes.
+  bool result_cacheable() const;
 };
 
 /// "chaos_game", "ifs_matrix", "set_ifs", "fractal_field", "jelly" or "explore": for logs

@@ -496,6 +496,271 @@ void QueryRanges(const VoxelSet& q, const VoxelBox& box, NeedRanges& need) {
   });
 }
 
+// The positions [lo, hi) some column of a block of `nb` columns needs
+// (column j needs [lo_of[j], hi_of[j])), of `n` along the line, and the
+// block's largest reach; lo >= hi when no column needs any.
+struct BlockRange {
+  int lo, hi, reach;
+};
+BlockRange BlockNeed(const int* lo_of, const int* hi_of, const int* reach_of, int nb, int n) {
+  BlockRange r{n, 0, 0};
+  for (int j = 0; j < nb; ++j)
+    if (lo_of[j] < hi_of[j]) {
+      r.lo = std::min(r.lo, lo_of[j]);
+      r.hi = std::max(r.hi, hi_of[j]);
+    }
+  for (int j = 0; j < nb; ++j) r.reach = std::max(r.reach, reach_of[j]);
+  return r;
+}
+
+// Which parts of the last two passes the queries of `options` need inside
+// `box` (all of them without queries).
+NeedRanges NeededRanges(const VoxelSet& set, Vec3 h, const FeatureTransformOptions& options,
+                        const VoxelBox& box) {
+  const Int3 b = box.Size();
+  NeedRanges need;
+  if (options.queries) {
+    QueryRanges(*options.queries, box, need);
+    // Queries close to the set (the usual case in a median iteration) bound
+    // how far the useful sites lie; past kMaxRadius the test costs more than
+    // it saves, and the lines keep all their sites.
+    constexpr int kMaxRadius = 8;
+    const std::optional<Int3> k = ExactWeights(h.x * h.x, h.y * h.y, h.z * h.z);
+    std::vector<int> radius;  // empty: every column unbounded
+    if (k) ColumnRadii(set, *options.queries, box, kMaxRadius, radius);
+    RowsFromColumns(b, k.value_or(Int3{1, 1, 1}), radius, need);
+  } else {
+    AllRanges(b, need);
+  }
+  return need;
+}
+
+// @brief The three passes of ComputeFeatureTransform over one box, sharing
+// the lattice, the ranges the queries need and the interrupter. Each pass
+// runs in parallel and stops at the next slice or layer once interrupted.
+class FeaturePasses {
+ public:
+  FeaturePasses(const VoxelSet& set, Vec3 h, const VoxelBox& box, const NeedRanges& need,
+                PackedVoxel* F, Interrupter* interrupter)
+      : set(set),
+        box(box),
+        need(need),
+        F(F),
+        intr(OrNull(interrupter)),
+        b(box.Size()),
+        x0(box.min.x),
+        y0(box.min.y),
+        z0(box.min.z),
+        plane(size_t(b.x) * b.y),
+        wx(h.x * h.x),
+        wy(h.y * h.y),
+        wz(h.z * h.z),
+        work(uint64_t(b.z) * 2 + uint64_t(b.y)) {}
+
+  absl::Status Run() {
+    AlongX();
+    if (cancelled) return absl::CancelledError("feature transform interrupted");
+    CostTables();
+    AlongY();
+    if (cancelled) return absl::CancelledError("feature transform interrupted");
+    AlongZ();
+    if (cancelled) return absl::CancelledError("feature transform interrupted");
+    return absl::OkStatus();
+  }
+
+ private:
+  // Polled once per slice or layer (about a millisecond at 256^3), not per
+  // TBB chunk: an auto-partitioned chunk can hold a large share of the lattice.
+  bool keep_going() {
+    if (cancelled.load(std::memory_order_relaxed)) return false;
+    if (intr.WasInterrupted(done.fetch_add(1) + 1, work)) cancelled = true;
+    return !cancelled.load(std::memory_order_relaxed);
+  }
+
+  // Pass 1, along x: nearest member within each row, run by run: members
+  // map to themselves, and each gap between two members splits at its
+  // midpoint (ties go left).
+  void AlongX() {
+    tbb::parallel_for(tbb::blocked_range<int>(0, b.z, 4), [&](const tbb::blocked_range<int>& r) {
+      if (cancelled) return;
+      const int x1 = box.max.x;
+      for (int zi = r.begin(); zi < r.end() && keep_going(); ++zi) {
+        const int z = z0 + zi;
+        for (int yi = need.row_lo[size_t(zi)]; yi < need.row_hi[size_t(zi)]; ++yi) {
+          const int y = y0 + yi;
+          PackedVoxel* const at = F + size_t(zi) * plane + size_t(yi) * b.x - x0;  // by lattice x
+          const uint64_t* row = set.Row(y, z);
+          const PackedVoxel yz = PackVoxel(0, y, z);
+          int pos = x0, prev = -1;  // next position to write; last member so far
+          for (;;) {
+            const int m = NextBit(row, pos, x1, 0);
+            if (m > x1) break;
+            const int e = NextBit(row, m, x1, ~uint64_t{0});  // end of the run
+            const int split = prev < 0 ? pos - 1 : (prev + m) >> 1;
+            for (int x = pos; x <= split; ++x) at[x] = yz | uint32_t(prev);
+            for (int x = std::max(pos, split + 1); x < m; ++x) at[x] = yz | uint32_t(m);
+            for (int x = m; x < e; ++x) at[x] = yz | uint32_t(x);
+            prev = e - 1;
+            pos = e;
+          }
+          if (prev < 0) {
+            std::fill(at + x0, at + x1 + 1, kNoVoxel);
+            continue;
+          }
+          for (int x = pos; x <= x1; ++x) at[x] = yz | uint32_t(prev);
+        }
+      }
+    });
+  }
+
+  // w d^2 of every offset d along x and y (|d| < 1024, indexed by d + 1023):
+  // the earlier axes' cost of a site, read instead of squared, converted and
+  // multiplied per site (the same double either way); and w pos^2 of every
+  // position of the last two passes, for EnvelopeLine.
+  void CostTables() {
+    wdd_x.resize(2047);
+    wdd_y.resize(2047);
+    for (int d = -1023; d <= 1023; ++d) {
+      wdd_x[size_t(d + 1023)] = wx * Square(d);
+      wdd_y[size_t(d + 1023)] = wy * Square(d);
+    }
+    cost_x = wdd_x.data() + 1023;
+    cost_y = wdd_y.data() + 1023;
+    wpp_y.resize(size_t(b.y));
+    wpp_z.resize(size_t(b.z));
+    for (int yi = 0; yi < b.y; ++yi) wpp_y[size_t(yi)] = wy * double(y0 + yi) * (y0 + yi);
+    for (int zi = 0; zi < b.z; ++zi) wpp_z[size_t(zi)] = wz * double(z0 + zi) * (z0 + zi);
+  }
+
+  // Pass 2, along y: combine rows within each z slice. Pass 3 reads rows
+  // [ylo, yhi) of column x only, so only those are written. Columns are
+  // gathered kBlock at a time into a contiguous tile (one cache line per
+  // row) instead of being walked a row stride apart.
+  void AlongY() {
+    constexpr int kBlock = kTileBlock;
+    tbb::parallel_for(tbb::blocked_range<int>(0, b.z, 2), [&](const tbb::blocked_range<int>& r) {
+      if (cancelled) return;
+      LineScratch s;
+      s.Reserve(b.y);
+      std::vector<PackedVoxel> tile(size_t(b.y) * kBlock);
+      std::vector<int> rows;  // rows of the slice with a member: the sites
+      for (int zi = r.begin(); zi < r.end() && keep_going(); ++zi) {
+        PackedVoxel* slice = F + size_t(zi) * plane;
+        rows.clear();
+        for (int yi = need.row_lo[size_t(zi)]; yi < need.row_hi[size_t(zi)]; ++yi)
+          if (slice[size_t(yi) * b.x] != kNoVoxel) rows.push_back(yi);
+        if (rows.empty()) continue;  // every column stays kNoVoxel
+        const int* ylo = need.ylo.data() + size_t(zi) * b.x;
+        const int* yhi = need.yhi.data() + size_t(zi) * b.x;
+        const int* ry = need.reach_y.data() + size_t(zi) * b.x;
+        // Sites of rows [first, last) of the slice's site list.
+        auto sites_between = [&](int from, int to) {
+          const int first = int(std::lower_bound(rows.begin(), rows.end(), from) - rows.begin());
+          const int last = int(std::lower_bound(rows.begin(), rows.end(), to) - rows.begin());
+          return std::pair<int, int>{first, last};
+        };
+        for (int xb = 0; xb < b.x; xb += kBlock) {
+          const int nb = std::min(kBlock, b.x - xb);
+          // The tile needs the site rows within reach and the rows written back.
+          const auto [lo, hi, reach] = BlockNeed(ylo + xb, yhi + xb, ry + xb, nb, b.y);
+          if (lo >= hi) continue;
+          const auto [s0, s1] = sites_between(lo - reach, hi + reach);
+          for (int i = s0; i < s1; ++i) {
+            const int yi = rows[size_t(i)];
+            if (yi < lo || yi >= hi)
+              CopyRow<kBlock>(slice + size_t(yi) * b.x + xb, nb, tile.data() + size_t(yi) * kBlock);
+          }
+          for (int yi = lo; yi < hi; ++yi)
+            CopyRow<kBlock>(slice + size_t(yi) * b.x + xb, nb, tile.data() + size_t(yi) * kBlock);
+          for (int j = 0; j < nb; ++j) {
+            if (ylo[xb + j] >= yhi[xb + j]) continue;
+            const int x = x0 + xb + j;
+            PackedVoxel* col = tile.data() + j;
+            const auto [i0, i1] = sites_between(ylo[xb + j] - ry[xb + j], yhi[xb + j] + ry[xb + j]);
+            if (i0 >= i1) continue;  // no site within reach: no query reads these rows
+            const int m = i1 - i0;
+            for (int i = 0; i < m; ++i) {
+              const int yi = rows[size_t(i0 + i)];
+              const PackedVoxel f = col[size_t(yi) * kBlock];
+              s.pos[i] = y0 + yi;
+              s.c[i] = cost_x[int(f & 1023u) - x] + wpp_y[size_t(yi)];
+              s.f[i] = f;
+            }
+            EnvelopeLine(s, m, wy, y0, ylo[xb + j], yhi[xb + j], col, kBlock);
+          }
+          for (int yi = lo; yi < hi; ++yi)
+            CopyRow<kBlock>(tile.data() + size_t(yi) * kBlock, nb, slice + size_t(yi) * b.x + xb);
+        }
+      }
+    });
+  }
+
+  // Pass 3, along z: combine slices within each y layer, writing only the
+  // z range each column's queries need. Columns are gathered as in pass 2,
+  // so each slice row read brings in a whole cache line instead of one value
+  // per far-apart page.
+  void AlongZ() {
+    constexpr int kBlock = kTileBlock;
+    tbb::parallel_for(tbb::blocked_range<int>(0, b.y, 2), [&](const tbb::blocked_range<int>& r) {
+      if (cancelled) return;
+      LineScratch s;
+      s.Reserve(b.z);
+      std::vector<PackedVoxel> tile(size_t(b.z) * kBlock);
+      for (int yi = r.begin(); yi < r.end() && keep_going(); ++yi) {
+        const int y = y0 + yi;
+        PackedVoxel* layer = F + size_t(yi) * b.x;
+        const int* zlo = need.zlo.data() + size_t(yi) * b.x;
+        const int* zhi = need.zhi.data() + size_t(yi) * b.x;
+        const int* rz = need.reach_z.data() + size_t(yi) * b.x;
+        for (int xb = 0; xb < b.x; xb += kBlock) {
+          const int nb = std::min(kBlock, b.x - xb);
+          // Sites lie within reach of the slices written (see SiteReach).
+          const auto [lo, hi, reach] = BlockNeed(zlo + xb, zhi + xb, rz + xb, nb, b.z);
+          if (lo >= hi) continue;
+          for (int zi = std::max(0, lo - reach); zi < std::min(b.z, hi + reach); ++zi)
+            CopyRow<kBlock>(layer + size_t(zi) * plane + xb, nb, tile.data() + size_t(zi) * kBlock);
+          for (int j = 0; j < nb; ++j) {
+            if (zlo[xb + j] >= zhi[xb + j]) continue;
+            const int x = x0 + xb + j;
+            PackedVoxel* col = tile.data() + j;
+            int m = 0;
+            const int z2 = std::min(b.z, zhi[xb + j] + rz[xb + j]);
+            for (int zi = std::max(0, zlo[xb + j] - rz[xb + j]); zi < z2; ++zi) {
+              const PackedVoxel f = col[size_t(zi) * kBlock];
+              if (f == kNoVoxel) continue;
+              s.pos[m] = z0 + zi;
+              s.c[m] = (cost_x[int(f & 1023u) - x] + cost_y[int((f >> 10) & 1023u) - y]) +
+                       wpp_z[size_t(zi)];
+              s.f[m] = f;
+              ++m;
+            }
+            if (m > 0) EnvelopeLine(s, m, wz, z0, zlo[xb + j], zhi[xb + j], col, kBlock);
+          }
+          for (int zi = lo; zi < hi; ++zi)
+            CopyRow<kBlock>(tile.data() + size_t(zi) * kBlock, nb, layer + size_t(zi) * plane + xb);
+        }
+      }
+    });
+  }
+
+  static constexpr int kTileBlock = 16;
+  const VoxelSet& set;
+  const VoxelBox box;
+  const NeedRanges& need;
+  PackedVoxel* const F;
+  Interrupter& intr;
+  const Int3 b;
+  const int x0, y0, z0;
+  const size_t plane;
+  const double wx, wy, wz;
+  const uint64_t work;
+  std::atomic<bool> cancelled{false};
+  std::atomic<uint64_t> done{0};
+  std::vector<double> wdd_x, wdd_y, wpp_y, wpp_z;
+  const double* cost_x = nullptr;
+  const double* cost_y = nullptr;
+};
+
 }  // namespace
 
 absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
@@ -522,213 +787,8 @@ absl::Status ComputeFeatureTransform(const VoxelSet& set, Vec3 h,
     std::fill(out.nearest.begin(), out.nearest.end(), kNoVoxel);
     return absl::OkStatus();
   }
-
-  const double wx = h.x * h.x, wy = h.y * h.y, wz = h.z * h.z;
-  const int x0 = box.min.x, y0 = box.min.y, z0 = box.min.z;
-  const size_t plane = size_t(b.x) * b.y;
-  PackedVoxel* const F = out.nearest.data();
-
-  // Which parts of the last two passes the queries need.
-  NeedRanges need;
-  if (options.queries) {
-    QueryRanges(*options.queries, box, need);
-    // Queries close to the set (the usual case in a median iteration) bound
-    // how far the useful sites lie; past kMaxRadius the test costs more than
-    // it saves, and the lines keep all their sites.
-    constexpr int kMaxRadius = 8;
-    const std::optional<Int3> k = ExactWeights(h.x * h.x, h.y * h.y, h.z * h.z);
-    std::vector<int> radius;  // empty: every column unbounded
-    if (k) ColumnRadii(set, *options.queries, box, kMaxRadius, radius);
-    RowsFromColumns(b, k.value_or(Int3{1, 1, 1}), radius, need);
-  } else {
-    AllRanges(b, need);
-  }
-
-  Interrupter& intr = OrNull(interrupter);
-  std::atomic<bool> cancelled{false};
-  std::atomic<uint64_t> done{0};
-  const uint64_t work = uint64_t(b.z) * 2 + uint64_t(b.y);
-  // Polled once per slice or layer (about a millisecond at 256^3), not per
-  // TBB chunk: an auto-partitioned chunk can hold a large share of the lattice.
-  auto keep_going = [&] {
-    if (cancelled.load(std::memory_order_relaxed)) return false;
-    if (intr.WasInterrupted(done.fetch_add(1) + 1, work)) cancelled = true;
-    return !cancelled.load(std::memory_order_relaxed);
-  };
-
-  // Pass 1, along x: nearest member within each row, run by run: members
-  // map to themselves, and each gap between two members splits at its
-  // midpoint (ties go left).
-  tbb::parallel_for(tbb::blocked_range<int>(0, b.z, 4), [&](const tbb::blocked_range<int>& r) {
-    if (cancelled) return;
-    const int x1 = box.max.x;
-    for (int zi = r.begin(); zi < r.end() && keep_going(); ++zi) {
-      const int z = z0 + zi;
-      for (int yi = need.row_lo[size_t(zi)]; yi < need.row_hi[size_t(zi)]; ++yi) {
-        const int y = y0 + yi;
-        PackedVoxel* const at = F + size_t(zi) * plane + size_t(yi) * b.x - x0;  // by lattice x
-        const uint64_t* row = set.Row(y, z);
-        const PackedVoxel yz = PackVoxel(0, y, z);
-        int pos = x0, prev = -1;  // next position to write; last member so far
-        for (;;) {
-          const int m = NextBit(row, pos, x1, 0);
-          if (m > x1) break;
-          const int e = NextBit(row, m, x1, ~uint64_t{0});  // end of the run
-          const int split = prev < 0 ? pos - 1 : (prev + m) >> 1;
-          for (int x = pos; x <= split; ++x) at[x] = yz | uint32_t(prev);
-          for (int x = std::max(pos, split + 1); x < m; ++x) at[x] = yz | uint32_t(m);
-          for (int x = m; x < e; ++x) at[x] = yz | uint32_t(x);
-          prev = e - 1;
-          pos = e;
-        }
-        if (prev < 0) {
-          std::fill(at + x0, at + x1 + 1, kNoVoxel);
-          continue;
-        }
-        for (int x = pos; x <= x1; ++x) at[x] = yz | uint32_t(prev);
-      }
-    }
-  });
-  if (cancelled) return absl::CancelledError("feature transform interrupted");
-
-  // w d^2 of every offset d along x and y (|d| < 1024, indexed by d + 1023):
-  // the earlier axes' cost of a site, read instead of squared, converted and
-  // multiplied per site (the same double either way).
-  std::vector<double> wdd_x(2047), wdd_y(2047);
-  for (int d = -1023; d <= 1023; ++d) {
-    wdd_x[size_t(d + 1023)] = wx * Square(d);
-    wdd_y[size_t(d + 1023)] = wy * Square(d);
-  }
-  const double* const cost_x = wdd_x.data() + 1023;
-  const double* const cost_y = wdd_y.data() + 1023;
-  // w pos^2 of every position of the last two passes, for EnvelopeLine.
-  std::vector<double> wpp_y(size_t(b.y)), wpp_z(size_t(b.z));
-  for (int yi = 0; yi < b.y; ++yi) wpp_y[size_t(yi)] = wy * double(y0 + yi) * (y0 + yi);
-  for (int zi = 0; zi < b.z; ++zi) wpp_z[size_t(zi)] = wz * double(z0 + zi) * (z0 + zi);
-
-  // Pass 2, along y: combine rows within each z slice. Pass 3 reads rows
-  // [ylo, yhi) of column x only, so only those are written. Columns are
-  // gathered kBlock at a time into a contiguous tile (one cache line per
-  // row) instead of being walked a row stride apart.
-  constexpr int kBlock = 16;
-  tbb::parallel_for(tbb::blocked_range<int>(0, b.z, 2), [&](const tbb::blocked_range<int>& r) {
-    if (cancelled) return;
-    LineScratch s;
-    s.Reserve(b.y);
-    std::vector<PackedVoxel> tile(size_t(b.y) * kBlock);
-    std::vector<int> rows;  // rows of the slice with a member: the sites
-    for (int zi = r.begin(); zi < r.end() && keep_going(); ++zi) {
-      PackedVoxel* slice = F + size_t(zi) * plane;
-      rows.clear();
-      for (int yi = need.row_lo[size_t(zi)]; yi < need.row_hi[size_t(zi)]; ++yi)
-        if (slice[size_t(yi) * b.x] != kNoVoxel) rows.push_back(yi);
-      if (rows.empty()) continue;  // every column stays kNoVoxel
-      const int* ylo = need.ylo.data() + size_t(zi) * b.x;
-      const int* yhi = need.yhi.data() + size_t(zi) * b.x;
-      const int* ry = need.reach_y.data() + size_t(zi) * b.x;
-      // Sites of rows [first, last) of the slice's site list.
-      auto sites_between = [&](int from, int to) {
-        const int first = int(std::lower_bound(rows.begin(), rows.end(), from) - rows.begin());
-        const int last = int(std::lower_bound(rows.begin(), rows.end(), to) - rows.begin());
-        return std::pair<int, int>{first, last};
-      };
-      for (int xb = 0; xb < b.x; xb += kBlock) {
-        const int nb = std::min(kBlock, b.x - xb);
-        int lo = b.y, hi = 0;  // rows some column of the block needs
-        for (int j = 0; j < nb; ++j)
-          if (ylo[xb + j] < yhi[xb + j]) {
-            lo = std::min(lo, ylo[xb + j]);
-            hi = std::max(hi, yhi[xb + j]);
-          }
-        if (lo >= hi) continue;
-        // The tile needs the site rows within reach and the rows written back.
-        int reach = 0;
-        for (int j = 0; j < nb; ++j) reach = std::max(reach, ry[xb + j]);
-        const auto [s0, s1] = sites_between(lo - reach, hi + reach);
-        for (int i = s0; i < s1; ++i) {
-          const int yi = rows[size_t(i)];
-          if (yi < lo || yi >= hi)
-            CopyRow<kBlock>(slice + size_t(yi) * b.x + xb, nb, tile.data() + size_t(yi) * kBlock);
-        }
-        for (int yi = lo; yi < hi; ++yi)
-          CopyRow<kBlock>(slice + size_t(yi) * b.x + xb, nb, tile.data() + size_t(yi) * kBlock);
-        for (int j = 0; j < nb; ++j) {
-          if (ylo[xb + j] >= yhi[xb + j]) continue;
-          const int x = x0 + xb + j;
-          PackedVoxel* col = tile.data() + j;
-          const auto [i0, i1] =
-              sites_between(ylo[xb + j] - ry[xb + j], yhi[xb + j] + ry[xb + j]);
-          if (i0 >= i1) continue;  // no site within reach: no query reads these rows
-          const int m = i1 - i0;
-          for (int i = 0; i < m; ++i) {
-            const int yi = rows[size_t(i0 + i)];
-            const PackedVoxel f = col[size_t(yi) * kBlock];
-            s.pos[i] = y0 + yi;
-            s.c[i] = cost_x[int(f & 1023u) - x] + wpp_y[size_t(yi)];
-            s.f[i] = f;
-          }
-          EnvelopeLine(s, m, wy, y0, ylo[xb + j], yhi[xb + j], col, kBlock);
-        }
-        for (int yi = lo; yi < hi; ++yi)
-          CopyRow<kBlock>(tile.data() + size_t(yi) * kBlock, nb, slice + size_t(yi) * b.x + xb);
-      }
-    }
-  });
-  if (cancelled) return absl::CancelledError("feature transform interrupted");
-
-  // Pass 3, along z: combine slices within each y layer, writing only the
-  // z range each column's queries need. Columns are gathered as in pass 2,
-  // so each slice row read brings in a whole cache line instead of one value
-  // per far-apart page.
-  tbb::parallel_for(tbb::blocked_range<int>(0, b.y, 2), [&](const tbb::blocked_range<int>& r) {
-    if (cancelled) return;
-    LineScratch s;
-    s.Reserve(b.z);
-    std::vector<PackedVoxel> tile(size_t(b.z) * kBlock);
-    for (int yi = r.begin(); yi < r.end() && keep_going(); ++yi) {
-      const int y = y0 + yi;
-      PackedVoxel* layer = F + size_t(yi) * b.x;
-      const int* zlo = need.zlo.data() + size_t(yi) * b.x;
-      const int* zhi = need.zhi.data() + size_t(yi) * b.x;
-      const int* rz = need.reach_z.data() + size_t(yi) * b.x;
-      for (int xb = 0; xb < b.x; xb += kBlock) {
-        const int nb = std::min(kBlock, b.x - xb);
-        int lo = b.z, hi = 0;  // slices some column of the block needs
-        for (int j = 0; j < nb; ++j)
-          if (zlo[xb + j] < zhi[xb + j]) {
-            lo = std::min(lo, zlo[xb + j]);
-            hi = std::max(hi, zhi[xb + j]);
-          }
-        if (lo >= hi) continue;
-        // Sites lie within reach of the slices written (see SiteReach).
-        int reach = 0;
-        for (int j = 0; j < nb; ++j) reach = std::max(reach, rz[xb + j]);
-        for (int zi = std::max(0, lo - reach); zi < std::min(b.z, hi + reach); ++zi)
-          CopyRow<kBlock>(layer + size_t(zi) * plane + xb, nb, tile.data() + size_t(zi) * kBlock);
-        for (int j = 0; j < nb; ++j) {
-          if (zlo[xb + j] >= zhi[xb + j]) continue;
-          const int x = x0 + xb + j;
-          PackedVoxel* col = tile.data() + j;
-          int m = 0;
-          const int z2 = std::min(b.z, zhi[xb + j] + rz[xb + j]);
-          for (int zi = std::max(0, zlo[xb + j] - rz[xb + j]); zi < z2; ++zi) {
-            const PackedVoxel f = col[size_t(zi) * kBlock];
-            if (f == kNoVoxel) continue;
-            s.pos[m] = z0 + zi;
-            s.c[m] = (cost_x[int(f & 1023u) - x] + cost_y[int((f >> 10) & 1023u) - y]) +
-                     wpp_z[size_t(zi)];
-            s.f[m] = f;
-            ++m;
-          }
-          if (m > 0) EnvelopeLine(s, m, wz, z0, zlo[xb + j], zhi[xb + j], col, kBlock);
-        }
-        for (int zi = lo; zi < hi; ++zi)
-          CopyRow<kBlock>(tile.data() + size_t(zi) * kBlock, nb, layer + size_t(zi) * plane + xb);
-      }
-    }
-  });
-  if (cancelled) return absl::CancelledError("feature transform interrupted");
-  return absl::OkStatus();
+  const NeedRanges need = NeededRanges(set, h, options, box);
+  return FeaturePasses(set, h, box, need, out.nearest.data(), interrupter).Run();
 }
 
 absl::StatusOr<FeatureField> ComputeFeatureTransform(const VoxelSet& set, Vec3 voxel_size,

@@ -188,73 +188,46 @@ uint32_t RankMembers(const VoxelSet& set, const VoxelBox& box, std::vector<uint3
   return total;
 }
 
-// Adds { Midpoint(a, nearest(a)) : a in moving } to `out`, where `moving`
-// is the part of `source` outside the target set and `field` holds nearest
-// target voxels at least at every moving voxel. Members of `source` that
-// are not moving lie in the target and map to themselves.
-//
-// Gap filling: where the images of face-adjacent voxels are two or more
-// voxels apart but their nearest points are close and in agreeing
-// directions (the nearest-point map is continuous there, so the exact image
-// is solid), the segment between the images is drawn, and the image of the
-// voxel cube spanned from `a` is filled as six tetrahedra. The images and
-// nearest points of the moving voxels are kept in compact arrays indexed
-// by rank (MemberRanks) for the neighbour checks.
-absl::Status AddMidpoints(const VoxelSet& moving, const VoxelSet& source, const FeatureField& field,
-                          const MedianOptions& options, uint64_t seed,
-                          const VoxelBox& moving_box, MovingBuffers& ws, VoxelSet& out,
-                          Interrupter& intr) {
-  const Int3 res = moving.resolution();
-  const unsigned round_up = unsigned(Mix64(seed) >> 61);
-  const int jump = options.bridge_max_jump;
-  const VoxelBox* const mbox = &moving_box;  // the caller's, from SplitPair
-  MemberRanks ranks;
-  const uint32_t count = RankMembers(moving, *mbox, ws.rank_first, ranks);
-  // Images and nearest points of the moving voxels, by rank; every entry
-  // is written by the first loop, so the buffers skip the fill.
-  auto& images = ws.images;
-  auto& nearest = ws.nearest;
-  if (jump > 0) {
-    if (images.capacity() < count) images.clear();
-    images.resize(count);
-    if (nearest.capacity() < count) nearest.clear();
-    nearest.resize(count);
-  }
-  std::atomic<bool> cancelled{false};
-  std::atomic<uint64_t> done{0};
-  const uint64_t work = uint64_t(res.z) * (jump > 0 ? 2 : 1);
-  const tbb::blocked_range<int> slabs(mbox->min.z, mbox->max.z + 1, 2);
-  auto poll = [&](uint64_t units) {
-    if (intr.WasInterrupted(done.fetch_add(units) + units, work)) cancelled = true;
-  };
-  tbb::parallel_for(slabs, [&](const tbb::blocked_range<int>& r) {
-    if (cancelled) return;
-    for (int z = r.begin(); z < r.end(); ++z)
-      for (int y = mbox->min.y; y <= mbox->max.y; ++y) {
-        const uint64_t* row = moving.Row(y, z);
-        uint32_t rank = ranks.first[ranks.Slot(y, z)];
-        // The field's row (y, z), indexed by x - box.min.x: the moving box
-        // lies in the field's box. Found once per row, not per voxel.
-        const PackedVoxel* field_row = field.nearest.data() + field.Index(field.box.min.x, y, z);
-        for (int w = ranks.w0; w < ranks.w0 + ranks.nw; ++w)
-          for (uint64_t bits = row[w]; bits; bits &= bits - 1, ++rank) {
-            const int x = (w << 6) + std::countr_zero(bits);
-            const PackedVoxel pf = field_row[x - field.box.min.x];
-            // An empty target leaves nothing to move toward: keep the voxel.
-            const Int3 m =
-                pf == kNoVoxel ? Int3{x, y, z} : Midpoint({x, y, z}, UnpackVoxel(pf), round_up);
-            SetAtomic(out, m.x, m.y, m.z);
-            if (jump > 0) {
-              images[rank] = PackVoxel(m);
-              nearest[rank] = pf;
-            }
-          }
-      }
-    poll(r.size());
-  });
-  if (cancelled) return absl::CancelledError("median interrupted");
-  if (jump <= 0) return absl::OkStatus();
+// @brief One AddMidpoints call (below): the moving voxels' images, then
+// the gap filling between neighbours.
+class MidpointPass {
+ public:
+  MidpointPass(const VoxelSet& moving, const VoxelSet& source, const FeatureField& field,
+               const MedianOptions& options, uint64_t seed, const VoxelBox& moving_box,
+               MovingBuffers& ws, VoxelSet& out, Interrupter& intr)
+      : moving(moving),
+        source(source),
+        field(field),
+        out(out),
+        intr(intr),
+        res(moving.resolution()),
+        round_up(unsigned(Mix64(seed) >> 61)),
+        jump(options.bridge_max_jump),
+        mbox(&moving_box),  // the caller's, from SplitPair
+        count(RankMembers(moving, *mbox, ws.rank_first, ranks)),
+        images(ws.images),
+        nearest(ws.nearest),
+        work(uint64_t(res.z) * (jump > 0 ? 2 : 1)),
+        slabs(mbox->min.z, mbox->max.z + 1, 2) {}
 
+  absl::Status Run() {
+    // Images and nearest points of the moving voxels, by rank; every entry
+    // is written by the first loop, so the buffers skip the fill.
+    if (jump > 0) {
+      if (images.capacity() < count) images.clear();
+      images.resize(count);
+      if (nearest.capacity() < count) nearest.clear();
+      nearest.resize(count);
+    }
+    MoveVoxels();
+    if (cancelled) return absl::CancelledError("median interrupted");
+    if (jump <= 0) return absl::OkStatus();
+    FillGaps();
+    if (cancelled) return absl::CancelledError("median interrupted");
+    return absl::OkStatus();
+  }
+
+ private:
   // Rows of the source and the moving set around one row, with the ranks
   // of the moving voxels; the neighbour tests below are bit tests on these
   // (null outside the lattice or, for ranks, outside the moving box, where
@@ -264,7 +237,45 @@ absl::Status AddMidpoints(const VoxelSet& moving, const VoxelSet& source, const 
     const uint64_t* mov = nullptr;
     const uint32_t* first = nullptr;  // MemberRanks::first at word 0
   };
-  auto rows_at = [&](int y, int z) {
+  // Neighbours in -x, +x, -y, +y, -z, +z order.
+  static constexpr int kStep[6][3] = {{-1, 0, 0}, {1, 0, 0},  {0, -1, 0},
+                                      {0, 1, 0},  {0, 0, -1}, {0, 0, 1}};
+
+  void Poll(uint64_t units) {
+    if (intr.WasInterrupted(done.fetch_add(units) + units, work)) cancelled = true;
+  }
+
+  // Every moving voxel's image into `out` (and, for the gap filling, into
+  // `images` and `nearest` by rank).
+  void MoveVoxels() {
+    tbb::parallel_for(slabs, [&](const tbb::blocked_range<int>& r) {
+      if (cancelled) return;
+      for (int z = r.begin(); z < r.end(); ++z)
+        for (int y = mbox->min.y; y <= mbox->max.y; ++y) {
+          const uint64_t* row = moving.Row(y, z);
+          uint32_t rank = ranks.first[ranks.Slot(y, z)];
+          // The field's row (y, z), indexed by x - box.min.x: the moving box
+          // lies in the field's box. Found once per row, not per voxel.
+          const PackedVoxel* field_row = field.nearest.data() + field.Index(field.box.min.x, y, z);
+          for (int w = ranks.w0; w < ranks.w0 + ranks.nw; ++w)
+            for (uint64_t bits = row[w]; bits; bits &= bits - 1, ++rank) {
+              const int x = (w << 6) + std::countr_zero(bits);
+              const PackedVoxel pf = field_row[x - field.box.min.x];
+              // An empty target leaves nothing to move toward: keep the voxel.
+              const Int3 m =
+                  pf == kNoVoxel ? Int3{x, y, z} : Midpoint({x, y, z}, UnpackVoxel(pf), round_up);
+              SetAtomic(out, m.x, m.y, m.z);
+              if (jump > 0) {
+                images[rank] = PackVoxel(m);
+                nearest[rank] = pf;
+              }
+            }
+        }
+      Poll(r.size());
+    });
+  }
+
+  Rows RowsAt(int y, int z) const {
     Rows r;
     if (y < 0 || z < 0 || y >= res.y || z >= res.z) return r;
     r.src = source.Row(y, z);
@@ -272,17 +283,18 @@ absl::Status AddMidpoints(const VoxelSet& moving, const VoxelSet& source, const 
     if (y >= mbox->min.y && y <= mbox->max.y && z >= mbox->min.z && z <= mbox->max.z)
       r.first = ranks.first + ranks.Slot(y, z) - ranks.w0;
     return r;
-  };
-  auto bit = [](const uint64_t* row, int x) { return (row[x >> 6] >> (x & 63)) & 1; };
+  }
+  static uint64_t Bit(const uint64_t* row, int x) { return (row[x >> 6] >> (x & 63)) & 1; }
   // Rank of moving voxel x of a row.
-  auto rank_in = [](const Rows& r, int x) {
+  static uint32_t RankIn(const Rows& r, int x) {
     const int w = x >> 6;
     return r.first[w] + PopCount(r.mov[w] & ((uint64_t{1} << (x & 63)) - 1));
-  };
+  }
+
   // Fills the image of the cube a + {0,1}^3 when it lies wholly in the
   // source and the nearest-point map is continuous over it. `rows` are
   // rows (y, z), (y + 1, z), (y, z + 1) and (y + 1, z + 1) of a = (x, y, z).
-  auto fill_cube = [&](Int3 a, const Rows (&rows)[4]) {
+  void FillCube(Int3 a, const Rows (&rows)[4]) {
     if (a.x + 1 >= res.x) return;
     Int3 img[8];
     Motion motion[8];
@@ -290,12 +302,12 @@ absl::Status AddMidpoints(const VoxelSet& moving, const VoxelSet& source, const 
     for (int c = 0; c < 8; ++c) {
       const Rows& row = rows[c >> 1];
       const int x = a.x + (c & 1);
-      if (!row.src || !bit(row.src, x)) return;
+      if (!row.src || !Bit(row.src, x)) return;
       const Int3 v{x, a.y + ((c >> 1) & 1), a.z + (c >> 2)};
       Int3 f = v;  // target members stay put
       img[c] = v;
-      if (bit(row.mov, x)) {
-        const uint32_t rank = rank_in(row, x);
+      if (Bit(row.mov, x)) {
+        const uint32_t rank = RankIn(row, x);
         f = UnpackVoxel(nearest[rank]);
         img[c] = UnpackVoxel(images[rank]);
       }
@@ -315,112 +327,149 @@ absl::Status AddMidpoints(const VoxelSet& moving, const VoxelSet& source, const 
       return true;
     };
     FillCubeImage(img, CubeImageBox(img, res), out, coherent);
-  };
-  const gap::NeedFn need_of = gap::NeedKernel();
-  tbb::parallel_for(slabs, [&](const tbb::blocked_range<int>& r) {
-    if (cancelled) return;
-    for (int z = r.begin(); z < r.end(); ++z) {
-      for (int y = mbox->min.y; y <= mbox->max.y; ++y) {
-        const Rows here = rows_at(y, z);
-        bool any = false;
-        for (int w = mbox->min.x >> 6; w <= mbox->max.x >> 6 && !any; ++w) any = here.mov[w];
-        if (!any) continue;
-        // Neighbours in -x, +x, -y, +y, -z, +z order.
-        const Rows around[6] = {
-            here, here, rows_at(y - 1, z), rows_at(y + 1, z), rows_at(y, z - 1), rows_at(y, z + 1)};
-        static constexpr int kStep[6][3] = {{-1, 0, 0}, {1, 0, 0},  {0, -1, 0},
-                                            {0, 1, 0},  {0, 0, -1}, {0, 0, 1}};
-        // The pairs of moving voxel (x, rank) with its neighbours: bridges
-        // and, when it stretches toward +x, +y or +z, the cube fill.
-        // The neighbours to pair with come from the pretest's words (bit b
-        // of still[k] | moves[k]): source voxels inside the lattice, moving
-        // ones only along +x, +y and +z (the others pair from there).
-        auto bridge = [&](int x, uint32_t rank, int b, const uint64_t (&still)[6],
-                          const uint64_t (&moves)[6]) {
-          const Int3 a{x, y, z};
-          const Int3 m = UnpackVoxel(images[rank]);
-          const Int3 f = UnpackVoxel(nearest[rank]);
-          bool stretched = false;
-          for (int k = 0; k < 6; ++k) {
-            if (!(((still[k] | moves[k]) >> b) & 1)) continue;
-            const Rows& nr = around[k];
-            const int nx = x + kStep[k][0];
-            const bool n_moving = (moves[k] >> b) & 1;
-            const Int3 n{nx, y + kStep[k][1], z + kStep[k][2]};
-            // Along x a moving neighbour is the next rank.
-            const uint32_t rn = !n_moving ? 0 : k == 1 ? rank + 1 : rank_in(nr, nx);
-            const Int3 mn = n_moving ? UnpackVoxel(images[rn]) : n;
-            const int gap = Chebyshev(m, mn);
-            if (gap < 2) continue;
-            const Int3 fn = n_moving ? UnpackVoxel(nearest[rn]) : n;
-            if (Chebyshev(f, fn) > jump || !Coherent(a, f, n, fn)) continue;
-            if (k & 1) stretched = true;
-            for (int s = 1; s < gap; ++s) {
-              const double t = double(s) / gap;
-              SetAtomic(out, m.x + RoundHalfAway((mn.x - m.x) * t),
-                        m.y + RoundHalfAway((mn.y - m.y) * t),
-                        m.z + RoundHalfAway((mn.z - m.z) * t));
-            }
-          }
-          if (stretched) {
-            const Rows cube_rows[4] = {here, around[3], around[5], rows_at(y + 1, z + 1)};
-            fill_cube(a, cube_rows);
-          }
-        };
-        const int w_first = mbox->min.x >> 6, w_last = mbox->max.x >> 6;
-        const int words = moving.words_per_row();
-        auto word_of = [&](const uint64_t* row, int w) {
-          return row && w >= 0 && w < words ? row[w] : uint64_t{0};
-        };
-        for (int w = w_first; w <= w_last; ++w) {
-          const uint64_t mov = here.mov[w];
-          if (!mov) continue;
-          // Bit b of these words stands for voxel x = 64 w + b and tells
-          // whether its neighbour in direction k is a source voxel that
-          // stays put (`still`) or one that moves (`moves`, +x, +y and +z
-          // only: pairs with -x, -y and -z moving neighbours are handled
-          // from those).
-          const int room = res.x - 1 - (w << 6);  // bits b with x + 1 < res.x
-          const uint64_t has_hi = room >= 64 ? ~uint64_t{0} : (uint64_t{1} << room) - 1;
-          const uint64_t src_lo = (here.src[w] << 1) | (word_of(here.src, w - 1) >> 63);
-          const uint64_t mov_lo = (mov << 1) | (word_of(here.mov, w - 1) >> 63);
-          const uint64_t src_hi = ((here.src[w] >> 1) | (word_of(here.src, w + 1) << 63)) & has_hi;
-          const uint64_t mov_hi = ((mov >> 1) | (word_of(here.mov, w + 1) << 63)) & has_hi;
-          uint64_t still[6], moves[6] = {0, mov_hi, 0, 0, 0, 0};
-          still[0] = src_lo & ~mov_lo;
-          still[1] = src_hi & ~mov_hi;
-          for (int k = 2; k < 6; ++k) {
-            const uint64_t s = word_of(around[k].src, w), mv = word_of(around[k].mov, w);
-            still[k] = s & ~mv;
-            if (k & 1) moves[k] = mv;
-          }
-          // The pretest (gap_pretest.h) leaves the voxels that may need a
-          // bridge: about one in five.
-          const uint32_t rank0 = here.first[w];
-          gap::Word g;
-          g.mov = mov;
-          std::copy_n(still, 6, g.still);
-          g.moves_x = moves[1];
-          g.moves_y = moves[3];
-          g.moves_z = moves[5];
-          g.images = images.data() + rank0;
-          if (moves[3]) g.images_y = images.data() + around[3].first[w];
-          if (moves[5]) g.images_z = images.data() + around[5].first[w];
-          g.x0 = w << 6;
-          g.y = y;
-          g.z = z;
-          for (uint64_t need = need_of(g); need; need &= need - 1) {
-            const int b = std::countr_zero(need);
-            const uint32_t rank = rank0 + PopCount(mov & ((uint64_t{1} << b) - 1));
-            bridge((w << 6) + b, rank, b, still, moves);
-          }
-        }
+  }
+
+  // The pairs of moving voxel (x, rank) with its neighbours: bridges
+  // and, when it stretches toward +x, +y or +z, the cube fill.
+  // The neighbours to pair with come from the pretest's words (bit b
+  // of still[k] | moves[k]): source voxels inside the lattice, moving
+  // ones only along +x, +y and +z (the others pair from there).
+  void Bridge(int x, int y, int z, uint32_t rank, int b, const uint64_t (&still)[6],
+              const uint64_t (&moves)[6], const Rows& here, const Rows (&around)[6]) {
+    const Int3 a{x, y, z};
+    const Int3 m = UnpackVoxel(images[rank]);
+    const Int3 f = UnpackVoxel(nearest[rank]);
+    bool stretched = false;
+    for (int k = 0; k < 6; ++k) {
+      if (!(((still[k] | moves[k]) >> b) & 1)) continue;
+      const Rows& nr = around[k];
+      const int nx = x + kStep[k][0];
+      const bool n_moving = (moves[k] >> b) & 1;
+      const Int3 n{nx, y + kStep[k][1], z + kStep[k][2]};
+      // Along x a moving neighbour is the next rank.
+      const uint32_t rn = !n_moving ? 0 : k == 1 ? rank + 1 : RankIn(nr, nx);
+      const Int3 mn = n_moving ? UnpackVoxel(images[rn]) : n;
+      const int gap = Chebyshev(m, mn);
+      if (gap < 2) continue;
+      const Int3 fn = n_moving ? UnpackVoxel(nearest[rn]) : n;
+      if (Chebyshev(f, fn) > jump || !Coherent(a, f, n, fn)) continue;
+      if (k & 1) stretched = true;
+      for (int s = 1; s < gap; ++s) {
+        const double t = double(s) / gap;
+        SetAtomic(out, m.x + RoundHalfAway((mn.x - m.x) * t), m.y + RoundHalfAway((mn.y - m.y) * t),
+                  m.z + RoundHalfAway((mn.z - m.z) * t));
       }
     }
-    poll(r.size());
-  });
-  if (cancelled) return absl::CancelledError("median interrupted");
-  return absl::OkStatus();
+    if (stretched) {
+      const Rows cube_rows[4] = {here, around[3], around[5], RowsAt(y + 1, z + 1)};
+      FillCube(a, cube_rows);
+    }
+  }
+
+  // The bridges and cube fills of the moving voxels of row (y, z).
+  void FillRowGaps(int y, int z, gap::NeedFn need_of) {
+    const Rows here = RowsAt(y, z);
+    bool any = false;
+    for (int w = mbox->min.x >> 6; w <= mbox->max.x >> 6 && !any; ++w) any = here.mov[w];
+    if (!any) return;
+    const Rows around[6] = {
+        here, here, RowsAt(y - 1, z), RowsAt(y + 1, z), RowsAt(y, z - 1), RowsAt(y, z + 1)};
+    const int w_first = mbox->min.x >> 6, w_last = mbox->max.x >> 6;
+    const int words = moving.words_per_row();
+    auto word_of = [&](const uint64_t* row, int w) {
+      return row && w >= 0 && w < words ? row[w] : uint64_t{0};
+    };
+    for (int w = w_first; w <= w_last; ++w) {
+      const uint64_t mov = here.mov[w];
+      if (!mov) continue;
+      // Bit b of these words stands for voxel x = 64 w + b and tells
+      // whether its neighbour in direction k is a source voxel that
+      // stays put (`still`) or one that moves (`moves`, +x, +y and +z
+      // only: pairs with -x, -y and -z moving neighbours are handled
+      // from those).
+      const int room = res.x - 1 - (w << 6);  // bits b with x + 1 < res.x
+      const uint64_t has_hi = room >= 64 ? ~uint64_t{0} : (uint64_t{1} << room) - 1;
+      const uint64_t src_lo = (here.src[w] << 1) | (word_of(here.src, w - 1) >> 63);
+      const uint64_t mov_lo = (mov << 1) | (word_of(here.mov, w - 1) >> 63);
+      const uint64_t src_hi = ((here.src[w] >> 1) | (word_of(here.src, w + 1) << 63)) & has_hi;
+      const uint64_t mov_hi = ((mov >> 1) | (word_of(here.mov, w + 1) << 63)) & has_hi;
+      uint64_t still[6], moves[6] = {0, mov_hi, 0, 0, 0, 0};
+      still[0] = src_lo & ~mov_lo;
+      still[1] = src_hi & ~mov_hi;
+      for (int k = 2; k < 6; ++k) {
+        const uint64_t s = word_of(around[k].src, w), mv = word_of(around[k].mov, w);
+        still[k] = s & ~mv;
+        if (k & 1) moves[k] = mv;
+      }
+      // The pretest (gap_pretest.h) leaves the voxels that may need a
+      // bridge: about one in five.
+      const uint32_t rank0 = here.first[w];
+      gap::Word g;
+      g.mov = mov;
+      std::copy_n(still, 6, g.still);
+      g.moves_x = moves[1];
+      g.moves_y = moves[3];
+      g.moves_z = moves[5];
+      g.images = images.data() + rank0;
+      if (moves[3]) g.images_y = images.data() + around[3].first[w];
+      if (moves[5]) g.images_z = images.data() + around[5].first[w];
+      g.x0 = w << 6;
+      g.y = y;
+      g.z = z;
+      for (uint64_t need = need_of(g); need; need &= need - 1) {
+        const int b = std::countr_zero(need);
+        const uint32_t rank = rank0 + PopCount(mov & ((uint64_t{1} << b) - 1));
+        Bridge((w << 6) + b, y, z, rank, b, still, moves, here, around);
+      }
+    }
+  }
+
+  // Bridges and cube fills between the images of neighbouring voxels.
+  void FillGaps() {
+    const gap::NeedFn need_of = gap::NeedKernel();
+    tbb::parallel_for(slabs, [&](const tbb::blocked_range<int>& r) {
+      if (cancelled) return;
+      for (int z = r.begin(); z < r.end(); ++z)
+        for (int y = mbox->min.y; y <= mbox->max.y; ++y) FillRowGaps(y, z, need_of);
+      Poll(r.size());
+    });
+  }
+
+  const VoxelSet& moving;
+  const VoxelSet& source;
+  const FeatureField& field;
+  VoxelSet& out;
+  Interrupter& intr;
+  const Int3 res;
+  const unsigned round_up;
+  const int jump;
+  const VoxelBox* const mbox;
+  MemberRanks ranks;
+  const uint32_t count;
+  std::vector<PackedVoxel, BigBufferAllocator<PackedVoxel>>& images;
+  std::vector<PackedVoxel, BigBufferAllocator<PackedVoxel>>& nearest;
+  const uint64_t work;
+  const tbb::blocked_range<int> slabs;
+  std::atomic<bool> cancelled{false};
+  std::atomic<uint64_t> done{0};
+};
+
+// Adds { Midpoint(a, nearest(a)) : a in moving } to `out`, where `moving`
+// is the part of `source` outside the target set and `field` holds nearest
+// target voxels at least at every moving voxel. Members of `source` that
+// are not moving lie in the target and map to themselves.
+//
+// Gap filling: where the images of face-adjacent voxels are two or more
+// voxels apart but their nearest points are close and in agreeing
+// directions (the nearest-point map is continuous there, so the exact image
+// is solid), the segment between the images is drawn, and the image of the
+// voxel cube spanned from `a` is filled as six tetrahedra. The images and
+// nearest points of the moving voxels are kept in compact arrays indexed
+// by rank (MemberRanks) for the neighbour checks.
+absl::Status AddMidpoints(const VoxelSet& moving, const VoxelSet& source, const FeatureField& field,
+                          const MedianOptions& options, uint64_t seed, const VoxelBox& moving_box,
+                          MovingBuffers& ws, VoxelSet& out, Interrupter& intr) {
+  return MidpointPass(moving, source, field, options, seed, moving_box, ws, out, intr).Run();
 }
 
 // ws.field = `target`'s feature transform, computed only over the box the

@@ -10,6 +10,7 @@
 #include "core/base/status_macros.h"
 #include "core/io/vdb_module.h"
 #include "core/sets/set_source_price.h"
+#include "core/sets/voxelize_vdb_module.h"
 
 namespace nimbus {
 namespace {
@@ -151,10 +152,20 @@ uint64_t VoxelizeMemoryBytes(const TriangleMesh& mesh, const Affine3& placement,
 
 // Voxelisation and grid sets are OpenVDB's: they run in the module
 // (voxelize_vdb.cc).
+namespace {
+
+absl::StatusOr<const VoxelizeVdbTable*> VoxelizeVdb() {
+  static const absl::StatusOr<const VoxelizeVdbTable*> table =
+      LoadVdbModuleTable<VoxelizeVdbTable>(kVoxelizeVdbEntry, kVoxelizeVdbAbi);
+  return table;
+}
+
+}  // namespace
+
 absl::StatusOr<VoxelizeResult> VoxelizeMesh(const TriangleMesh& mesh, const GridFrame& frame,
                                             const VoxelizeOptions& options,
                                             Interrupter* interrupter) {
-  NIMBUS_ASSIGN_OR_RETURN(const VdbModule* vdb, LoadVdbModule());
+  NIMBUS_ASSIGN_OR_RETURN(const VoxelizeVdbTable* vdb, VoxelizeVdb());
   return vdb->voxelize_mesh(mesh, frame, options, interrupter);
 }
 
@@ -172,13 +183,13 @@ absl::StatusOr<VoxelizeResult> LoadAndVoxelize(const std::filesystem::path& path
 
 absl::Status SaveMeshLevelSet(const TriangleMesh& mesh, const GridFrame& frame,
                               const std::filesystem::path& path, const std::string& grid_name) {
-  NIMBUS_ASSIGN_OR_RETURN(const VdbModule* vdb, LoadVdbModule());
+  NIMBUS_ASSIGN_OR_RETURN(const VoxelizeVdbTable* vdb, VoxelizeVdb());
   return vdb->save_mesh_level_set(mesh, frame, path, grid_name);
 }
 
 absl::StatusOr<VoxelSet> LoadGridSet(const std::filesystem::path& path, const GridFrame& frame,
                                      const GridSetOptions& options, Interrupter* interrupter) {
-  NIMBUS_ASSIGN_OR_RETURN(const VdbModule* vdb, LoadVdbModule());
+  NIMBUS_ASSIGN_OR_RETURN(const VoxelizeVdbTable* vdb, VoxelizeVdb());
   return vdb->load_grid_set(path, frame, options, interrupter);
 }
 

@@ -17,6 +17,7 @@
 #include "core/base/status_macros.h"
 #include "core/io/vdb_internal.h"
 #include "core/sets/voxelize.h"
+#include "core/sets/voxelize_vdb_module.h"
 
 namespace nimbus::vdb_impl {
 namespace {
@@ -376,3 +377,11 @@ absl::StatusOr<VoxelSet> LoadGridSet(const std::filesystem::path& path, const Gr
 }
 
 }  // namespace nimbus::vdb_impl
+
+extern "C" __attribute__((visibility("default"))) const nimbus::VoxelizeVdbTable*
+NimbusVoxelizeVdb() {
+  static const nimbus::VoxelizeVdbTable table{
+      nimbus::kVoxelizeVdbAbi, &nimbus::vdb_impl::VoxelizeMesh, &nimbus::vdb_impl::SaveMeshLevelSet,
+      &nimbus::vdb_impl::LoadGridSet};
+  return &table;
+}

@@ -64,7 +64,8 @@ TEST(PreviewFilesE2E, CliRenderSavesGaplessPreviewsFromARealServer) {
   ASSERT_TRUE(spec.ok());
   spec->mutable_grid()->clear_resolution();
   for (int r : {16, 128, 120}) spec->mutable_grid()->add_resolution(r);
-  spec->mutable_chaos_game()->set_iterations(150'000'000);
+  // Long enough (seconds) that a loaded machine still sends several previews.
+  spec->mutable_chaos_game()->set_iterations(500'000'000);
   spec->mutable_output()->set_up_axis(v1::UP_AXIS_Z);
   std::ofstream(dir / "tree.json") << spec::SpecToJson(*spec);
   ASSERT_EQ(RunCli("--server " + server.target() + " render " + (dir / "tree.json").string() +

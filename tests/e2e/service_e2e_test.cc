@@ -470,9 +470,8 @@ TEST(CliE2E, CtrlCCancelsTheRendersJob) {
       << testing::ReadFileBytes(dir / "job.json");
 }
 
-// `nimbus render` ends without stopping its embedded server once the
-// result is written (ExitWithoutTeardown): what it leaves in the data dir
-// is whole. The next render of the same spec is answered from the result
+// `nimbus render` stops its embedded server once the result is written:
+// what it leaves in the data dir is whole. The next render of the same spec is answered from the result
 // cache with the same bytes, `nimbus jobs` lists both jobs as succeeded,
 // and nimbusd serves the data dir afterwards.
 TEST(CliE2E, RenderLeavesItsDataDirWholeForTheNextCommand) {

@@ -51,7 +51,10 @@ TEST(JellySpec, ExamplesConvertAndAreAdmitted) {
     EXPECT_EQ(job->work.total, job->jelly()->frames);
     EXPECT_EQ(KindName(job->kind), "jelly");
     EXPECT_TRUE(server::AdmitMemory(*job, {}, 2).ok()) << name;
+    // Pokes change a jelly result and are not in the spec.
+    EXPECT_FALSE(job->result_cacheable()) << name;
   }
+  EXPECT_TRUE(ConvertSpec(Example("tree.json"), {})->result_cacheable());
   auto job = ConvertSpec(Example("jelly_sierpinski.json"), {});
   EXPECT_EQ(job->jelly()->sim.bodies.size(), 4u);
   EXPECT_EQ(job->jelly()->sim.springs.size(), 6u);

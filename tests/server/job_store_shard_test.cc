@@ -1,6 +1,6 @@
-// Contract tests of the JobStore additions for sharded jobs and the result
-// cache (docs/sharding.md, docs/result_cache.md), written against a plain
-// JobStore&, run against every store kind (SQLite and PostgreSQL).
+// The shard store's contract (ShardStore in server/job_store.h) and what
+// shards mean to the queue and the holdings (docs/sharding.md), run against
+// every store kind (SQLite and PostgreSQL).
 #include <gtest/gtest.h>
 
 #include <memory>
@@ -9,68 +9,18 @@
 #include <vector>
 
 #include "server/job_store.h"
-#include "tests/support/job_store_factory.h"
+#include "tests/support/job_store_contract.h"
 #include "tests/support/test_util.h"
 
 namespace nimbus::server {
 namespace {
 
-constexpr TimeMs kT0 = 1'700'000'000'000;
-constexpr TimeMs kLease = 10'000;
+using namespace contract;  // NOLINT: the contract's helpers
 
-NewJob MakeJob(const std::string& id, uint32_t shards = 0, const std::string& sha = "") {
-  NewJob job;
-  job.id = id;
-  job.name = "name-" + id;
-  job.spec = "spec of " + id;
-  job.progress_total = 1000;
-  job.estimated_memory_bytes = 4096;
-  job.owner = "alice";
-  job.shard_count = shards;
-  job.spec_sha256 = sha;
-  return job;
-}
+NIMBUS_STORE_CONTRACT_SUITE(ShardStoreTest);
 
-std::vector<std::string> Ids(const std::vector<JobRecord>& jobs) {
-  std::vector<std::string> ids;
-  for (const JobRecord& j : jobs) ids.push_back(j.id);
-  return ids;
-}
-
-// Run against every store kind, like the rest of the JobStore contract.
-class JobStoreShardTest : public ::testing::TestWithParam<testing::StoreKind> {
- protected:
-  void SetUp() override {
-    auto where = testing::StoreLocation::Fresh(GetParam(), dir_.path());
-    if (absl::IsUnavailable(where.status())) GTEST_SKIP() << where.status().message();
-    ASSERT_TRUE(where.ok()) << where.status();
-    auto store = where->Open();
-    ASSERT_TRUE(store.ok()) << store.status();
-    store_ = std::move(*store);
-  }
-  JobStore& store() { return *store_; }
-
-  // Claims the next job as `worker`; its id, or "" when nothing is claimable.
-  std::string Claim(const std::string& worker, TimeMs now = kT0, uint32_t max_attempts = 0) {
-    auto c = store().ClaimNext(worker, now, kLease, max_attempts);
-    EXPECT_TRUE(c.ok()) << c.status();
-    return c.ok() && c->has_value() ? (*c)->id : "";
-  }
-  void Succeed(const std::string& id, const std::string& worker) {
-    Completion done;
-    done.result_key = id;
-    done.result_size = 10;
-    done.result_sha256 = "ab";
-    ASSERT_TRUE(store().Complete(id, worker, done, kT0 + 5).ok());
-  }
-  JobState StateOf(const std::string& id) { return store().Get(id)->state; }
-
-  testing::TempDir dir_;
-  std::unique_ptr<JobStore> store_;
-};
-
-TEST_P(JobStoreShardTest, CreateInsertsTheParentAndItsShards) {
-  auto parent = store().Create(MakeJob("p", 3, "hash"), kT0);
+TEST_P(ShardStoreTest, CreateInsertsTheParentAndItsShards) {
+  auto parent = store().Create(OwnedJob("p", 3, "hash"), kT0);
   ASSERT_TRUE(parent.ok()) << parent.status();
   EXPECT_EQ(parent->state, JobState::kQueued);
   EXPECT_EQ(parent->shard_count, 3u);
@@ -96,13 +46,13 @@ TEST_P(JobStoreShardTest, CreateInsertsTheParentAndItsShards) {
   }
   EXPECT_EQ(store().ListShards("nope").status().code(), absl::StatusCode::kNotFound);
   // An ordinary job has no shards.
-  ASSERT_TRUE(store().Create(MakeJob("plain"), kT0).ok());
+  ASSERT_TRUE(store().Create(OwnedJob("plain"), kT0).ok());
   EXPECT_TRUE(store().ListShards("plain")->empty());
   EXPECT_EQ(store().Get("plain")->shard_count, 0u);
 }
 
-TEST_P(JobStoreShardTest, ShardIdsAreNotZeroPaddedAndClaimInShardOrder) {
-  ASSERT_TRUE(store().Create(MakeJob("p", 12), kT0).ok());
+TEST_P(ShardStoreTest, ShardIdsAreNotZeroPaddedAndClaimInShardOrder) {
+  ASSERT_TRUE(store().Create(OwnedJob("p", 12), kT0).ok());
   std::vector<std::string> claimed;
   for (int i = 0; i < 12; ++i) claimed.push_back(Claim("w"));
   for (uint32_t k = 0; k < 12; ++k) EXPECT_EQ(claimed[k], ShardJobId("p", k));
@@ -111,8 +61,8 @@ TEST_P(JobStoreShardTest, ShardIdsAreNotZeroPaddedAndClaimInShardOrder) {
   EXPECT_EQ(Claim("w"), "");
 }
 
-TEST_P(JobStoreShardTest, IdempotentSubmitReturnsTheParent) {
-  NewJob job = MakeJob("p", 2);
+TEST_P(ShardStoreTest, IdempotentSubmitReturnsTheParent) {
+  NewJob job = OwnedJob("p", 2);
   job.request_id = "req";
   ASSERT_TRUE(store().Create(job, kT0).ok());
   NewJob again = job;
@@ -123,9 +73,9 @@ TEST_P(JobStoreShardTest, IdempotentSubmitReturnsTheParent) {
   EXPECT_EQ(store().ListShards("p")->size(), 2u);
 }
 
-TEST_P(JobStoreShardTest, TheLastShardToSucceedMakesTheParentClaimable) {
-  ASSERT_TRUE(store().Create(MakeJob("p", 2), kT0).ok());
-  ASSERT_TRUE(store().Create(MakeJob("later"), kT0 + 1).ok());
+TEST_P(ShardStoreTest, TheLastShardToSucceedMakesTheParentClaimable) {
+  ASSERT_TRUE(store().Create(OwnedJob("p", 2), kT0).ok());
+  ASSERT_TRUE(store().Create(OwnedJob("later"), kT0 + 1).ok());
   EXPECT_EQ(Claim("w0"), "p.shard-0");
   EXPECT_EQ(Claim("w1"), "p.shard-1");
   Succeed("p.shard-1", "w1");
@@ -139,8 +89,8 @@ TEST_P(JobStoreShardTest, TheLastShardToSucceedMakesTheParentClaimable) {
   EXPECT_EQ(StateOf("p"), JobState::kSucceeded);
 }
 
-TEST_P(JobStoreShardTest, AFailedShardFailsTheParentAndCancelsItsSiblings) {
-  ASSERT_TRUE(store().Create(MakeJob("p", 3), kT0).ok());
+TEST_P(ShardStoreTest, AFailedShardFailsTheParentAndCancelsItsSiblings) {
+  ASSERT_TRUE(store().Create(OwnedJob("p", 3), kT0).ok());
   EXPECT_EQ(Claim("w0"), "p.shard-0");
   EXPECT_EQ(Claim("w1"), "p.shard-1");
   Completion failed;
@@ -160,8 +110,8 @@ TEST_P(JobStoreShardTest, AFailedShardFailsTheParentAndCancelsItsSiblings) {
   EXPECT_EQ(Claim("w2"), "");
 }
 
-TEST_P(JobStoreShardTest, AShardGivenUpByClaimNextFailsTheParent) {
-  ASSERT_TRUE(store().Create(MakeJob("p", 2), kT0).ok());
+TEST_P(ShardStoreTest, AShardGivenUpByClaimNextFailsTheParent) {
+  ASSERT_TRUE(store().Create(OwnedJob("p", 2), kT0).ok());
   EXPECT_EQ(Claim("w0", kT0, 1), "p.shard-0");
   ASSERT_TRUE(store().AbandonAttempt("p.shard-0", "w0", "crashed", 13).ok());
   std::vector<JobRecord> given_up;
@@ -176,8 +126,8 @@ TEST_P(JobStoreShardTest, AShardGivenUpByClaimNextFailsTheParent) {
   EXPECT_EQ(StateOf("p.shard-1"), JobState::kCancelled);
 }
 
-TEST_P(JobStoreShardTest, ACancelledShardCancelsTheParent) {
-  ASSERT_TRUE(store().Create(MakeJob("p", 2), kT0).ok());
+TEST_P(ShardStoreTest, ACancelledShardCancelsTheParent) {
+  ASSERT_TRUE(store().Create(OwnedJob("p", 2), kT0).ok());
   EXPECT_EQ(Claim("w0"), "p.shard-0");
   Completion cancelled;
   cancelled.state = JobState::kCancelled;
@@ -189,8 +139,8 @@ TEST_P(JobStoreShardTest, ACancelledShardCancelsTheParent) {
   EXPECT_EQ(StateOf("p.shard-1"), JobState::kCancelled);
 }
 
-TEST_P(JobStoreShardTest, CancellingTheParentCascades) {
-  ASSERT_TRUE(store().Create(MakeJob("p", 3), kT0).ok());
+TEST_P(ShardStoreTest, CancellingTheParentCascades) {
+  ASSERT_TRUE(store().Create(OwnedJob("p", 3), kT0).ok());
   EXPECT_EQ(Claim("w0"), "p.shard-0");
   auto after = store().RequestCancel("p", kT0 + 1);
   ASSERT_TRUE(after.ok());
@@ -208,9 +158,9 @@ TEST_P(JobStoreShardTest, CancellingTheParentCascades) {
   EXPECT_EQ(StateOf("p"), JobState::kCancelled);
 }
 
-TEST_P(JobStoreShardTest, ListingsAndUsageHideShards) {
-  ASSERT_TRUE(store().Create(MakeJob("p", 3), kT0).ok());
-  ASSERT_TRUE(store().Create(MakeJob("q"), kT0 + 1).ok());
+TEST_P(ShardStoreTest, ListingsAndUsageHideShards) {
+  ASSERT_TRUE(store().Create(OwnedJob("p", 3), kT0).ok());
+  ASSERT_TRUE(store().Create(OwnedJob("q"), kT0 + 1).ok());
   ListOptions options;
   EXPECT_EQ(Ids(store().List(options)->jobs), (std::vector<std::string>{"q", "p"}));
   options.owner = "alice";
@@ -222,8 +172,8 @@ TEST_P(JobStoreShardTest, ListingsAndUsageHideShards) {
   EXPECT_EQ(store().Usage("alice")->active_jobs, 2u);
 }
 
-TEST_P(JobStoreShardTest, DeleteTakesTheShardsAndWaitsForThem) {
-  ASSERT_TRUE(store().Create(MakeJob("p", 2), kT0).ok());
+TEST_P(ShardStoreTest, DeleteTakesTheShardsAndWaitsForThem) {
+  ASSERT_TRUE(store().Create(OwnedJob("p", 2), kT0).ok());
   EXPECT_EQ(Claim("w0"), "p.shard-0");
   ASSERT_TRUE(store().RequestCancel("p", kT0 + 1).ok());
   // shard-0 still runs.
@@ -236,8 +186,8 @@ TEST_P(JobStoreShardTest, DeleteTakesTheShardsAndWaitsForThem) {
   EXPECT_EQ(store().Get("p.shard-1").status().code(), absl::StatusCode::kNotFound);
 }
 
-TEST_P(JobStoreShardTest, ExpiringAndUsageCountTopLevelJobsOnly) {
-  ASSERT_TRUE(store().Create(MakeJob("p", 2), kT0).ok());
+TEST_P(ShardStoreTest, ExpiringAndUsageCountTopLevelJobsOnly) {
+  ASSERT_TRUE(store().Create(OwnedJob("p", 2), kT0).ok());
   for (int i = 0; i < 2; ++i) {
     const std::string id = Claim("w");
     Succeed(id, "w");
@@ -249,62 +199,6 @@ TEST_P(JobStoreShardTest, ExpiringAndUsageCountTopLevelJobsOnly) {
   EXPECT_EQ(Ids(*expiring), std::vector<std::string>{"p"});
   EXPECT_EQ(store().Usage("alice")->result_bytes, 10u);
 }
-
-TEST_P(JobStoreShardTest, FindCachedFindsTheNewestSucceededTopLevelJob) {
-  EXPECT_FALSE(store().FindCached("h", "alice")->has_value());
-  ASSERT_TRUE(store().Create(MakeJob("old", 0, "h"), kT0).ok());
-  ASSERT_TRUE(store().Create(MakeJob("new", 0, "h"), kT0 + 1).ok());
-  ASSERT_TRUE(store().Create(MakeJob("other", 0, "g"), kT0 + 2).ok());
-  EXPECT_FALSE(store().FindCached("h", "alice")->has_value());  // none finished
-  EXPECT_EQ(Claim("w"), "old");
-  Succeed("old", "w");
-  EXPECT_EQ(Claim("w"), "new");
-  Completion done;
-  done.result_key = "new";
-  ASSERT_TRUE(store().Complete("new", "w", done, kT0 + 50).ok());
-  EXPECT_EQ((*store().FindCached("h", "alice"))->id, "new");
-  EXPECT_FALSE(store().FindCached("h", "bob")->has_value());
-  EXPECT_FALSE(store().FindCached("", "alice")->has_value());
-  // Pinned or not does not matter; expired results are skipped.
-  ASSERT_TRUE(store().SetPinned("new", true).ok());
-  EXPECT_EQ((*store().FindCached("h", "alice"))->id, "new");
-  ASSERT_TRUE(store().MarkResultExpired("new", kT0 + 60).ok());
-  EXPECT_EQ((*store().FindCached("h", "alice"))->id, "old");
-}
-
-TEST_P(JobStoreShardTest, FindCachedIgnoresShards) {
-  ASSERT_TRUE(store().Create(MakeJob("p", 2, "h"), kT0).ok());
-  const std::string first = Claim("w");
-  Succeed(first, "w");
-  EXPECT_FALSE(store().FindCached("h", "alice")->has_value());
-}
-
-TEST_P(JobStoreShardTest, ACacheHitIsCreatedSucceeded) {
-  NewJob hit = MakeJob("copy", 0, "h");
-  hit.cached_from = "orig";
-  hit.cached_result.result_key = "copy";
-  hit.cached_result.result_size = 77;
-  hit.cached_result.result_sha256 = "cd";
-  auto r = store().Create(hit, kT0);
-  ASSERT_TRUE(r.ok()) << r.status();
-  EXPECT_EQ(r->state, JobState::kSucceeded);
-  EXPECT_EQ(r->cached_from, "orig");
-  EXPECT_EQ(r->result_key, "copy");
-  EXPECT_EQ(r->result_size, 77u);
-  EXPECT_EQ(r->result_sha256, "cd");
-  EXPECT_EQ(r->end_time, kT0);
-  EXPECT_EQ(r->progress_done, r->progress_total);
-  EXPECT_EQ(Claim("w"), "");
-  // It is itself a cache entry.
-  EXPECT_EQ((*store().FindCached("h", "alice"))->id, "copy");
-}
-
-INSTANTIATE_TEST_SUITE_P(Stores, JobStoreShardTest,
-                         ::testing::Values(testing::StoreKind::kSqlite,
-                                           testing::StoreKind::kPostgres),
-                         [](const ::testing::TestParamInfo<testing::StoreKind>& info) {
-                           return testing::StoreKindName(info.param);
-                         });
 
 }  // namespace
 }  // namespace nimbus::server

@@ -1,6 +1,7 @@
 // What only the PostgreSQL store does (the shared contract is in
-// sqlite_job_store_test.cc, run against both stores): migrations under an
-// advisory lock, the change feed, previews and preview wishes.
+// job_queue_test.cc and the extensions' tests, run against both stores):
+// migrations under an advisory lock, the change feed, previews and preview
+// wishes.
 #include <gtest/gtest.h>
 
 #include <pqxx/pqxx>

@@ -9,24 +9,14 @@
 
 #include "absl/status/status.h"
 #include "server/job_store.h"
+#include "tests/support/test_util.h"
 
 namespace nimbus::server {
 namespace {
 
-// Every library the dynamic linker would load for `program`.
-std::string Ldd(const std::string& program) {
-  std::string out;
-  FILE* p = popen(("ldd " + program + " 2>&1").c_str(), "r");
-  if (p == nullptr) return out;
-  char buf[4096];
-  for (size_t n; (n = fread(buf, 1, sizeof buf, p)) > 0;) out.append(buf, n);
-  pclose(p);
-  return out;
-}
-
 TEST(PostgresModule, ProgramsDoNotLoadLibpq) {
   for (const char* name : {"nimbusd", "nimbus"}) {
-    const std::string libs = Ldd(std::string(NIMBUS_BIN_DIR) + "/" + name);
+    const std::string libs = testing::Ldd(std::string(NIMBUS_BIN_DIR) + "/" + name);
     ASSERT_NE(libs.find("libc.so"), std::string::npos) << libs;
     EXPECT_EQ(libs.find("libpq"), std::string::npos) << name << " loads libpq:\n" << libs;
   }

@@ -1,6 +1,7 @@
 #include "tests/support/test_util.h"
 
 #include <atomic>
+#include <cstdio>
 #include <fstream>
 #include <iterator>
 #include <random>
@@ -29,6 +30,16 @@ std::filesystem::path SourcePath(const std::string& relative) {
 std::string ReadFileBytes(const std::filesystem::path& path) {
   std::ifstream in(path, std::ios::binary);
   return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+std::string Ldd(const std::string& object) {
+  std::string out;
+  FILE* p = popen(("ldd " + object + " 2>&1").c_str(), "r");
+  if (p == nullptr) return out;
+  char buf[4096];
+  for (size_t n; (n = fread(buf, 1, sizeof buf, p)) > 0;) out.append(buf, n);
+  pclose(p);
+  return out;
 }
 
 }  // namespace nimbus::testing

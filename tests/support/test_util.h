@@ -30,6 +30,10 @@ std::filesystem::path SourcePath(const std::string& relative);
 /// A whole file's bytes; empty when it cannot be read.
 std::string ReadFileBytes(const std::filesystem::path& path);
 
+/// What `ldd` prints for `object`: every library the dynamic linker would
+/// load for it (empty when ldd cannot run).
+std::string Ldd(const std::string& object);
+
 /// Lets `polls` polls pass, then interrupts every later one (from any
 /// thread).
 class CancelAfter : public Interrupter {
