@@ -16,6 +16,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
 #include "core/io/image_io.h"
+#include "proto/spec_io.h"
 #include "tests/support/e2e_clients.h"
 #include "tests/support/nimbusd_process.h"
 #include "tests/support/postgres_server.h"
@@ -176,6 +177,32 @@ TEST_F(HttpApi, SubmitGetListDownloadWithRangeMatchesGrpcFetch) {
   auto beyond = Client().Get(path, {{"Range", absl::StrCat("bytes=", expected.size() + 5, "-")}});
   EXPECT_EQ(beyond.status, 416);
   EXPECT_EQ(beyond.get_header_value("Content-Range"), absl::StrCat("bytes */", expected.size()));
+}
+
+TEST_F(HttpApi, FramesDownloadByNameWithRange) {
+  // A set-IFS book: one file per page (8 at depth 3).
+  auto spec = spec::LoadSpecFile(testing::SourcePath("examples/morph_book.json"));
+  ASSERT_TRUE(spec.ok()) << spec.status();
+  spec->mutable_grid()->set_resolution(0, 32);
+  spec->mutable_set_ifs()->mutable_book()->set_depth(3);
+  auto grpc = testing::ConnectAs(server_.target(), kAlice);
+  ASSERT_NE(grpc, nullptr);
+  ASSERT_TRUE(grpc->UploadSpecAssets(*spec, testing::SourcePath("examples")).ok());
+  const v1::Job done = AwaitEnd(Submit(*spec).id());
+  ASSERT_EQ(done.state(), v1::JOB_STATE_SUCCEEDED) << done.error();
+  ASSERT_EQ(done.result().files_size(), 8);
+  const std::string name = done.result().files(3).file_name();
+  ASSERT_TRUE(grpc->Fetch(done.id(), dir_ / "page.vdb", name).ok());
+  const std::string expected = ReadAll(dir_ / "page.vdb");
+  const std::string path = absl::StrCat("/api/v1/jobs/", done.id(), "/files/", name);
+  auto whole = Client().Get(path);
+  ASSERT_EQ(whole.status, 200) << whole.body;
+  EXPECT_EQ(whole.body, expected);
+  EXPECT_EQ(whole.get_header_value("X-Nimbus-Sha256"), done.result().files(3).sha256());
+  auto tail = Client().Get(path, {{"Range", "bytes=64-"}});
+  EXPECT_EQ(tail.status, 206);
+  EXPECT_EQ(tail.body, expected.substr(64));
+  EXPECT_EQ(Client().Get(absl::StrCat(path, ".missing")).status, 404);
 }
 
 TEST_F(HttpApi, AnotherOwnersJobIsNotFoundAndTokensAreRequired) {
