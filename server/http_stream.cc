@@ -11,11 +11,23 @@ namespace nimbus::server::http {
 
 namespace {
 
+// How long one WatchJob of a stream lasts: then the stream sends a comment
+// and watches again, so a reader that went away is noticed (its slot and
+// thread freed) even while the job sends nothing, and proxies see traffic.
+constexpr int kWatchSeconds = 15;
+
 struct Stream {
   std::shared_ptr<ApiState> state;
+  httplib::Request req;
+  v1::WatchJobRequest watch;
   std::unique_ptr<grpc::ClientContext> ctx;
   std::unique_ptr<grpc::ClientReader<v1::WatchJobResponse>> reader;
   bool ended = false;
+
+  void Open() {
+    ctx = CallContext(req, kWatchSeconds);
+    reader = state->stub->WatchJob(ctx.get(), watch);
+  }
 
   ~Stream() {
     if (reader) {
@@ -61,6 +73,12 @@ bool Pump(Stream& s, httplib::DataSink& sink) {
   }
   grpc::Status st = s.reader->Finish();
   s.reader.reset();
+  if (st.error_code() == grpc::DEADLINE_EXCEEDED) {
+    static constexpr char kKeepAlive[] = ": keep-alive\n\n";
+    if (!sink.write(kKeepAlive, sizeof(kKeepAlive) - 1)) return false;
+    s.Open();
+    return true;
+  }
   s.ended = true;
   const std::string end =
       st.ok() ? Event("end", "{}")
@@ -96,12 +114,11 @@ void OpenStream(std::shared_ptr<ApiState> state, const httplib::Request& req,
   }
   auto stream = std::make_shared<Stream>();
   stream->state = state;
-  stream->ctx = CallContext(req, 0);
-  v1::WatchJobRequest watch;
-  watch.set_job_id(req.matches[1]);
-  watch.set_preview_resolution(resolution);
-  watch.set_preview_interval_seconds(interval);
-  stream->reader = state->stub->WatchJob(stream->ctx.get(), watch);
+  stream->req = req;
+  stream->watch.set_job_id(req.matches[1]);
+  stream->watch.set_preview_resolution(resolution);
+  stream->watch.set_preview_interval_seconds(interval);
+  stream->Open();
   res.set_header("Cache-Control", "no-store");
   res.set_header("X-Accel-Buffering", "no");
   res.set_chunked_content_provider("text/event-stream", [stream](size_t, httplib::DataSink& sink) {

@@ -393,6 +393,41 @@ TEST_F(HttpApi, AFloodOfEventStreamsIsBoundedAndGrpcStaysResponsive) {
   for (auto& t : threads) t.join();
 }
 
+// Readers that go away while their job sends nothing (a queued job) give
+// their stream slots back: the server's keep-alive comments find them.
+TEST_F(HttpApi, AbandonedStreamsOfAQuietJobFreeTheirSlots) {
+  std::vector<std::string> ids;
+  for (int i = 0; i < 3; ++i) ids.push_back(Submit(EndlessJob()).id());  // 2 workers: 1 waits
+  AwaitRunning(ids[0]);
+  AwaitRunning(ids[1]);
+  ASSERT_EQ(Get(ids[2]).state(), v1::JOB_STATE_QUEUED);
+  const std::string path = absl::StrCat("/api/v1/jobs/", ids[2], "/stream");
+  auto open_one = [&] {  // true when accepted; the reader leaves after the first event
+    int status = 0;
+    Raw().Get(
+        path,
+        [&](const httplib::Response& head) {
+          status = head.status;
+          return status == 200;
+        },
+        [](const char*, size_t) { return false; });
+    return status == 200;
+  };
+  std::vector<std::thread> readers;
+  std::atomic<int> accepted{0};
+  for (int i = 0; i < 64; ++i) readers.emplace_back([&] { accepted += open_one(); });
+  for (auto& t : readers) t.join();
+  ASSERT_EQ(accepted.load(), 64);
+  bool again = false;
+  for (int i = 0; i < 120 && !again; ++i) {
+    again = open_one();
+    if (!again) std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  }
+  EXPECT_TRUE(again) << "the abandoned streams never gave their slots back";
+  for (const std::string& id : ids)
+    Client().Post(absl::StrCat("/api/v1/jobs/", id, "/cancel"), "{}", "application/json");
+}
+
 TEST_F(HttpApi, MetricsPassPromtoolAndCountJobs) {
   const v1::Job a = Submit(testing::SmallTetrahedronJob());
   const v1::Job b = Submit(testing::SmallTetrahedronJob());
