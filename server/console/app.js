@@ -28,6 +28,7 @@ function jobRow(job) {
   return el('tr', { 'data-id': job.id },
     el('td', { class: `state state-${shortState(job.state)}` }, shortState(job.state)),
     el('td', {}, link), el('td', {}, job.owner), el('td', { class: 'kind' }, kinds.get(job.id) || ''),
+    el('td', { class: 'priority' }, job.priority ?? ''),
     el('td', {}, progressBar(job.progress), el('small', {}, progressText(job.progress))),
     el('td', {}, job.worker));
 }
@@ -40,7 +41,7 @@ function jobsPage() {
   const search = el('input', { id: 'search', placeholder: 'search name or id' });
   const body = el('tbody', { id: 'jobs' });
   main.append(el('div', { class: 'filters' }, state, owner, kind, search),
-    el('table', {}, el('thead', {}, el('tr', {}, ['State', 'Name', 'Owner', 'Kind', 'Progress', 'Worker'].map((h) => el('th', {}, h)))), body));
+    el('table', {}, el('thead', {}, el('tr', {}, ['State', 'Name', 'Owner', 'Kind', 'Priority', 'Progress', 'Worker'].map((h) => el('th', {}, h)))), body));
   let jobs = [];
   const render = () => {
     const q = search.value.toLowerCase();
@@ -103,6 +104,27 @@ function jobPage(id) {
     el('button', { id: 'pin', onclick: () => act('POST', `${path}/pin`, { pinned: true }) }, 'Pin'),
     el('button', { id: 'unpin', onclick: () => act('POST', `${path}/pin`, { pinned: false }) }, 'Unpin'),
     el('button', { id: 'delete', onclick: async () => { if (await act('DELETE', path)) location.hash = '#/jobs'; } }, 'Delete'));
+  // The queue's calls, where this server offers them (/api/v1/info).
+  if (features.includes('retry'))
+    buttons.append(el('button', { id: 'retry', onclick: async () => {
+      try { const r = await call('POST', `${path}/retry`, {}); location.hash = `#/job/${encodeURIComponent(r.job.id)}`; } catch (e) { showError(e); }
+    } }, 'Retry'));
+  if (features.includes('priority')) {
+    const level = el('input', { id: 'priority', type: 'number', step: 1, size: 4 });
+    buttons.append(level, el('button', { id: 'set-priority', onclick: () => act('POST', `${path}/priority`, { priority: Number(level.value) }) }, 'Set priority'));
+  }
+  const events = el('ol', { id: 'events' });
+  let eventsAt = 0;
+  const loadEvents = async () => {
+    if (!features.includes('events') || Date.now() - eventsAt < 2000) return;
+    eventsAt = Date.now();
+    try {
+      const r = await call('GET', `${path}/events?page_size=200`);
+      clear(events);
+      events.append(...(r.events || []).map((ev) => el('li', {}, `${ev.time} ${ev.kind} `,
+        Object.entries(ev.fields || {}).map(([k, v]) => `${k}=${v}`).join(' '))));
+    } catch (e) { showError(e); }
+  };
   files.addEventListener('click', (e) => {
     const a = e.target.closest('a[data-download]');
     if (!a) return;
@@ -112,7 +134,8 @@ function jobPage(id) {
   main.append(title, info, buttons,
     el('div', { class: 'views' }, el('figure', {}, img, el('figcaption', {}, 'Latest preview ', seq)),
       el('figure', {}, canvas, el('figcaption', {}, '3D view of the preview density (drag to turn)'))),
-    el('h3', {}, 'Warnings'), warnings, el('h3', {}, 'Downloads'), files, el('h3', {}, 'Spec'), spec);
+    el('h3', {}, 'Warnings'), warnings, el('h3', {}, 'Downloads'), files,
+    features.includes('events') ? [el('h3', {}, 'Events'), events] : [], el('h3', {}, 'Spec'), spec);
   let volume = null;
   try { volume = new VolumeView(canvas); } catch (e) { canvas.replaceWith(el('p', { class: 'error' }, e.message)); }
   const show = (job) => {
@@ -161,7 +184,7 @@ function jobPage(id) {
     show(job);
     spec.textContent = JSON.stringify(job.spec, null, 2);
     return stream(`${path}/stream?preview_resolution=64&preview_interval=0.2`, (name, data) => {
-      if (name === 'job') show(data);
+      if (name === 'job') { show(data); loadEvents(); }
       else if (name === 'preview') {
         performance.mark(`nimbus-preview-${data.sequence}`);
         loadPreview(Number(data.sequence));
@@ -192,7 +215,11 @@ function workersPage() {
   const box = el('div', { id: 'workers' });
   main.append(el('h2', {}, 'Workers'), box);
   call('GET', '/api/v1/workers').then((r) => {
-    box.append(el('table', {}, (r.workers || []).map((w) => el('tr', {}, el('td', {}, w.id), el('td', {}, w.state), el('td', {}, w.jobId)))));
+    const head = ['Replica', 'Host', 'Version', 'Slots', 'Running', 'Last heartbeat', 'State'];
+    box.append(el('table', {}, el('thead', {}, el('tr', {}, head.map((h) => el('th', {}, h)))),
+      el('tbody', {}, (r.workers || []).map((w) => el('tr', {}, el('td', {}, w.replicaId), el('td', {}, w.host),
+        el('td', {}, w.version), el('td', {}, w.workerSlots), el('td', {}, w.jobsRunning),
+        el('td', {}, w.lastHeartbeat), el('td', {}, w.lost ? 'lost' : 'alive'))))));
   }).catch((e) => { box.append(el('p', {}, e.message)); });
   return () => {};
 }
@@ -216,5 +243,4 @@ document.getElementById('token-form').addEventListener('submit', (e) => {
 });
 document.getElementById('token-state').textContent = token() ? 'token set' : 'no token';
 window.addEventListener('hashchange', route);
-call('GET', '/api/v1/info').then((r) => { features = r.features || []; }).catch(() => {});
-route();
+call('GET', '/api/v1/info').then((r) => { features = r.features || []; }).catch(() => {}).finally(route);
