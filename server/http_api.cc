@@ -339,13 +339,12 @@ void RegisterApi(httplib::Server& server, std::shared_ptr<ApiState> s) {
   // What this server offers beyond the job calls, so clients (the console)
   // show the queue's pages only where the server has them.
   server.Get("/api/v1/info", [](const httplib::Request&, httplib::Response& res) {
-    res.set_content(
-        "{\"api\":\"v1\",\"features\":[\"jobs\",\"previews\",\"stream\",\"metrics\"]}\n",
-        "application/json");
+    std::string features = "\"jobs\",\"previews\",\"stream\",\"metrics\"";
+    for (const std::string& f : QueueFeatures()) absl::StrAppend(&features, ",\"", f, "\"");
+    res.set_content(absl::StrCat("{\"api\":\"v1\",\"features\":[", features, "]}\n"),
+                    "application/json");
   });
-  server.Get("/api/v1/workers", [](const httplib::Request&, httplib::Response& res) {
-    SendError(res, grpc::UNIMPLEMENTED, "no worker registry on this server");
-  });
+  RegisterQueue(server, s);
   RegisterStreams(server, s);
   server.set_error_handler([](const httplib::Request& req, httplib::Response& res) {
     if (!res.body.empty()) return;

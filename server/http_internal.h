@@ -16,6 +16,7 @@
 namespace nimbus::server::http {
 
 struct ApiState {
+  std::shared_ptr<grpc::Channel> channel;
   std::unique_ptr<v1::NimbusService::Stub> stub;
   ServiceMetrics* metrics = nullptr;
   int max_streams = 64;
@@ -24,6 +25,11 @@ struct ApiState {
 
 /// Registers every /api/v1/ route.
 void RegisterApi(httplib::Server& server, std::shared_ptr<ApiState> state);
+/// The studio queue's routes (http_queue.cc): retry, priority, events and
+/// workers, answered 501 while this build's service lacks the call.
+void RegisterQueue(httplib::Server& server, std::shared_ptr<ApiState> state);
+/// Which of "retry", "priority", "events", "workers" this build offers.
+std::vector<std::string> QueueFeatures();
 
 /// A client context carrying the request's Authorization header as gRPC
 /// metadata, with a deadline `seconds` away (0: none).

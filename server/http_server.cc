@@ -139,6 +139,7 @@ absl::StatusOr<std::unique_ptr<HttpServer>> HttpServer::Start(
   s.set_post_routing_handler(
       [](const httplib::Request&, httplib::Response& res) { SetSecurityHeaders(res); });
   impl->api = std::make_shared<http::ApiState>();
+  impl->api->channel = channel;
   impl->api->stub = v1::NimbusService::NewStub(channel);
   impl->api->metrics = metrics;
   impl->api->max_streams = options.max_streams;

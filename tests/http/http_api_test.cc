@@ -428,6 +428,34 @@ TEST_F(HttpApi, AbandonedStreamsOfAQuietJobFreeTheirSlots) {
     Client().Post(absl::StrCat("/api/v1/jobs/", id, "/cancel"), "{}", "application/json");
 }
 
+// The queue's calls answer where this build's service has them (the
+// features /api/v1/info lists) and 501 naming what is missing otherwise.
+TEST_F(HttpApi, QueueCallsFollowTheAdvertisedFeatures) {
+  const v1::Job job = Submit(testing::SmallTetrahedronJob());
+  AwaitEnd(job.id());
+  const std::string info = Client().Get("/api/v1/info").body;
+  const std::string base = absl::StrCat("/api/v1/jobs/", job.id());
+  auto workers = Client().Get("/api/v1/workers");
+  auto retry = Client().Post(base + "/retry", "{}", "application/json");
+  auto events = Client().Get(base + "/events");
+  auto priority = Client().Post(base + "/priority", R"({"priority":2})", "application/json");
+  const std::pair<const char*, httplib::Response*> calls[] = {{"\"workers\"", &workers},
+                                                              {"\"retry\"", &retry},
+                                                              {"\"events\"", &events},
+                                                              {"\"priority\"", &priority}};
+  for (const auto& [feature, r] : calls) {
+    if (info.find(feature) != std::string::npos) {
+      EXPECT_EQ(r->status / 100, 2) << feature << " " << r->body;
+    } else {
+      EXPECT_EQ(r->status, 501) << feature << " " << r->body;
+      EXPECT_NE(r->body.find("UNIMPLEMENTED"), std::string::npos);
+    }
+  }
+  if (info.find("\"workers\"") == std::string::npos)
+    EXPECT_NE(workers.body.find("no worker registry on this server"), std::string::npos);
+  EXPECT_EQ(Client().Post(base + "/retry", "{}", "text/plain").status, 415);
+}
+
 TEST_F(HttpApi, MetricsPassPromtoolAndCountJobs) {
   const v1::Job a = Submit(testing::SmallTetrahedronJob());
   const v1::Job b = Submit(testing::SmallTetrahedronJob());
