@@ -31,7 +31,20 @@ PACKAGES=(
   python3-grpcio python3-protobuf blender
   # The libFuzzer targets (tests/fuzz, scripts/fuzz.sh) build with clang.
   clang libclang-rt-14-dev ccache
+  # The HTTP port (nimbusd --http): the JSON API, the console and /metrics;
+  # promtool and a real Prometheus for its tests, chromium (driven by
+  # playwright-core from npm, scripts/console_deps.sh) for the console's.
+  libcpp-httplib-dev prometheus-cpp-dev prometheus chromium
 )
+
+# playwright-core for the console's browser test, pinned by its lock file.
+install_npm() {
+  local dir
+  dir="$(cd "$(dirname "$0")/.." && pwd)/tests/browser"
+  if command -v npm >/dev/null && [ ! -d "$dir/node_modules/playwright-core" ]; then
+    (cd "$dir" && npm ci --no-audit --no-fund --loglevel=error)
+  fi
+}
 
 missing=()
 for p in "${PACKAGES[@]}"; do
@@ -39,6 +52,7 @@ for p in "${PACKAGES[@]}"; do
 done
 if [ ${#missing[@]} -eq 0 ]; then
   echo "install_deps: all ${#PACKAGES[@]} packages present"
+  install_npm
   exit 0
 fi
 echo "install_deps: installing ${missing[*]}"
@@ -46,3 +60,4 @@ SUDO=""
 [ "$(id -u)" -ne 0 ] && SUDO="sudo"
 $SUDO apt-get update -qq
 DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
+install_npm

@@ -70,7 +70,7 @@ struct DaemonFlags {
   double max_memory_gib = double(o.limits.max_memory_bytes) / double(1ull << 30);
   std::string log_level = "info";
   std::string log_format = "text";
-  std::string port_file;
+  std::string port_file, http_port_file, console_dir;
   double retention_hours = 0, retention_seconds = 0;
 };
 
@@ -80,6 +80,11 @@ void AddServingFlags(CLI::App& app, DaemonFlags& f) {
       ->capture_default_str();
   app.add_option("--port-file", f.port_file,
                  "write the port actually bound here once serving (useful with port 0)");
+  app.add_option("--http", f.o.http_listen,
+                 "host:port of the HTTP port: console, JSON API, /metrics (default: none)");
+  app.add_option("--http-port-file", f.http_port_file, "write the HTTP port bound here");
+  app.add_option("--console-dir", f.console_dir,
+                 "the console's static files (default: the installed ones)");
   app.add_option("--data-dir", f.data_dir, "folder for the job database and results")
       ->capture_default_str();
   app.add_option("--workers", f.o.workers, "jobs run at once")
@@ -145,6 +150,7 @@ void AddReplicaFlags(CLI::App& app, DaemonFlags& f) {
 bool FinishOptions(DaemonFlags& f) {
   nimbus::server::ServerOptions& o = f.o;
   o.data_dir = f.data_dir;
+  o.console_dir = f.console_dir;
   // A URL with a password is better kept out of the process list.
   if (o.store_url.empty())
     if (const char* env = std::getenv("NIMBUS_STORE_URL")) o.store_url = env;
@@ -173,7 +179,8 @@ bool FinishOptions(DaemonFlags& f) {
 
 // Serves until SIGINT or SIGTERM, then stops within the drain time; the
 // process's exit code.
-int Serve(const nimbus::server::ServerOptions& o, const std::string& port_file) {
+int Serve(const nimbus::server::ServerOptions& o, const std::string& port_file,
+          const std::string& http_port_file) {
   // Block the stop signals before any thread exists, so every thread
   // inherits the mask and sigwait below is the one place they arrive.
   sigset_t stop_signals;
@@ -189,6 +196,13 @@ int Serve(const nimbus::server::ServerOptions& o, const std::string& port_file) 
   }
   if (!(*server)->address().empty()) {
     spdlog::info("listening on {}", (*server)->address());
+    // Before --port-file: whoever waits for that one finds both.
+    if (!http_port_file.empty() && !WritePortFile(http_port_file, (*server)->http_port())) {
+      spdlog::error("event=start_failed error=\"cannot write --http-port-file {}\"",
+                    http_port_file);
+      (*server)->Shutdown();
+      return 1;
+    }
     if (!port_file.empty() && !WritePortFile(port_file, (*server)->port())) {
       spdlog::error("event=start_failed error=\"cannot write --port-file {}\"", port_file);
       (*server)->Shutdown();
@@ -231,5 +245,5 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   CLI11_PARSE(app, argc, argv);
   if (!FinishOptions(f)) return 2;
-  return Serve(f.o, f.port_file);
+  return Serve(f.o, f.port_file, f.http_port_file);
 }

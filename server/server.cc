@@ -16,9 +16,11 @@
 #include "server/asset_store.h"
 #include "server/auth.h"
 #include "server/data_dir_lock.h"
+#include "server/http_server.h"
 #include "server/job_hub.h"
 #include "server/job_store.h"
 #include "server/job_view.h"
+#include "server/metrics.h"
 #include "server/nimbus_service.h"
 #include "server/parse_errors.h"
 #include "server/result_audit.h"
@@ -40,8 +42,10 @@ struct NimbusServer::Impl {
   std::unique_ptr<WorkerPool> pool;
   std::unique_ptr<NimbusServiceImpl> service;
   std::unique_ptr<RetentionSweeper> sweeper;
+  std::unique_ptr<ServiceMetrics> metrics;
   std::unique_ptr<grpc::Server> server;
   std::unique_ptr<StoreProbe> store_probe;  // destroyed before the server and store
+  std::unique_ptr<HttpServer> http;
   int port = 0;
   std::string address;
   std::mutex mu;
@@ -121,11 +125,12 @@ absl::StatusOr<TokenTable> LoadTokens(const ServerOptions& o) {
 
 // Beyond loopback, a server without tokens would hand every job to anyone
 // who can reach the port.
-absl::Status CheckExposure(const ServerOptions& o, const TokenTable& tokens) {
-  if (o.listen.empty() || !tokens.empty() || o.insecure || IsLoopbackListen(o.listen))
+absl::Status CheckExposure(const std::string& listen, const ServerOptions& o,
+                           const TokenTable& tokens) {
+  if (listen.empty() || !tokens.empty() || o.insecure || IsLoopbackListen(listen))
     return absl::OkStatus();
   return absl::FailedPreconditionError(absl::StrCat(
-      "refusing to listen on ", o.listen,
+      "refusing to listen on ", listen,
       " without authentication: anyone who reaches it could read and cancel every job. Give "
       "--auth-tokens FILE (with --tls-cert/--tls-key), listen on 127.0.0.1, or pass --insecure"));
 }
@@ -148,6 +153,19 @@ void ReportUnknownResults(JobStore& store, const std::filesystem::path& results_
       "served; restore the store from a backup or delete them\"",
       unknown->ids.size(), unknown->checked, results_dir.string(),
       absl::StrJoin(unknown->ids.begin(), unknown->ids.begin() + shown, " "));
+}
+
+absl::StatusOr<std::unique_ptr<HttpServer>> StartHttp(grpc::Server& server, ServiceMetrics* metrics,
+                                                      const ServerOptions& o) {
+  HttpOptions http;
+  http.listen = o.http_listen;
+  http.tls_cert_file = o.tls_cert_file;
+  http.tls_key_file = o.tls_key_file;
+  http.tls_client_ca_file = o.tls_client_ca_file;
+  http.console_dir = o.console_dir.empty() ? DefaultConsoleDir() : o.console_dir;
+  grpc::ChannelArguments args;
+  args.SetMaxReceiveMessageSize(64 << 20);
+  return HttpServer::Start(http, server.InProcessChannel(args), metrics);
 }
 
 }  // namespace
@@ -219,7 +237,8 @@ NimbusServer::~NimbusServer() { Shutdown(); }
 absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOptions& options) {
   auto tokens = LoadTokens(options);
   if (!tokens.ok()) return tokens.status();
-  if (auto st = CheckExposure(options, *tokens); !st.ok()) return st;
+  for (const std::string& listen : {options.listen, options.http_listen})
+    if (auto st = CheckExposure(listen, options, *tokens); !st.ok()) return st;
   auto credentials = ListenCredentials(options);
   if (!credentials.ok()) return credentials.status();
   auto impl = std::make_unique<Impl>();
@@ -311,7 +330,10 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
   grpc::ServerBuilder builder;
   if (!options.listen.empty()) builder.AddListeningPort(options.listen, *credentials, &impl->port);
   builder.RegisterService(impl->service.get());
-  builder.experimental().SetInterceptorCreators(UndecodableRequestInterceptors());
+  impl->metrics = std::make_unique<ServiceMetrics>(impl->store.get(), options.workers);
+  auto interceptors = UndecodableRequestInterceptors();
+  interceptors.push_back(impl->metrics->InterceptorFactory());
+  builder.experimental().SetInterceptorCreators(std::move(interceptors));
   // Previews and result chunks are a few MiB at most.
   builder.SetMaxSendMessageSize(64 << 20);
   builder.SetMaxReceiveMessageSize(64 << 20);
@@ -321,6 +343,11 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
   if (auto* health = impl->server->GetHealthCheckService()) {
     health->SetServingStatus("nimbus.v1.NimbusService", true);
     health->SetServingStatus(true);
+  }
+  if (!options.http_listen.empty()) {
+    auto http = StartHttp(*impl->server, impl->metrics.get(), options);
+    if (!http.ok()) return http.status();
+    impl->http = std::move(*http);
   }
   if (impl->port > 0) {
     // "host:0" asks for any free port; report the one we got.
@@ -346,6 +373,8 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
 int NimbusServer::port() const { return impl_->port; }
 
 std::string NimbusServer::address() const { return impl_->address; }
+
+int NimbusServer::http_port() const { return impl_->http ? impl_->http->port() : 0; }
 
 std::shared_ptr<grpc::Channel> NimbusServer::InProcessChannel() {
   grpc::ChannelArguments args;
@@ -376,6 +405,8 @@ void NimbusServer::Shutdown() {
   impl_->sweeper->Stop();
   impl_->server->Shutdown(std::chrono::system_clock::now() +
                           std::chrono::milliseconds(impl_->drain_ms));
+  // After the gRPC server: its shutdown ends the HTTP port's open streams.
+  if (impl_->http) impl_->http->Stop();
   spdlog::info("event=stopped");
 }
 

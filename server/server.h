@@ -78,6 +78,13 @@ struct ServerOptions {
   /// Jobs above this many iterations that leave JobSpec.shards at 0 are
   /// split into shards (docs/sharding.md); 0: never.
   uint64_t auto_shard_iterations = 0;
+
+  /// host:port of the HTTP port (JSON API, console, /metrics;
+  /// docs/http_api.md); empty: none. The same TLS files, tokens and
+  /// loopback rule as `listen`.
+  std::string http_listen;
+  /// The console's static files; empty: DefaultConsoleDir() (http_server.h).
+  std::filesystem::path console_dir;
 };
 
 /// @brief A running server. With its own SQLite store, jobs left RUNNING by
@@ -93,6 +100,8 @@ class NimbusServer {
   int port() const;
   /// host:port as bound, e.g. "127.0.0.1:41234"; empty when not listening.
   std::string address() const;
+  /// The HTTP port as bound; 0 when there is none.
+  int http_port() const;
   /// A channel to this server that never leaves the process.
   std::shared_ptr<grpc::Channel> InProcessChannel();
   /// Copies a succeeded job's main result to `path` in this process, the
