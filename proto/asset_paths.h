@@ -71,8 +71,8 @@ void ForEachAsset(v1::JobSpec& spec,
 absl::Status LocalPathRefused(const std::string& field);
 
 /// Refuses a spec that names any asset by `path`, with LocalPathRefused for
-/// the first one; makes no file system call. nimbusd calls it before any
-/// other check of a submission when it listens on a network.
+/// the first one; makes no file system call. A server that listens on a
+/// network calls it before reading any asset (CheckSpecAssets).
 absl::Status RefuseAssetPaths(const v1::JobSpec& spec);
 
 /// Makes relative asset paths absolute against `base_dir` (the spec file's

@@ -10,7 +10,6 @@
 #include <random>
 
 #include "absl/strings/str_cat.h"
-#include "proto/asset_paths.h"
 #include "proto/spec_convert.h"
 #include "proto/spec_shape.h"
 #include "server/access.h"
@@ -521,17 +520,14 @@ grpc::Status NimbusServiceImpl::Admit(const Principal& caller, const v1::SubmitJ
   if (auto st = CheckPriority(priority); !st.ok()) return ToGrpc(st);
   // Its size, unknown fields and list lengths, before anything copies it.
   if (auto st = spec::CheckSpecShape(req.spec(), limits_); !st.ok()) return ToGrpc(st);
-  // Before anything else looks at the spec: a request never names a file
-  // this server opens (only the CLI's in-process server reads local paths).
-  if (!limits_.allow_local_paths)
-    if (auto st = spec::RefuseAssetPaths(req.spec()); !st.ok()) return ToGrpc(st);
   if (auto st = CheckJobQuotas(*store_, caller, quotas_); !st.ok()) return ToGrpc(st);
   if (assets_ != nullptr)
     if (auto st = CheckAssetOwnership(req.spec(), caller, *assets_); !st.ok()) return ToGrpc(st);
   // The free-space reserve: refuse new work before the disk fills.
   if (auto st = results_->CheckFreeSpace(); !st.ok()) return ToGrpc(st);
   // Meshes and grids are read whole by a sandboxed child before the
-  // converter parses any of them in this process (server/untrusted_file.h).
+  // converter parses any of them in this process (server/untrusted_file.h);
+  // an asset named by path is refused there first, before any file is read.
   if (auto st = CheckSpecAssets(req.spec(), limits_.asset_dir, limits_.allow_local_paths); !st.ok())
     return ToGrpc(st);
   // Validation names the offending field; nothing is allocated for grids.
