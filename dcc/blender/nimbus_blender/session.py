@@ -38,6 +38,7 @@ class JobSession:
         self.result_path = None
         self.previews_loaded = 0
         self.preview_dones = []
+        self.shown_files = []   # the object's file after each load, in order
         self.error = None
         self.finished = False
         self._client = None
@@ -127,6 +128,7 @@ class JobSession:
         obj = bpy.data.objects[self.object_name]
         grid = "density"
         importer.load_into(obj, path, final=final, grid_name=grid)
+        self.shown_files.append(obj.data.filepath)
         scene.nimbus.object_name = obj.name
 
 
