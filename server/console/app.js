@@ -1,6 +1,7 @@
 // The console's pages: #/jobs, #/job/ID, #/submit, #/workers.
 import { call, fetchBlob, setToken, stream, token, ApiError } from './api.js';
 import { clear, el, kindOf, progressBar, progressText, shortState } from './dom.js';
+import { eventLog } from './events.js';
 import { VolumeView } from './volume.js';
 
 const main = document.getElementById('main');
@@ -89,16 +90,10 @@ async function download(path, name) {
   } catch (e) { showError(e); }
 }
 
-function jobPage(id) {
-  const path = `/api/v1/jobs/${encodeURIComponent(id)}`;
-  const title = el('h2', { id: 'job-title' });
-  const info = el('div', { id: 'job-info' });
-  const img = el('img', { id: 'preview-img', alt: 'latest preview' });
-  const canvas = el('canvas', { id: 'volume', width: 320, height: 320 });
-  const seq = el('span', { id: 'preview-seq' });
-  const warnings = el('ul', { id: 'warnings' });
-  const files = el('ul', { id: 'files' });
-  const spec = el('pre', { id: 'spec' });
+// The job page's buttons; `act(method, path, body)` makes a call and shows
+// the job it answers with. Each button is enabled only in the states its
+// call accepts (see enableFor).
+function actionButtons(path, act, showError) {
   const buttons = el('div', { id: 'actions' },
     el('button', { id: 'cancel', onclick: () => act('POST', `${path}/cancel`) }, 'Cancel'),
     el('button', { id: 'pin', onclick: () => act('POST', `${path}/pin`, { pinned: true }) }, 'Pin'),
@@ -110,21 +105,60 @@ function jobPage(id) {
       try { const r = await call('POST', `${path}/retry`, {}); location.hash = `#/job/${encodeURIComponent(r.job.id)}`; } catch (e) { showError(e); }
     } }, 'Retry'));
   if (features.includes('priority')) {
-    const level = el('input', { id: 'priority', type: 'number', step: 1, size: 4 });
-    buttons.append(level, el('button', { id: 'set-priority', onclick: () => act('POST', `${path}/priority`, { priority: Number(level.value) }) }, 'Set priority'));
+    const level = el('input', { id: 'priority', type: 'number', min: 0, max: 100, step: 1, size: 4, 'aria-label': 'priority' });
+    level.addEventListener('input', () => { level.dataset.edited = '1'; });
+    buttons.append(level, el('button', { id: 'set-priority', onclick: async () => {
+      if (await act('POST', `${path}/priority`, { priority: Number(level.value) })) delete level.dataset.edited;
+    } }, 'Set priority'));
   }
-  const events = el('ol', { id: 'events' });
-  let eventsAt = 0;
-  const loadEvents = async () => {
-    if (!features.includes('events') || Date.now() - eventsAt < 2000) return;
-    eventsAt = Date.now();
+  return buttons;
+}
+
+function enableFor(buttons, job) {
+  const s = shortState(job.state);
+  const terminal = ['SUCCEEDED', 'FAILED', 'CANCELLED'].includes(s);
+  const on = { cancel: !terminal, pin: !job.pinned, unpin: !!job.pinned, delete: terminal,
+    retry: s === 'FAILED' || s === 'CANCELLED', 'set-priority': s === 'QUEUED', priority: s === 'QUEUED' };
+  for (const [id, enabled] of Object.entries(on)) {
+    const b = buttons.querySelector(`#${id}`);
+    if (b) b.disabled = !enabled;
+  }
+  const level = buttons.querySelector('#priority');
+  if (level && !level.dataset.edited && document.activeElement !== level) level.value = job.priority ?? '';
+}
+
+function jobInfo(job) {
+  const jobLink = (other, id) => el('a', { id, href: `#/job/${encodeURIComponent(other)}` }, other);
+  return [el('span', { id: 'job-state', class: `state-${shortState(job.state)}` }, shortState(job.state)),
+    ` · owner ${job.owner} · worker ${job.worker || '-'} · priority `,
+    el('span', { id: 'job-priority' }, job.priority ?? ''),
+    job.pinned ? [' · ', el('span', { id: 'job-pinned' }, 'pinned')] : [],
+    job.retriedFrom ? [' · retry of ', jobLink(job.retriedFrom, 'retried-from')] : [],
+    ' · ', progressBar(job.progress), ' ', progressText(job.progress),
+    ...(job.error ? [el('p', { class: 'error' }, job.error)] : [])].flat();
+}
+
+function jobPage(id) {
+  const path = `/api/v1/jobs/${encodeURIComponent(id)}`;
+  const title = el('h2', { id: 'job-title' });
+  const info = el('div', { id: 'job-info' });
+  const img = el('img', { id: 'preview-img', alt: 'latest preview' });
+  const canvas = el('canvas', { id: 'volume', width: 320, height: 320 });
+  const seq = el('span', { id: 'preview-seq' });
+  const warnings = el('ul', { id: 'warnings' });
+  const files = el('ul', { id: 'files' });
+  const spec = el('pre', { id: 'spec' });
+  const log = features.includes('events') ? eventLog(path, showError) : null;
+  const act = async (method, p, body) => {
     try {
-      const r = await call('GET', `${path}/events?page_size=200`);
-      clear(events);
-      events.append(...(r.events || []).map((ev) => el('li', {}, `${ev.time} ${ev.kind} `,
-        Object.entries(ev.fields || {}).map(([k, v]) => `${k}=${v}`).join(' '))));
-    } catch (e) { showError(e); }
+      const r = await call(method, p, body ?? {});
+      if (r.job) show(r.job);
+      if (log) log.refresh();
+      say(`${method} ${p}: done`);
+      return true;
+    } catch (e) { showError(e); return false; }
   };
+  const buttons = actionButtons(path, act, showError);
   files.addEventListener('click', (e) => {
     const a = e.target.closest('a[data-download]');
     if (!a) return;
@@ -135,20 +169,38 @@ function jobPage(id) {
     el('div', { class: 'views' }, el('figure', {}, img, el('figcaption', {}, 'Latest preview ', seq)),
       el('figure', {}, canvas, el('figcaption', {}, '3D view of the preview density (drag to turn)'))),
     el('h3', {}, 'Warnings'), warnings, el('h3', {}, 'Downloads'), files,
-    features.includes('events') ? [el('h3', {}, 'Events'), events] : [], el('h3', {}, 'Spec'), spec);
+    ...(log ? [el('h3', {}, 'Events'), log.node] : []), el('h3', {}, 'Spec'), spec);
   let volume = null;
   try { volume = new VolumeView(canvas); } catch (e) { canvas.replaceWith(el('p', { class: 'error' }, e.message)); }
-  const show = (job) => {
+  function show(job) {
     title.textContent = job.name || job.id;
     clear(info);
-    info.append(el('span', { id: 'job-state', class: `state-${shortState(job.state)}` }, shortState(job.state)),
-      ` · owner ${job.owner} · worker ${job.worker || '-'} · `, progressBar(job.progress), ' ', progressText(job.progress),
-      ...(job.error ? [el('p', { class: 'error' }, job.error)] : []));
+    info.append(...jobInfo(job));
+    enableFor(buttons, job);
     clear(warnings); warnings.append(...(job.warnings || []).map((w) => el('li', {}, w)));
     clear(files); files.append(...fileLinks(job));
-  };
+  }
+  const loadPreview = previewLoader(path, img, seq, canvas, volume);
+  const abort = new AbortController();
+  call('GET', path).then(({ job }) => {
+    show(job);
+    spec.textContent = JSON.stringify(job.spec, null, 2);
+    return stream(`${path}/stream?preview_resolution=64&preview_interval=0.2`, (name, data) => {
+      if (name === 'job') { show(data); if (log) log.refresh(); }
+      else if (name === 'preview') {
+        performance.mark(`nimbus-preview-${data.sequence}`);
+        loadPreview(Number(data.sequence));
+      }
+    }, abort.signal);
+  }).catch((e) => { if (e.name !== 'AbortError') showError(e); });
+  return () => { abort.abort(); if (log) log.stop(); };
+}
+
+// Returns loadPreview(sequence): fetches the newest preview picture (and
+// density, for the 3D view) until the one shown is at least `sequence`.
+function previewLoader(path, img, seq, canvas, volume) {
   let lastSeq = 0, loading = false, want = 0;
-  const loadPreview = async (sequence) => {
+  return async (sequence) => {
     want = Math.max(want, sequence);
     if (loading) return;
     loading = true;
@@ -176,22 +228,6 @@ function jobPage(id) {
       }
     } catch (e) { showError(e); } finally { loading = false; }
   };
-  const act = async (method, p, body) => {
-    try { const r = await call(method, p, body ?? {}); if (r.job) show(r.job); say(`${method} ${p}: done`); return true; } catch (e) { showError(e); return false; }
-  };
-  const abort = new AbortController();
-  call('GET', path).then(({ job }) => {
-    show(job);
-    spec.textContent = JSON.stringify(job.spec, null, 2);
-    return stream(`${path}/stream?preview_resolution=64&preview_interval=0.2`, (name, data) => {
-      if (name === 'job') { show(data); loadEvents(); }
-      else if (name === 'preview') {
-        performance.mark(`nimbus-preview-${data.sequence}`);
-        loadPreview(Number(data.sequence));
-      }
-    }, abort.signal);
-  }).catch((e) => { if (e.name !== 'AbortError') showError(e); });
-  return () => abort.abort();
 }
 
 function submitPage() {
