@@ -8,6 +8,8 @@
 #include <prometheus/registry.h>
 #include <prometheus/text_serializer.h>
 
+#include <array>
+#include <atomic>
 #include <chrono>
 #include <map>
 #include <mutex>
@@ -64,7 +66,21 @@ prometheus::Histogram::BucketBoundaries LatencyBuckets() {
   return {0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 5, 10};
 }
 
+// Store calls: an embedded SQLite read takes tens of microseconds.
+prometheus::Histogram::BucketBoundaries StoreBuckets() {
+  return {0.0001, 0.00025, 0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5};
+}
+
+// PriorityBand's names, lowest first.
+constexpr const char* kBands[] = {"low", "normal", "high"};
+constexpr char kQueueDepthHelp[] =
+    "Jobs waiting for a worker, by priority band (low 0-33, normal 34-66, high 67-100)";
+
 }  // namespace
+
+const char* PriorityBand(int priority) {
+  return priority <= 33 ? kBands[0] : priority <= 66 ? kBands[1] : kBands[2];
+}
 
 struct ServiceMetrics::Impl {
   JobQueue* store;
@@ -74,10 +90,8 @@ struct ServiceMetrics::Impl {
           .Name("nimbus_jobs")
           .Help("Jobs in the store by state and kind (shards not counted)")
           .Register(registry);
-  prometheus::Family<prometheus::Gauge>& queue_depth = prometheus::BuildGauge()
-                                                           .Name("nimbus_queue_depth")
-                                                           .Help("Jobs waiting for a worker")
-                                                           .Register(registry);
+  prometheus::Family<prometheus::Gauge>& queue_depth =
+      prometheus::BuildGauge().Name("nimbus_queue_depth").Help(kQueueDepthHelp).Register(registry);
   prometheus::Family<prometheus::Histogram>& duration =
       prometheus::BuildHistogram()
           .Name("nimbus_job_duration_seconds")
@@ -108,7 +122,7 @@ struct ServiceMetrics::Impl {
   prometheus::Family<prometheus::Histogram>& store_latency =
       prometheus::BuildHistogram()
           .Name("nimbus_store_call_duration_seconds")
-          .Help("Job store calls made by the metrics collector, by call")
+          .Help("Job store calls (service, workers, sweeper, metrics), by call")
           .Register(registry);
   prometheus::Family<prometheus::Counter>& grpc_calls =
       prometheus::BuildCounter()
@@ -129,6 +143,8 @@ struct ServiceMetrics::Impl {
   std::unordered_map<std::string, std::string> kind_of;  // job id -> kind
   std::set<std::string> ended;                           // job ids observed ended
   std::set<std::pair<std::string, std::string>> job_labels;
+  // Each call's series, made at its first call.
+  std::array<std::atomic<prometheus::Histogram*>, size_t(StoreCall::kCount)> store_calls{};
 
   explicit Impl(JobQueue* s) : store(s) {}
   void RefreshJobs();
@@ -138,21 +154,18 @@ void ServiceMetrics::Impl::RefreshJobs() {
   std::map<std::pair<std::string, std::string>, double> counts;
   std::unordered_map<std::string, std::string> seen_kinds;
   std::set<std::string> seen_ended;
-  double queued = 0;
+  std::map<std::string, double> queued;  // by band
   ListOptions options;
   options.page_size = 500;
   for (int page = 0; page < 1000; ++page) {
-    const auto start = Clock::now();
     auto listed = store->List(options);
-    store_latency.Add({{"call", "List"}}, LatencyBuckets())
-        .Observe(std::chrono::duration<double>(Clock::now() - start).count());
     if (!listed.ok()) break;
     for (const JobRecord& r : listed->jobs) {
       auto cached = kind_of.find(r.id);
       const std::string kind = cached != kind_of.end() ? cached->second : KindOf(r.spec);
       seen_kinds[r.id] = kind;
       counts[{StateLabel(r.state), kind}] += 1;
-      if (r.state == JobState::kQueued) queued += 1;
+      if (r.state == JobState::kQueued) queued[PriorityBand(r.priority)] += 1;
       if (!IsTerminal(r.state)) continue;
       seen_ended.insert(r.id);
       if (ended.count(r.id)) continue;
@@ -172,7 +185,7 @@ void ServiceMetrics::Impl::RefreshJobs() {
     for (JobState s : kStates) job_labels.insert({StateLabel(s), kind});
   for (const auto& labels : job_labels)
     jobs.Add({{"state", labels.first}, {"kind", labels.second}}).Set(counts[labels]);
-  queue_depth.Add({}).Set(queued);
+  for (const char* band : kBands) queue_depth.Add({{"priority_band", band}}).Set(queued[band]);
 }
 
 ServiceMetrics::ServiceMetrics(JobQueue* store, int local_workers)
@@ -199,6 +212,17 @@ void ServiceMetrics::AddPreviewBytes(uint64_t bytes) {
 
 void ServiceMetrics::AddDownloadBytes(uint64_t bytes) {
   impl_->download_bytes.Add({}).Increment(double(bytes));
+}
+
+void ServiceMetrics::ObserveStoreCall(StoreCall call, double seconds) {
+  auto& slot = impl_->store_calls[size_t(call)];
+  prometheus::Histogram* series = slot.load(std::memory_order_acquire);
+  if (!series) {
+    // Family::Add gives every caller with these labels the same series.
+    series = &impl_->store_latency.Add({{"call", StoreCallName(call)}}, StoreBuckets());
+    slot.store(series, std::memory_order_release);
+  }
+  series->Observe(seconds);
 }
 
 std::string ServiceMetrics::Scrape() {

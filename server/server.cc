@@ -28,6 +28,7 @@
 #include "server/result_store.h"
 #include "server/retention.h"
 #include "server/store_probe.h"
+#include "server/timed_job_store.h"
 #include "server/tls_files.h"
 #include "server/worker_pool.h"
 
@@ -35,14 +36,15 @@ namespace nimbus::server {
 
 struct NimbusServer::Impl {
   std::optional<DataDirLock> data_dir_lock;  // first member: released last
-  std::unique_ptr<JobStore> store;
+  std::unique_ptr<JobStore> store;  // a TimedJobStore reporting to `metrics`
+  // Before everything that calls the store: destroyed after all of it.
+  std::unique_ptr<ServiceMetrics> metrics;
   std::unique_ptr<ResultStore> results;
   std::unique_ptr<AssetStore> assets;
   JobHub hub;
   std::unique_ptr<WorkerPool> pool;
   std::unique_ptr<NimbusServiceImpl> service;
   std::unique_ptr<RetentionSweeper> sweeper;
-  std::unique_ptr<ServiceMetrics> metrics;
   std::unique_ptr<grpc::Server> server;
   std::unique_ptr<StoreProbe> store_probe;  // destroyed before the server and store
   std::unique_ptr<HttpServer> http;
@@ -260,7 +262,10 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
   auto store = shared_store ? OpenPostgresJobStore(options.store_url)
                             : OpenSqliteJobStore((options.data_dir / "jobs.db").string());
   if (!store.ok()) return store.status();
-  impl->store = std::move(*store);
+  auto timed = std::make_unique<TimedJobStore>(std::move(*store));
+  impl->metrics = std::make_unique<ServiceMetrics>(timed.get(), options.workers);
+  timed->set_observer(impl->metrics.get());
+  impl->store = std::move(timed);
   const std::filesystem::path results_dir =
       options.results_dir.empty() ? options.data_dir / "results" : options.results_dir;
   // A shared store means other replicas may write the same folder: each
@@ -330,7 +335,6 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
   grpc::ServerBuilder builder;
   if (!options.listen.empty()) builder.AddListeningPort(options.listen, *credentials, &impl->port);
   builder.RegisterService(impl->service.get());
-  impl->metrics = std::make_unique<ServiceMetrics>(impl->store.get(), options.workers);
   auto interceptors = UndecodableRequestInterceptors();
   interceptors.push_back(impl->metrics->InterceptorFactory());
   builder.experimental().SetInterceptorCreators(std::move(interceptors));

@@ -481,6 +481,74 @@ TEST_F(HttpApi, MetricsPassPromtoolAndCountJobs) {
   EXPECT_EQ(std::system(cmd.c_str()), 0) << ReadAll(dir_ / "promtool.txt");
 }
 
+// The value of the series `series` (name and labels as Prometheus' text
+// format writes them) in `text`; -1 when it is absent.
+double SeriesValue(const std::string& text, const std::string& series) {
+  for (absl::string_view line : absl::StrSplit(text, '\n'))
+    if (absl::StartsWith(line, series + " "))
+      return std::stod(std::string(line.substr(series.size() + 1)));
+  return -1;
+}
+
+std::string StoreCalls(const char* call) {
+  return absl::StrCat("nimbus_store_call_duration_seconds_count{call=\"", call, "\"}");
+}
+
+// Queued jobs at known priorities, behind two that hold both workers,
+// counted by band (low 0-33, normal 34-66, high 67-100, as documented);
+// and the store calls those submissions and reads made, timed by call.
+TEST_F(HttpApi, QueueDepthByPriorityBandAndStoreCallLatency) {
+  std::vector<std::string> ids;
+  for (int i = 0; i < 2; ++i) ids.push_back(Submit(EndlessJob()).id());
+  for (const std::string& id : ids) AwaitRunning(id);
+  // Each band's edges: low 2, normal 2, high 3.
+  for (int priority : {0, 33, 34, 66, 67, 90, 100}) {
+    v1::SubmitJobRequest req;
+    *req.mutable_spec() = EndlessJob();
+    req.set_priority(priority);
+    std::string body;
+    ASSERT_TRUE(google::protobuf::util::MessageToJsonString(req, &body).ok());
+    auto r = Client().Post("/api/v1/jobs", body, "application/json");
+    ASSERT_EQ(r.status, 200) << r.body;
+    ids.push_back(Parse<v1::SubmitJobResponse>(r.body).job().id());
+  }
+  const std::string before = Client("").Get("/metrics").body;
+  const auto depth = [](const std::string& text, const char* band) {
+    return SeriesValue(text, absl::StrCat("nimbus_queue_depth{priority_band=\"", band, "\"}"));
+  };
+  EXPECT_EQ(depth(before, "low"), 2) << before;
+  EXPECT_EQ(depth(before, "normal"), 2);
+  EXPECT_EQ(depth(before, "high"), 3);
+  EXPECT_EQ(SeriesValue(before, StoreCalls("Create")), 9);
+  EXPECT_GT(SeriesValue(before, StoreCalls("Get")), 0);  // AwaitRunning's reads
+  EXPECT_GE(SeriesValue(before, StoreCalls("ClaimNext")), 2);
+  EXPECT_GE(SeriesValue(before, StoreCalls("List")), 1);  // the scrape's own
+  EXPECT_EQ(SeriesValue(before, StoreCalls("SetPriority")), -1);
+
+  // Five reads and one move from low to high.
+  for (int i = 0; i < 5; ++i) Get(ids[2]);
+  ASSERT_EQ(Client()
+                .Post(absl::StrCat("/api/v1/jobs/", ids[2], "/priority"), R"({"priority":100})",
+                      "application/json")
+                .status,
+            200);
+  const std::string after = Client("").Get("/metrics").body;
+  EXPECT_EQ(depth(after, "low"), 1) << after;
+  EXPECT_EQ(depth(after, "normal"), 2);
+  EXPECT_EQ(depth(after, "high"), 4);
+  EXPECT_GE(SeriesValue(after, StoreCalls("Get")), SeriesValue(before, StoreCalls("Get")) + 5);
+  EXPECT_EQ(SeriesValue(after, StoreCalls("SetPriority")), 1);
+  EXPECT_NE(
+      after.find("nimbus_store_call_duration_seconds_bucket{call=\"SetPriority\",le=\"+Inf\"} 1"),
+      std::string::npos);
+  std::ofstream(dir_ / "metrics.txt") << after;
+  const std::string cmd = absl::StrCat("promtool check metrics < ", (dir_ / "metrics.txt").string(),
+                                       " > ", (dir_ / "promtool.txt").string(), " 2>&1");
+  EXPECT_EQ(std::system(cmd.c_str()), 0) << ReadAll(dir_ / "promtool.txt");
+  for (const std::string& id : ids)
+    Client().Post(absl::StrCat("/api/v1/jobs/", id, "/cancel"), "{}", "application/json");
+}
+
 // The HTTP port speaks HTTPS with the gRPC port's certificate, and follows
 // its rule that a port beyond loopback needs tokens.
 TEST(HttpTls, SameCertificateAndLoopbackRule) {

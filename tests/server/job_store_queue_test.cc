@@ -80,7 +80,8 @@ class JobStoreQueueTest : public ::testing::TestWithParam<testing::StoreKind> {
 
 INSTANTIATE_TEST_SUITE_P(Stores, JobStoreQueueTest,
                          ::testing::Values(testing::StoreKind::kSqlite,
-                                           testing::StoreKind::kPostgres),
+                                           testing::StoreKind::kPostgres,
+                                           testing::StoreKind::kTimedSqlite),
                          [](const ::testing::TestParamInfo<testing::StoreKind>& info) {
                            return testing::StoreKindName(info.param);
                          });

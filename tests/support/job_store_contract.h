@@ -87,7 +87,8 @@ inline PokeRecord Push(int32_t body, double x) {
 }
 
 /// @brief A fresh, empty store of the kind given as the parameter: SQLite
-/// or PostgreSQL (a private server; skipped only when it is not installed).
+/// or PostgreSQL (a private server; skipped only when it is not installed),
+/// or SQLite behind a TimedJobStore.
 class StoreContractTest : public ::testing::TestWithParam<::nimbus::testing::StoreKind> {
  protected:
   void SetUp() override {
@@ -136,11 +137,12 @@ inline std::string StoreName(const ::testing::TestParamInfo<::nimbus::testing::S
 
 /// Declares contract suite `Suite` (a StoreContractTest) and runs it
 /// against every store kind.
-#define NIMBUS_STORE_CONTRACT_SUITE(Suite)                                             \
-  class Suite : public ::nimbus::server::contract::StoreContractTest {};               \
-  INSTANTIATE_TEST_SUITE_P(Stores, Suite,                                              \
-                           ::testing::Values(::nimbus::testing::StoreKind::kSqlite,    \
-                                             ::nimbus::testing::StoreKind::kPostgres), \
+#define NIMBUS_STORE_CONTRACT_SUITE(Suite)                                                \
+  class Suite : public ::nimbus::server::contract::StoreContractTest {};                  \
+  INSTANTIATE_TEST_SUITE_P(Stores, Suite,                                                 \
+                           ::testing::Values(::nimbus::testing::StoreKind::kSqlite,       \
+                                             ::nimbus::testing::StoreKind::kPostgres,     \
+                                             ::nimbus::testing::StoreKind::kTimedSqlite), \
                            ::nimbus::server::contract::StoreName)
 
 }  // namespace nimbus::server::contract
