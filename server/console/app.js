@@ -182,11 +182,19 @@ function jobPage(id) {
   }
   const loadPreview = previewLoader(path, img, seq, canvas, volume);
   const abort = new AbortController();
+  let seenKey = '';
   call('GET', path).then(({ job }) => {
     show(job);
     spec.textContent = JSON.stringify(job.spec, null, 2);
     return stream(`${path}/stream?preview_resolution=64&preview_interval=0.2`, (name, data) => {
-      if (name === 'job') { show(data); if (log) log.refresh(); }
+      if (name === 'job') {
+        show(data);
+        // Progress alone makes no event: read the log at once only when the
+        // job's state, worker or priority moved (the poll catches the rest).
+        const key = `${data.state} ${data.worker} ${data.priority} ${data.progress?.phase}`;
+        if (log && key !== seenKey) log.refresh();
+        seenKey = key;
+      }
       else if (name === 'preview') {
         performance.mark(`nimbus-preview-${data.sequence}`);
         loadPreview(Number(data.sequence));
