@@ -586,17 +586,12 @@ grpc::Status NimbusServiceImpl::Admit(const Principal& caller, const v1::SubmitJ
     nj.shard_count = req.spec().shards() > 0 ? req.spec().shards()
                                              : AutoShards(*job, auto_shard_iterations_);
   }
+  nj.submitted_by = caller.name;  // Create logs the submission with the job
   auto rec = store_->Create(nj, NowMs());
   // Not stored, or an idempotent retry got its first job: the cache's copy
   // is not needed.
   if (cached && (!rec.ok() || rec->id != nj.id)) (void)results_->Delete(nj.id);
   if (!rec.ok()) return ToGrpc(rec.status());
-  if (rec->id == nj.id)  // not an idempotent repeat
-    LogJobEvent(*store_, rec->id, "submitted",
-                {{"by", caller.name},
-                 {"priority", absl::StrCat(rec->priority)},
-                 {"retried_from", rec->retried_from},
-                 {"cached_from", rec->cached_from}});
   spdlog::info("job={} event=submitted name={} owner={} work={} priority={}{}", rec->id, rec->name,
                rec->owner, rec->progress_total, rec->priority,
                rec->retried_from.empty() ? "" : " retried_from=" + rec->retried_from);

@@ -807,6 +807,7 @@ absl::StatusOr<JobRecord> PostgresJobStore::Create(const NewJob& job, TimeMs now
         BoundText(job.warnings, kMaxWarningsBytes), ToDb(job.estimated_memory_bytes), job.owner,
         shards, job.spec_sha256, job.priority, job.retried_from);
     if (!ins.empty()) {
+      if (!job.submitted_by.empty()) AppendEventIn(t, job.id, SubmittedEvent(job, now));
       // The shards, in index order (insertion order breaks create_time ties).
       for (int64_t k = 0; k < shards; ++k) {
         t.exec_params(
