@@ -1,7 +1,8 @@
 // The claim order (docs/operator_guide.md "Claim order") end to end: three
 // nimbusd replicas of one worker slot each on one PostgreSQL queue, two
-// principals flooding it with small jobs at a low priority, then a few at a
-// high one while the low ones still wait. The run is judged afterwards by
+// principals flooding it with small jobs at a low priority (queued while a
+// third principal's jobs hold the slots), then a few at a high one while
+// the low ones still wait. The run is judged afterwards by
 // the oracle in tests/support/claim_order_oracle.h, from the times the test
 // saw each submission committed and the claim stamps of the job event logs.
 #include <gmock/gmock.h>
@@ -170,14 +171,15 @@ class ClaimOrderE2E : public ::testing::Test {
 
 // While a third principal's jobs hold every slot, Alice queues a flood,
 // then Bob one; the slots are freed, and once a few have started, both
-// queue high-priority jobs, alternating (Carol's jobs are not judged). The oracle's bounds with three slots:
-// while a high job surely waited (from its SubmitJob's return to its claim
-// stamp) at most two low jobs were claimed, by claimers that found every
-// high job locked by another; from the time an owner's job heads its queue
-// at its priority to its claim, at most 2 + 2 jobs of the other owner at
-// that priority were claimed that the rule's running counts do not excuse
-// (the rule's two, and claims racing each other). Some 3 s idle, 10 s on a
-// loaded machine: 38 jobs over three slots.
+// queue high-priority jobs, alternating (Carol's jobs are not judged). The
+// oracle's bounds with three slots: while a high job surely waited (from
+// its SubmitJob's return to its claim stamp) at most two low jobs were
+// claimed, by claimers that found every high job locked by another; from
+// the time an owner's job heads its queue at its priority to its claim, at
+// most 2 + 2 jobs of the other owner at that priority were claimed that the
+// rule's running counts do not excuse (the rule's two, and claims racing
+// each other). Some 2 s idle, 4 s beside three busy loops: 38 jobs over
+// three slots.
 TEST_F(ClaimOrderE2E, InterleavedFloodsOfTwoOwnersAtTwoPriorities) {
   constexpr int kLowEach = 16, kHighEach = 3;
   const std::vector<std::string> held = HoldEverySlot();
