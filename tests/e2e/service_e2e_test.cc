@@ -185,14 +185,20 @@ TEST_F(ServiceE2E, ManyChunkDownloadsHashEveryByteInOrder) {
 }
 
 // The lease outlives the test, so only start-up recovery can run the job
-// again; the watch rides out the restart on the same address.
+// again; the watch rides out the restart on the same address, and the
+// events it asked for arrive once each across the reconnect.
 TEST_F(ServiceE2E, RestartRecoversTheRunningJobAndTheWatchResumes) {
   Restart({"--lease-ms", "600000"});
   auto job = client().Submit(Tetrahedron(64, 800'000'000));
   ASSERT_TRUE(job.ok());
   bool restarted = false;
   auto watcher = Other();
-  auto final_job = watcher->Watch(job->id(), {}, [&](const v1::WatchJobResponse& r) {
+  client::WatchOptions options;
+  options.events = true;
+  std::vector<std::string> streamed;  // "seq kind"
+  auto final_job = watcher->Watch(job->id(), options, [&](const v1::WatchJobResponse& r) {
+    for (const v1::JobEvent& e : r.events())
+      streamed.push_back(std::to_string(e.seq()) + " " + e.kind());
     if (restarted || !RunningWithProgress(r.job())) return;
     restarted = true;
     EXPECT_EQ(r.job().attempts(), 1u);
@@ -204,6 +210,16 @@ TEST_F(ServiceE2E, RestartRecoversTheRunningJobAndTheWatchResumes) {
   EXPECT_EQ(final_job->state(), v1::JOB_STATE_SUCCEEDED) << final_job->error();
   EXPECT_EQ(final_job->attempts(), 2u);
   ASSERT_TRUE(client().Fetch(job->id(), dir_ / "after_restart.vdb").ok());
+  auto log = client().GetJobEvents(job->id(), 0, 500);
+  ASSERT_TRUE(log.ok()) << log.status();
+  std::vector<std::string> read;
+  for (const v1::JobEvent& e : log->events())
+    read.push_back(std::to_string(e.seq()) + " " + e.kind());
+  EXPECT_EQ(streamed, read);
+  EXPECT_NE(std::find(read.begin(), read.end(), "1 submitted"), read.end());
+  EXPECT_EQ(std::count_if(read.begin(), read.end(),
+                          [](const std::string& e) { return e.ends_with(" claimed"); }),
+            2);
 }
 
 TEST_F(ServiceE2E, CancelAnswersWithTheStoppedJob) {
