@@ -60,10 +60,10 @@ class ClaimOrderE2E : public ::testing::Test {
       replicas_.push_back(std::make_unique<testing::NimbusdProcess>(
           dir_ / ("data-" + std::to_string(i)),
           std::vector<std::string>{"--store", *url, "--results-dir", (dir_ / "results").string(),
-                                   "--replica-id", "replica" + std::to_string(i), "--workers",
-                                   "1", "--threads-per-job", "1", "--heartbeat-ms", "100",
-                                   "--min-free-disk-mib", "0",
-                                   "--auth-tokens", tokens.string(), "--log-level", "warn"}));
+                                   "--replica-id", "replica" + std::to_string(i), "--workers", "1",
+                                   "--threads-per-job", "1", "--heartbeat-ms", "100",
+                                   "--min-free-disk-mib", "0", "--auth-tokens", tokens.string(),
+                                   "--log-level", "warn"}));
       replicas_.back()->set_log_file(dir_ / ("replica-" + std::to_string(i) + ".log"));
       ASSERT_TRUE(replicas_.back()->Start().ok());
       alice_.push_back(testing::ConnectAs(replicas_.back()->target(), kAlice));
@@ -77,8 +77,9 @@ class ClaimOrderE2E : public ::testing::Test {
   void Submit(std::vector<std::unique_ptr<NimbusClient>>& as, const char* owner, int via,
               int priority) {
     v1::JobSpec spec = testing::SmallTetrahedronJob();
-    spec.mutable_chaos_game()->set_iterations(20'000'000);  // tens of ms each: a queue forms
-    spec.set_no_cache(true);  // each job must really run
+    // Tens of ms each, so a queue forms; each must really run (no cache).
+    spec.mutable_chaos_game()->set_iterations(20'000'000);
+    spec.set_no_cache(true);
     auto job = as[via % kReplicas]->Submit(spec, "", priority);
     ASSERT_TRUE(job.ok()) << job.status();
     ClaimedJob j;

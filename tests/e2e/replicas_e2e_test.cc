@@ -388,8 +388,7 @@ TEST_F(ReplicasE2E, WatcherWithEventsReceivesTheJobsLogAsItGrows) {
   EXPECT_EQ(read[0], "1 submitted");
   EXPECT_EQ(read[1], "2 claimed");
   EXPECT_EQ(read.back(), std::to_string(read.size()) + " succeeded");
-  EXPECT_NE(std::find(while_running.begin(), while_running.end(), "claimed"),
-            while_running.end());
+  EXPECT_NE(std::find(while_running.begin(), while_running.end(), "claimed"), while_running.end());
 
   // The resumed form: after seq 2, one message (the job has ended) with the rest.
   auto stub = v1::NimbusService::NewStub(

@@ -7,6 +7,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <csignal>
 #include <fstream>
@@ -220,6 +221,30 @@ TEST_F(ServiceE2E, RestartRecoversTheRunningJobAndTheWatchResumes) {
   EXPECT_EQ(std::count_if(read.begin(), read.end(),
                           [](const std::string& e) { return e.ends_with(" claimed"); }),
             2);
+}
+
+// `nimbus watch --events` prints each event of the job's log as `nimbus
+// events` does, in order, beside its progress lines (stderr).
+TEST_F(ServiceE2E, CliWatchWithEventsPrintsTheLogAsEventsDoes) {
+  auto job = client().Submit(Tetrahedron(32, 50'000'000));
+  ASSERT_TRUE(job.ok()) << job.status();
+  const std::string cli =
+      std::string(NIMBUS_BIN_DIR) + "/nimbus --server " + server_.target() + " ";
+  const std::string watch =
+      cli + "watch " + job->id() + " --events 2>" + (dir_ / "watch.txt").string() + " >/dev/null";
+  ASSERT_EQ(WEXITSTATUS(std::system(watch.c_str())), 0)
+      << testing::ReadFileBytes(dir_ / "watch.txt");
+  const std::string events = cli + "events " + job->id() + " >" + (dir_ / "events.txt").string();
+  ASSERT_EQ(WEXITSTATUS(std::system(events.c_str())), 0);
+  const std::string printed = testing::ReadFileBytes(dir_ / "watch.txt");
+  std::istringstream log(testing::ReadFileBytes(dir_ / "events.txt"));
+  size_t at = 0;
+  int lines = 0;
+  for (std::string line; std::getline(log, line); ++lines) {
+    at = printed.find(line + "\n", at);
+    ASSERT_NE(at, std::string::npos) << "missing or out of order: " << line << "\n" << printed;
+  }
+  EXPECT_GE(lines, 3);  // submitted, claimed, ..., succeeded
 }
 
 TEST_F(ServiceE2E, CancelAnswersWithTheStoppedJob) {

@@ -27,8 +27,8 @@ ClaimedJob Job(const std::string& id, const std::string& owner, int priority, in
 // inside that, those at 110 and 120 are (two: within 3 - 1).
 TEST(ClaimOrderOracle, LowClaimsWhileAHighJobSurelyWaitedAreCountedUpToSlotsLessOne) {
   std::vector<ClaimedJob> run = {
-      Job("h", "a", 90, 100, 200, 300),  Job("l1", "b", 10, 0, 100, 400),
-      Job("l2", "b", 10, 0, 110, 400),   Job("l3", "b", 10, 0, 120, 400),
+      Job("h", "a", 90, 100, 200, 300), Job("l1", "b", 10, 0, 100, 400),
+      Job("l2", "b", 10, 0, 110, 400),  Job("l3", "b", 10, 0, 120, 400),
       Job("l4", "b", 10, 0, 200, 400),
   };
   EXPECT_THAT(PriorityViolations(run, kSlots), IsEmpty());

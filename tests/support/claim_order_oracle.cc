@@ -40,8 +40,8 @@ std::vector<std::string> PriorityViolations(const std::vector<ClaimedJob>& jobs,
     if (static_cast<int>(passed.size()) > slots - 1)
       out.push_back(absl::StrCat("priority ", h.priority, " job ", h.id, " (visible at ",
                                  h.visible_ms, ", claimed at ", h.claim_ms, ") waited while ",
-                                 passed.size(), " lower ones were claimed: ",
-                                 absl::StrJoin(passed, " ")));
+                                 passed.size(),
+                                 " lower ones were claimed: ", absl::StrJoin(passed, " ")));
   }
   return out;
 }
