@@ -274,6 +274,7 @@ absl::StatusOr<v1::Job> NimbusClient::Watch(
   req.set_job_id(job_id);
   req.set_preview_resolution(options.preview_resolution);
   req.set_preview_interval_seconds(options.preview_interval_seconds);
+  req.set_include_events(options.events);
   v1::Job last;
   auto give_up_at = std::chrono::steady_clock::now() +
                     std::chrono::milliseconds(int64_t(options.reconnect_timeout_seconds * 1000));
@@ -287,6 +288,8 @@ absl::StatusOr<v1::Job> NimbusClient::Watch(
     while (reader->Read(&resp)) {
       got_any = true;
       last = resp.job();
+      for (const v1::JobEvent& e : resp.events())
+        req.set_events_after_seq(std::max(req.events_after_seq(), e.seq()));
       on_update(resp);
     }
     const grpc::Status s = reader->Finish();

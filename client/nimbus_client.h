@@ -24,6 +24,9 @@ struct WatchOptions {
   double preview_interval_seconds = 1.0;
   /// How long to keep reconnecting when the server goes away mid-watch.
   double reconnect_timeout_seconds = 120.0;
+  /// Also receive the job's event log as it grows (WatchJobResponse.events);
+  /// a watch resumed after a reconnect repeats none.
+  bool events = false;
 };
 
 /// How to reach a server that wants TLS or a token (docs/operator_guide.md

@@ -219,6 +219,12 @@ class ProgressView {
     if (drawn_) std::fprintf(stderr, "\n");
     drawn_ = false;
   }
+  // A line of its own above the bar (which the next update redraws).
+  void Note(const std::string& line) {
+    if (drawn_) std::fprintf(stderr, "\r\033[K");
+    std::fprintf(stderr, "%s\n", line.c_str());
+    drawn_ = false;
+  }
 
  private:
   bool tty_;
@@ -231,7 +237,28 @@ struct WatchArgs {
   std::string previews;
   uint32_t preview_resolution = 64;
   double preview_interval = 1.0;
+  bool events = false;
 };
+
+// "2026-11-29T03:04:05Z" (UTC, seconds).
+std::string UtcTime(const google::protobuf::Timestamp& t) {
+  const std::time_t secs = static_cast<std::time_t>(t.seconds());
+  std::tm tm{};
+  char text[32] = "-";
+  if (secs > 0 && ::gmtime_r(&secs, &tm) != nullptr)
+    std::strftime(text, sizeof(text), "%Y-%m-%dT%H:%M:%SZ", &tm);
+  return text;
+}
+
+// One event as `nimbus events` prints it: seq, time, kind, the non-empty
+// fields in name order (so the output is stable).
+std::string EventLine(const v1::JobEvent& e) {
+  std::map<std::string, std::string> fields(e.fields().begin(), e.fields().end());
+  std::string text;
+  for (const auto& [name, value] : fields)
+    if (!value.empty()) absl::StrAppend(&text, " ", name, "=", value);
+  return absl::StrFormat("%5d %s %-16s%s", e.seq(), UtcTime(e.time()), e.kind(), text);
+}
 
 // Watches a job to its end, saving previews; returns its final view.
 absl::StatusOr<v1::Job> WatchJob(
@@ -245,10 +272,12 @@ absl::StatusOr<v1::Job> WatchJob(
     o.preview_resolution = w.preview_resolution;
     o.preview_interval_seconds = w.preview_interval;
   }
+  o.events = w.events;
   ProgressView view;
   nimbus::client::PreviewSaver saver(w.previews);
   absl::Status save_error;
   auto job = client.Watch(id, o, [&](const v1::WatchJobResponse& r) {
+    for (const v1::JobEvent& e : r.events()) view.Note(EventLine(e));
     if (!quiet) view.Update(r.job());
     if (on_job) on_job(r.job());
     if (r.has_preview() && !w.previews.empty() && save_error.ok())
@@ -797,16 +826,6 @@ int RunRetry(const Options& o) {
   return 0;
 }
 
-// "2026-11-29T03:04:05Z" (UTC, seconds).
-std::string UtcTime(const google::protobuf::Timestamp& t) {
-  const std::time_t secs = static_cast<std::time_t>(t.seconds());
-  std::tm tm{};
-  char text[32] = "-";
-  if (secs > 0 && ::gmtime_r(&secs, &tm) != nullptr)
-    std::strftime(text, sizeof(text), "%Y-%m-%dT%H:%M:%SZ", &tm);
-  return text;
-}
-
 int RunWorkers(const Options& o) {
   auto conn = Connect(o.global);
   if (!conn.ok()) return ExitFor(conn.status());
@@ -832,14 +851,7 @@ int RunEvents(const Options& o) {
     if (!page.ok()) return ExitFor(page.status());
     if (after == 0 && page->dropped() > 0)
       std::cout << "(" << page->dropped() << " older events dropped)\n";
-    for (const auto& e : page->events()) {
-      // Fields in name order, so the output is stable.
-      std::map<std::string, std::string> fields(e.fields().begin(), e.fields().end());
-      std::string text;
-      for (const auto& [name, value] : fields)
-        if (!value.empty()) absl::StrAppend(&text, " ", name, "=", value);
-      std::cout << absl::StrFormat("%5d %s %-16s%s\n", e.seq(), UtcTime(e.time()), e.kind(), text);
-    }
+    for (const auto& e : page->events()) std::cout << EventLine(e) << "\n";
     after = page->next_after_seq();
   } while (after != 0);
   return 0;
@@ -929,6 +941,7 @@ void AddWatchFlags(CLI::App* c, WatchArgs& w) {
       ->capture_default_str();
   c->add_option("--preview-interval", w.preview_interval, "seconds between previews")
       ->capture_default_str();
+  c->add_flag("--events", w.events, "print the job's events (as `nimbus events`) as they happen");
 }
 
 // Declares the subcommands and their flags, bound to `o`; in help order.

@@ -130,6 +130,10 @@ struct NewJob {
   int priority = kDefaultPriority;
   /// A retry of this FAILED or CANCELLED job (RetryJob).
   std::string retried_from;
+  /// The principal submitting it. When set, Create logs the job's
+  /// `submitted` event (SubmittedEvent) in its transaction, so the event
+  /// comes before any claim's; an idempotent repeat logs none.
+  std::string submitted_by;
 };
 
 struct ListOptions {

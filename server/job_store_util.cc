@@ -91,6 +91,16 @@ JobEvent EndEvent(const std::string& worker_id, const Completion& c, TimeMs now)
            {"message", c.error}}};
 }
 
+JobEvent SubmittedEvent(const NewJob& job, TimeMs now) {
+  return {0,
+          now,
+          "submitted",
+          {{"by", job.submitted_by},
+           {"priority", absl::StrCat(job.priority)},
+           {"retried_from", job.retried_from},
+           {"cached_from", job.cached_from}}};
+}
+
 TimeMs WallClockMs() {
   return std::chrono::duration_cast<std::chrono::milliseconds>(
              std::chrono::system_clock::now().time_since_epoch())

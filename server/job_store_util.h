@@ -48,6 +48,10 @@ struct OwnerTurn {
 /// message), naming the worker.
 JobEvent EndEvent(const std::string& worker_id, const Completion& c, TimeMs now);
 
+/// The event log entry Create writes for a job with `submitted_by`: by,
+/// priority, retried_from and cached_from (the last two empty unless set).
+JobEvent SubmittedEvent(const NewJob& job, TimeMs now);
+
 /// Milliseconds since the epoch, for the few store operations that take no
 /// `now` (start-up recovery, cascades): the honest end time there.
 TimeMs WallClockMs();

@@ -3,6 +3,7 @@
 #include <malloc.h>
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <chrono>
 #include <condition_variable>
 #include <mutex>
@@ -100,7 +101,9 @@ class WatchReactor : public grpc::ServerWriteReactor<v1::WatchJobResponse> {
         blocking_(blocking),
         job_id_(req.job_id()),
         resolution_(req.preview_resolution()),
-        interval_(req.preview_interval_seconds() > 0 ? req.preview_interval_seconds() : 1.0) {
+        interval_(req.preview_interval_seconds() > 0 ? req.preview_interval_seconds() : 1.0),
+        include_events_(req.include_events()),
+        sent_event_seq_(std::max<int64_t>(req.events_after_seq(), 0)) {
     std::lock_guard<std::mutex> lock(mu_);
     busy_ = true;  // the start step holds the turn
     if (!blocking_->Post([this] { Start(); })) FinishLocked(Busy(*blocking_));
@@ -186,6 +189,7 @@ class WatchReactor : public grpc::ServerWriteReactor<v1::WatchJobResponse> {
   void Pump() {
     JobSnapshot s;
     bool send_preview = false;
+    bool send_job = false;
     {
       std::lock_guard<std::mutex> lock(mu_);
       if (cancelled_) return FinishLocked(grpc::Status::CANCELLED);
@@ -201,13 +205,22 @@ class WatchReactor : public grpc::ServerWriteReactor<v1::WatchJobResponse> {
                        std::chrono::duration<double>(now - last_preview_).count() >= interval_;
         if (send_preview) last_preview_ = now;
       }
-      if (!job_changed && !send_preview) {
+      if (!job_changed && !send_preview && !include_events_) {
         busy_ = false;
         return;
       }
+      send_job = job_changed || send_preview;
     }
-    // Built outside the lock: listing files must not hold up the hub.
+    // Built outside the lock: reading the store and listing files must not
+    // hold up the hub.
     v1::WatchJobResponse next;
+    if (include_events_) ReadNewEvents(next);
+    if (!send_job && next.events().empty()) {
+      std::lock_guard<std::mutex> lock(mu_);
+      if (cancelled_) return FinishLocked(grpc::Status::CANCELLED);
+      busy_ = false;
+      return KickLocked();  // a snapshot may have come meanwhile
+    }
     *next.mutable_job() = *s.job;
     AddResultFiles(results_, *next.mutable_job());
     if (send_preview) *next.mutable_preview() = *s.preview;
@@ -224,6 +237,21 @@ class WatchReactor : public grpc::ServerWriteReactor<v1::WatchJobResponse> {
     StartWrite(&resp_);  // keeps the turn until OnWriteDone
   }
 
+  // Executor, holding the turn: the events recorded after the last one
+  // sent (the log keeps at most kMaxEventsPerJob, so a few pages at most).
+  // A failed read sends none now; the next message tries again.
+  void ReadNewEvents(v1::WatchJobResponse& next) {
+    for (int page = 0; page < 4; ++page) {
+      auto got = store_->ListEvents(job_id_, sent_event_seq_, 500);
+      if (!got.ok()) return;
+      for (const JobEvent& e : got->events) {
+        *next.add_events() = ToProto(e);
+        sent_event_seq_ = std::max(sent_event_seq_, e.seq);
+      }
+      if (got->next_after == 0) return;
+    }
+  }
+
   void FinishLocked(const grpc::Status& s) {
     if (finished_) return;
     finished_ = true;
@@ -238,6 +266,8 @@ class WatchReactor : public grpc::ServerWriteReactor<v1::WatchJobResponse> {
   std::string job_id_;
   uint32_t resolution_;
   double interval_;
+  const bool include_events_;
+  int64_t sent_event_seq_;  // only the turn's holder touches it
   uint64_t subscription_ = 0;
   bool subscribed_ = false;
   std::mutex mu_;
@@ -556,17 +586,12 @@ grpc::Status NimbusServiceImpl::Admit(const Principal& caller, const v1::SubmitJ
     nj.shard_count = req.spec().shards() > 0 ? req.spec().shards()
                                              : AutoShards(*job, auto_shard_iterations_);
   }
+  nj.submitted_by = caller.name;  // Create logs the submission with the job
   auto rec = store_->Create(nj, NowMs());
   // Not stored, or an idempotent retry got its first job: the cache's copy
   // is not needed.
   if (cached && (!rec.ok() || rec->id != nj.id)) (void)results_->Delete(nj.id);
   if (!rec.ok()) return ToGrpc(rec.status());
-  if (rec->id == nj.id)  // not an idempotent repeat
-    LogJobEvent(*store_, rec->id, "submitted",
-                {{"by", caller.name},
-                 {"priority", absl::StrCat(rec->priority)},
-                 {"retried_from", rec->retried_from},
-                 {"cached_from", rec->cached_from}});
   spdlog::info("job={} event=submitted name={} owner={} work={} priority={}{}", rec->id, rec->name,
                rec->owner, rec->progress_total, rec->priority,
                rec->retried_from.empty() ? "" : " retried_from=" + rec->retried_from);

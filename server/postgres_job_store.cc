@@ -31,6 +31,7 @@
 #include "server/bounded_text.h"
 #include "server/job_store.h"
 #include "server/job_store_util.h"
+#include "server/postgres_claim_sql.h"
 #include "server/postgres_module.h"
 
 namespace nimbus::server {
@@ -642,29 +643,6 @@ std::optional<std::pair<std::string, uint32_t>> PostgresJobStore::PickClaimable(
   }
 }
 
-// The owners with claimable QUEUED jobs at priority $1, in one round trip:
-// a recursive walk of jobs_claim_order that seeks from each owner to the
-// next (one index probe per owner, never a scan of their jobs); for each,
-// its oldest such job, its RUNNING jobs and its last claim.
-constexpr char kRankOwnersSql[] = R"sql(
-WITH RECURSIVE owners(owner) AS (
-  (SELECT owner FROM jobs WHERE state = 1 AND NOT cancel_requested AND shards_pending = 0
-     AND priority = $1 ORDER BY owner LIMIT 1)
-  UNION ALL
-  SELECT (SELECT j.owner FROM jobs j WHERE j.state = 1 AND NOT j.cancel_requested
-            AND j.shards_pending = 0 AND j.priority = $1 AND j.owner > o.owner
-            ORDER BY j.owner LIMIT 1)
-  FROM owners o WHERE o.owner IS NOT NULL)
-SELECT o.owner, f.create_time, f.seq, f.id,
-  (SELECT count(*) FROM jobs r WHERE r.state = 2 AND r.owner = o.owner),
-  (SELECT coalesce(max(c.last_claim), 0) FROM owner_claims c WHERE c.owner = o.owner)
-FROM owners o CROSS JOIN LATERAL (
-  SELECT create_time, seq, id FROM jobs j WHERE j.state = 1 AND NOT j.cancel_requested
-    AND j.shards_pending = 0 AND j.priority = $1 AND j.owner = o.owner
-    ORDER BY j.create_time, j.seq LIMIT 1) f
-WHERE o.owner IS NOT NULL
-)sql";
-
 std::vector<std::pair<std::string, OwnerTurn>> PostgresJobStore::RankOwners(pqxx::work& t,
                                                                             int64_t priority) {
   // The cost grows with the owners at `priority`, not with their jobs.
@@ -829,6 +807,7 @@ absl::StatusOr<JobRecord> PostgresJobStore::Create(const NewJob& job, TimeMs now
         BoundText(job.warnings, kMaxWarningsBytes), ToDb(job.estimated_memory_bytes), job.owner,
         shards, job.spec_sha256, job.priority, job.retried_from);
     if (!ins.empty()) {
+      if (!job.submitted_by.empty()) AppendEventIn(t, job.id, SubmittedEvent(job, now));
       // The shards, in index order (insertion order breaks create_time ties).
       for (int64_t k = 0; k < shards; ++k) {
         t.exec_params(

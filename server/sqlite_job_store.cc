@@ -746,6 +746,8 @@ absl::StatusOr<JobRecord> SqliteJobStore::Create(const NewJob& job, TimeMs now) 
     s->Bind(5, job.cached_from).Bind(6, job.id);
     if (absl::Status st = s->Run(); !st.ok()) return st;
   }
+  if (!job.submitted_by.empty())
+    if (absl::Status st = AppendEventLocked(job.id, SubmittedEvent(job, now)); !st.ok()) return st;
   absl::StatusOr<JobRecord> created = LoadExistingLocked(job.id);
   if (!created.ok()) return created.status();
   if (absl::Status s = txn.Commit(); !s.ok()) return s;

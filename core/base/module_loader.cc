@@ -26,10 +26,13 @@ std::vector<std::filesystem::path> Candidates(const ModuleSpec& spec) {
 }  // namespace
 
 // Never unloaded: what the module makes (stores, grids) runs its code.
+// Functions bind lazily, on first call, as in the program itself: binding
+// every one of OpenVDB's at load cost more than the rest of a small job. A
+// module built apart from its program is refused by its ABI number.
 absl::StatusOr<void*> LoadModuleEntry(const ModuleSpec& spec) {
   std::vector<std::string> tried;
   for (const std::filesystem::path& path : Candidates(spec)) {
-    void* handle = dlopen(path.c_str(), RTLD_NOW | RTLD_LOCAL);
+    void* handle = dlopen(path.c_str(), RTLD_LAZY | RTLD_LOCAL);
     if (handle == nullptr) {
       tried.push_back(dlerror());
       continue;

@@ -21,7 +21,7 @@ struct ModuleSpec {
 
 /// @brief Looks at $env_var if set, else beside the executable, then in
 /// ../lib/nimbus/ relative to it. Returns the first candidate that loads
-/// (RTLD_NOW | RTLD_LOCAL, never unloaded) and its entry symbol;
+/// (RTLD_LAZY | RTLD_LOCAL, never unloaded) and its entry symbol;
 /// FAILED_PRECONDITION naming every path tried when none loads, or naming
 /// the file when it lacks the entry.
 absl::StatusOr<void*> LoadModuleEntry(const ModuleSpec& spec);

@@ -74,6 +74,9 @@ absl::Status WriteError(const std::filesystem::path& path, int err, const std::s
 // write error: std::ofstream (and so openvdb::io::File) loses errno and
 // OpenVDB never checks the stream, so a full disk would leave a short file
 // that looked written.
+//
+// It also hashes the archive as it goes out (WriteLog), so the content
+// UUID needs no second reading of the file.
 class CheckedFileBuf : public std::streambuf {
  public:
   explicit CheckedFileBuf(int fd) : fd_(fd), buf_(size_t{1} << 16) {
@@ -81,10 +84,13 @@ class CheckedFileBuf : public std::streambuf {
   }
   int error() const { return error_; }
   uint64_t end() const { return end_; }
+  /// The digest of every write so far: see WriteLog.
+  std::string LogDigest() { return log_.HexDigest(); }
   bool Flush() {
     const char* p = pbase();
     size_t n = size_t(pptr() - pbase());
     setp(buf_.data(), buf_.data() + buf_.size());
+    if (n > 0 && error_ == 0) WriteLog(pos_, std::string_view(p, n));
     while (n > 0 && error_ == 0) {
       const int64_t limit = g_fail_after.load();
       if (limit >= 0 && pos_ + n > uint64_t(limit)) {
@@ -138,12 +144,40 @@ class CheckedFileBuf : public std::streambuf {
     started_ = pos_;
   }
 
+  // Each write in order: its offset (8 bytes, little-endian) and its bytes,
+  // less any part of the UUID field. OpenVDB writes an archive the same way
+  // every time (forward, then a few patches of grid offsets), so the same
+  // grids give the same log.
+  void WriteLog(uint64_t at, std::string_view bytes) {
+    unsigned char offset[8];
+    for (int i = 0; i < 8; ++i) offset[i] = (unsigned char)(at >> (8 * i));
+    log_.Update(std::string_view(reinterpret_cast<const char*>(offset), sizeof(offset)));
+    const uint64_t end = at + bytes.size();
+    const uint64_t cut_begin = std::clamp<uint64_t>(kUuidOffset, at, end);
+    const uint64_t cut_end = std::clamp<uint64_t>(kUuidOffset + kUuidSize, at, end);
+    log_.Update(bytes.substr(0, cut_begin - at));
+    log_.Update(bytes.substr(cut_end - at));
+  }
+
   int fd_;
+  Sha256 log_;
   uint64_t started_ = 0;  // writeback was started below this offset
   std::vector<char> buf_;
   int error_ = 0;
   uint64_t pos_ = 0, end_ = 0;
 };
+
+// Writes the UUID made from `digest` into the VDB file open as `fd`.
+// Returns errno on failure (EINVAL: no VDB header).
+int StampUuidFromDigest(int fd, const std::string& digest) {
+  std::string head(kUuidOffset + kUuidSize, '\0');
+  if (::pread(fd, head.data(), head.size(), 0) != ssize_t(head.size()) || !LooksLikeHeader(head))
+    return EINVAL;
+  const std::string uuid = UuidFromDigest(digest);
+  if (::pwrite(fd, uuid.data(), uuid.size(), off_t(kUuidOffset)) != ssize_t(uuid.size()))
+    return errno != 0 ? errno : EIO;
+  return 0;
+}
 
 // Replaces the UUID of the VDB file open as `fd` with its content UUID.
 // Returns errno on failure (EINVAL: no VDB header).
@@ -162,10 +196,7 @@ int StampUuid(int fd) {
     h.Update(std::string_view(buf.data(), size_t(n)));
     at += n;
   }
-  const std::string uuid = UuidFromDigest(h.HexDigest());
-  if (::pwrite(fd, uuid.data(), uuid.size(), off_t(kUuidOffset)) != ssize_t(uuid.size()))
-    return errno != 0 ? errno : EIO;
-  return 0;
+  return StampUuidFromDigest(fd, h.HexDigest());
 }
 
 std::atomic<DigestSink> g_digest_sink{&RememberFileSha256};
@@ -220,7 +251,8 @@ absl::Status WriteChecked(const std::filesystem::path& path, const std::filesyst
   buf.Flush();
   if (st.ok() && buf.error() != 0) st = WriteError(path, buf.error(), "write failed");
   if (st.ok()) {
-    if (const int err = StampUuid(fd); err != 0) st = WriteError(path, err, "cannot stamp the UUID");
+    if (const int err = StampUuidFromDigest(fd, buf.LogDigest()); err != 0)
+      st = WriteError(path, err, "cannot stamp the UUID");
   }
   if (st.ok()) st = SyncWhileHashing(fd, tmp, path);
   struct stat sb {};

@@ -43,7 +43,9 @@ void SetDigestSink(DigestSink sink);
 /// OpenVDB writes a random UUID into every file; these replace it with one
 /// derived from the SHA-256 of the rest of the file, so the same grids give
 /// the same bytes. The UUID only tells readers whether two files are the
-/// same, which a content hash says truthfully.
+/// same, which a content hash says truthfully. (WriteArchiveAtomically
+/// derives it from the writes as they go out instead, its offsets with its
+/// bytes: as deterministic, without reading the file again.)
 absl::Status StampContentUuid(const std::filesystem::path& path);
 void StampContentUuid(std::string& bytes);
 

@@ -4,11 +4,13 @@
 
 #include <openvdb/io/Compression.h>
 #include <openvdb/io/Stream.h>
-#include <openvdb/tools/SignedFloodFill.h>
 #include <openvdb/openvdb.h>
+#include <openvdb/tools/SignedFloodFill.h>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_invoke.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <memory>
 #include <mutex>
@@ -17,9 +19,9 @@
 
 #include "absl/strings/str_cat.h"
 #include "core/io/metadata_keys.h"
+#include "core/io/result_values.h"
 #include "core/io/vdb_impl.h"
 #include "core/io/vdb_internal.h"
-#include "core/io/result_values.h"
 
 namespace nimbus {
 
@@ -143,9 +145,12 @@ template <typename LeafT>
 using LeafBatch = std::vector<std::unique_ptr<LeafT>>;
 using FloatLeaf = openvdb::FloatTree::LeafNodeType;
 
+// Through an accessor: leaves that follow each other mostly share their
+// parent nodes, whose lookups it caches.
 template <typename GridT>
 void AddLeaves(LeafBatch<typename GridT::TreeType::LeafNodeType>& leaves, GridT& grid) {
-  for (auto& leaf : leaves) grid.tree().addLeaf(leaf.release());
+  auto acc = grid.getAccessor();
+  for (auto& leaf : leaves) acc.addLeaf(leaf.release());
   leaves.clear();
   leaves.shrink_to_fit();
 }
@@ -165,13 +170,36 @@ struct ResultLeafMaker {
   bool color, address, raw_f, raw_i;
 
   // A leaf at `c` whose voxels with a count are active, set to value(i).
+  // (Straight into the leaf's buffer and mask: setValueOn checks each
+  // voxel for out-of-core data, which a new leaf never has.)
   template <typename LeafT, typename Value>
   static void Add(LeafBatch<LeafT>& to, const openvdb::Coord& c, const uint32_t* v,
                   const Value& value) {
     auto leaf = std::make_unique<LeafT>(c, openvdb::zeroVal<typename LeafT::ValueType>());
+    typename LeafT::ValueType* data = leaf->buffer().data();
+    typename LeafT::NodeMaskType mask;
     for (int i = 0; i < 512; ++i)
-      if (v[i]) leaf->setValueOn(i, value(i));
+      if (v[i]) data[i] = value(i), mask.setOn(i);
+    leaf->setValueMask(mask);
     to.push_back(std::move(leaf));
+  }
+
+  // The Cd leaf: the palette's colours of the voxels with a count, in one
+  // batch (EvalFloats: float(Eval) bit for bit).
+  template <typename CoordFn>
+  void AddColors(LeafBatch<openvdb::Vec3STree::LeafNodeType>& to, const openvdb::Coord& c,
+                 const uint32_t* v, const CoordFn& coord) const {
+    double t[512];
+    std::array<float, 3> rgb[512];
+    int n = 0;
+    for (int i = 0; i < 512; ++i)
+      if (v[i]) t[n++] = coord(i);
+    options.palette.EvalFloats(t, size_t(n), rgb);
+    int k = 0;
+    Add(to, c, v, [&](int) {
+      const std::array<float, 3>& f = rgb[k++];
+      return openvdb::Vec3s(f[0], f[1], f[2]);
+    });
   }
 
   void operator()(Int3 o, const uint32_t* v, const uint64_t* cs, ResultLeaves& out) const {
@@ -181,11 +209,7 @@ struct ResultLeafMaker {
     // The mean colour coordinate of a voxel's visits.
     const double inv_scale = 1.0 / CountGrid::kColorScale;
     auto coord = [&](int i) { return double(cs[i]) * inv_scale / double(v[i]); };
-    if (color)
-      Add(out.cd, c, v, [&](int i) {
-        const Vec3 rgb = options.palette.Eval(coord(i));
-        return openvdb::Vec3s(float(rgb.x), float(rgb.y), float(rgb.z));
-      });
+    if (color) AddColors(out.cd, c, v, coord);
     if (address) Add(out.addr, c, v, [&](int i) { return float(coord(i)); });
     if (raw_f) Add(out.raw_f, c, v, [&](int i) { return float(v[i]); });
     if (raw_i) Add(out.raw_i, c, v, [&](int i) { return int64_t(v[i]); });
@@ -219,13 +243,16 @@ ResultGrids BuildFineGrids(const CountGrid& counts, uint32_t max_count, const Gr
                                 make(o, v, cs, chunks[k]);
                               });
   });
-  for (ResultLeaves& chunk : chunks) {
-    AddLeaves(chunk.density, *g.density);
-    if (g.cd) AddLeaves(chunk.cd, *g.cd);
-    if (g.addr) AddLeaves(chunk.addr, *g.addr);
-    if (g.raw_f) AddLeaves(chunk.raw_f, *g.raw_f);
-    if (g.raw_i) AddLeaves(chunk.raw_i, *g.raw_i);
-  }
+  // Each tree takes its leaves on a thread of its own, chunk by chunk.
+  auto add_all = [&chunks](auto member, auto& grid) {
+    if (grid)
+      for (ResultLeaves& chunk : chunks) AddLeaves(chunk.*member, *grid);
+  };
+  tbb::parallel_invoke([&] { add_all(&ResultLeaves::density, g.density); },
+                       [&] { add_all(&ResultLeaves::cd, g.cd); },
+                       [&] { add_all(&ResultLeaves::addr, g.addr); },
+                       [&] { add_all(&ResultLeaves::raw_f, g.raw_f); },
+                       [&] { add_all(&ResultLeaves::raw_i, g.raw_i); });
   return g;
 }
 
@@ -288,10 +315,20 @@ ResultGrids Coarsen(const ResultGrids& g, int f) {
 }
 
 // nimbus_suggested_density from the written density grid.
+// The sum runs in the order of the grid's value iterator (leaves in tree
+// order, voxels by offset), so the same grid always gives the same double;
+// a grid with active tiles takes the iterator itself.
 double SuggestedDensityOf(const openvdb::FloatGrid& grid) {
   const uint64_t n = grid.activeVoxelCount();
   double sum = 0;
-  for (auto it = grid.cbeginValueOn(); it; ++it) sum += *it;
+  if (grid.tree().activeTileCount() == 0) {
+    for (auto leaf = grid.tree().cbeginLeaf(); leaf; ++leaf) {
+      const float* values = leaf->buffer().data();
+      for (auto on = leaf->getValueMask().beginOn(); on; ++on) sum += values[on.pos()];
+    }
+  } else {
+    for (auto it = grid.cbeginValueOn(); it; ++it) sum += *it;
+  }
   const openvdb::Vec3d h = grid.voxelSize();
   return SuggestedDensity(n, n ? sum / double(n) : 0.0, std::cbrt(h.x() * h.y() * h.z()));
 }

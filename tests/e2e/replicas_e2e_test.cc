@@ -2,6 +2,7 @@
 // folder: every job completes exactly once, a replica killed mid-job is
 // replaced by another that finishes it byte-identically, and a watcher on
 // one replica follows a job another runs. Short leases keep failover fast.
+#include <grpcpp/grpcpp.h>
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -21,6 +22,7 @@
 #include "absl/strings/str_join.h"
 #include "client/nimbus_client.h"
 #include "core/base/sha256.h"
+#include "nimbus/v1/nimbus_service.grpc.pb.h"
 #include "proto/spec_io.h"
 #include "tests/support/job_store_factory.h"
 #include "tests/support/nimbusd_process.h"
@@ -345,6 +347,65 @@ TEST_F(ReplicasE2E, WatcherOnOneReplicaSeesProgressAndPreviewsOfAJobOnAnother) {
   EXPECT_EQ(states.front(), v1::JOB_STATE_RUNNING);
   EXPECT_EQ(end->state(), v1::JOB_STATE_CANCELLED);
   EXPECT_EQ(states.back(), v1::JOB_STATE_CANCELLED);
+}
+
+// A watcher asking for events on one replica receives the log of a job
+// another replica runs as it grows: the claim while the job runs, and in
+// all exactly what GetJobEvents reads afterwards, once each and in order
+// (the end event is written with the job's end, so it comes by the last
+// message). A watch started after seq 2 begins at 3.
+TEST_F(ReplicasE2E, WatcherWithEventsReceivesTheJobsLogAsItGrows) {
+  // Runs some seconds: long enough to be watched while it runs.
+  auto job = clients_[0]->Submit(Tetrahedron(32, 1'000'000'000));
+  ASSERT_TRUE(job.ok()) << job.status();
+  const int runner = AwaitRunningWithProgress(job->id(), *clients_[0]);
+  ASSERT_GE(runner, 0);
+  const int watcher = (runner + 1) % kReplicas;
+  std::vector<std::string> streamed;  // "seq kind"
+  std::vector<std::string> while_running;
+  client::WatchOptions options;
+  options.events = true;
+  auto end = clients_[watcher]->Watch(job->id(), options, [&](const v1::WatchJobResponse& r) {
+    for (const v1::JobEvent& e : r.events()) {
+      streamed.push_back(std::to_string(e.seq()) + " " + e.kind());
+      if (r.job().state() == v1::JOB_STATE_RUNNING) while_running.push_back(e.kind());
+    }
+  });
+  ASSERT_TRUE(end.ok()) << end.status();
+  ASSERT_EQ(end->state(), v1::JOB_STATE_SUCCEEDED) << end->error();
+
+  auto log = clients_[runner]->GetJobEvents(job->id(), 0, 500);
+  ASSERT_TRUE(log.ok()) << log.status();
+  std::vector<std::string> read;
+  for (const v1::JobEvent& e : log->events())
+    read.push_back(std::to_string(e.seq()) + " " + e.kind());
+  EXPECT_EQ(streamed, read);
+  // seq 1, 2, ... n: the submission (logged with the job), the claim, its
+  // phases, the end.
+  ASSERT_GE(read.size(), 3u);
+  for (size_t i = 0; i < read.size(); ++i)
+    EXPECT_EQ(read[i].substr(0, read[i].find(' ')), std::to_string(i + 1)) << read[i];
+  EXPECT_EQ(read[0], "1 submitted");
+  EXPECT_EQ(read[1], "2 claimed");
+  EXPECT_EQ(read.back(), std::to_string(read.size()) + " succeeded");
+  EXPECT_NE(std::find(while_running.begin(), while_running.end(), "claimed"), while_running.end());
+
+  // The resumed form: after seq 2, one message (the job has ended) with the rest.
+  auto stub = v1::NimbusService::NewStub(
+      grpc::CreateChannel(replicas_[watcher]->target(), grpc::InsecureChannelCredentials()));
+  grpc::ClientContext ctx;
+  v1::WatchJobRequest req;
+  req.set_job_id(job->id());
+  req.set_include_events(true);
+  req.set_events_after_seq(2);
+  auto reader = stub->WatchJob(&ctx, req);
+  std::vector<std::string> resumed;
+  v1::WatchJobResponse msg;
+  while (reader->Read(&msg))
+    for (const v1::JobEvent& e : msg.events())
+      resumed.push_back(std::to_string(e.seq()) + " " + e.kind());
+  ASSERT_TRUE(reader->Finish().ok());
+  EXPECT_EQ(resumed, std::vector<std::string>(read.begin() + 2, read.end()));
 }
 
 TEST_F(ReplicasE2E, CancelOnAnotherReplicaStopsTheJobAndAnswersItsEnd) {

@@ -7,6 +7,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <csignal>
 #include <fstream>
@@ -185,14 +186,20 @@ TEST_F(ServiceE2E, ManyChunkDownloadsHashEveryByteInOrder) {
 }
 
 // The lease outlives the test, so only start-up recovery can run the job
-// again; the watch rides out the restart on the same address.
+// again; the watch rides out the restart on the same address, and the
+// events it asked for arrive once each across the reconnect.
 TEST_F(ServiceE2E, RestartRecoversTheRunningJobAndTheWatchResumes) {
   Restart({"--lease-ms", "600000"});
   auto job = client().Submit(Tetrahedron(64, 800'000'000));
   ASSERT_TRUE(job.ok());
   bool restarted = false;
   auto watcher = Other();
-  auto final_job = watcher->Watch(job->id(), {}, [&](const v1::WatchJobResponse& r) {
+  client::WatchOptions options;
+  options.events = true;
+  std::vector<std::string> streamed;  // "seq kind"
+  auto final_job = watcher->Watch(job->id(), options, [&](const v1::WatchJobResponse& r) {
+    for (const v1::JobEvent& e : r.events())
+      streamed.push_back(std::to_string(e.seq()) + " " + e.kind());
     if (restarted || !RunningWithProgress(r.job())) return;
     restarted = true;
     EXPECT_EQ(r.job().attempts(), 1u);
@@ -204,6 +211,40 @@ TEST_F(ServiceE2E, RestartRecoversTheRunningJobAndTheWatchResumes) {
   EXPECT_EQ(final_job->state(), v1::JOB_STATE_SUCCEEDED) << final_job->error();
   EXPECT_EQ(final_job->attempts(), 2u);
   ASSERT_TRUE(client().Fetch(job->id(), dir_ / "after_restart.vdb").ok());
+  auto log = client().GetJobEvents(job->id(), 0, 500);
+  ASSERT_TRUE(log.ok()) << log.status();
+  std::vector<std::string> read;
+  for (const v1::JobEvent& e : log->events())
+    read.push_back(std::to_string(e.seq()) + " " + e.kind());
+  EXPECT_EQ(streamed, read);
+  EXPECT_NE(std::find(read.begin(), read.end(), "1 submitted"), read.end());
+  EXPECT_EQ(std::count_if(read.begin(), read.end(),
+                          [](const std::string& e) { return e.ends_with(" claimed"); }),
+            2);
+}
+
+// `nimbus watch --events` prints each event of the job's log as `nimbus
+// events` does, in order, beside its progress lines (stderr).
+TEST_F(ServiceE2E, CliWatchWithEventsPrintsTheLogAsEventsDoes) {
+  auto job = client().Submit(Tetrahedron(32, 50'000'000));
+  ASSERT_TRUE(job.ok()) << job.status();
+  const std::string cli =
+      std::string(NIMBUS_BIN_DIR) + "/nimbus --server " + server_.target() + " ";
+  const std::string watch =
+      cli + "watch " + job->id() + " --events 2>" + (dir_ / "watch.txt").string() + " >/dev/null";
+  ASSERT_EQ(WEXITSTATUS(std::system(watch.c_str())), 0)
+      << testing::ReadFileBytes(dir_ / "watch.txt");
+  const std::string events = cli + "events " + job->id() + " >" + (dir_ / "events.txt").string();
+  ASSERT_EQ(WEXITSTATUS(std::system(events.c_str())), 0);
+  const std::string printed = testing::ReadFileBytes(dir_ / "watch.txt");
+  std::istringstream log(testing::ReadFileBytes(dir_ / "events.txt"));
+  size_t at = 0;
+  int lines = 0;
+  for (std::string line; std::getline(log, line); ++lines) {
+    at = printed.find(line + "\n", at);
+    ASSERT_NE(at, std::string::npos) << "missing or out of order: " << line << "\n" << printed;
+  }
+  EXPECT_GE(lines, 3);  // submitted, claimed, ..., succeeded
 }
 
 TEST_F(ServiceE2E, CancelAnswersWithTheStoppedJob) {

@@ -283,6 +283,30 @@ TEST_P(JobStoreQueueTest, ClaimsAndLapsedLeasesAreLogged) {
   EXPECT_EQ(Kinds("j", "reason").back(), "lease_lost:restart");
 }
 
+// A job created with its submitter is logged `submitted` in Create's own
+// transaction, so the event precedes its claim; an idempotent repeat adds
+// none, and a job created without one (a store-level caller) has none.
+TEST_P(JobStoreQueueTest, CreateLogsTheSubmissionBeforeAnyClaim) {
+  NewJob job;
+  job.id = "j";
+  job.spec = "spec of j";
+  job.owner = "ann";
+  job.request_id = "req";
+  job.priority = 70;
+  job.submitted_by = "ann";
+  ASSERT_TRUE(store().Create(job, kT0).ok());
+  job.id = "j-again";
+  auto repeat = store().Create(job, kT0 + 1);
+  ASSERT_TRUE(repeat.ok()) << repeat.status();
+  EXPECT_EQ(repeat->id, "j");
+  Queue("plain", "bob", 10, kT0 + 2);
+  ASSERT_EQ(Claim(), "j");
+  EXPECT_EQ(Kinds("j", "by"), (std::vector<std::string>{"submitted:ann", "claimed:"}));
+  EXPECT_EQ(Kinds("j", "priority"), (std::vector<std::string>{"submitted:70", "claimed:"}));
+  EXPECT_TRUE(Kinds("j-again", "by").empty());
+  EXPECT_TRUE(Kinds("plain", "by").empty());
+}
+
 // The end is logged in Complete's own transaction: whoever sees the job
 // finished sees its end event too.
 TEST_P(JobStoreQueueTest, CompleteLogsTheEndWithTheResult) {

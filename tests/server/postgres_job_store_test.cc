@@ -1,7 +1,7 @@
 // What only the PostgreSQL store does (the shared contract is in
 // job_queue_test.cc and the extensions' tests, run against both stores):
 // migrations under an advisory lock, the change feed, previews and preview
-// wishes.
+// wishes, and the claim order's query plans over a deep queue.
 #include <gtest/gtest.h>
 
 #include <pqxx/pqxx>
@@ -15,7 +15,9 @@
 #include <vector>
 
 #include "absl/status/status.h"
+#include "absl/strings/str_cat.h"
 #include "server/job_store.h"
+#include "server/postgres_claim_sql.h"
 #include "tests/support/job_store_factory.h"
 
 namespace nimbus::server {
@@ -208,6 +210,95 @@ TEST_F(PostgresJobStoreTest, PreviewWishesExpireUnlessRenewed) {
   EXPECT_EQ((*wishes)[0].resolution, 64u);
   EXPECT_DOUBLE_EQ((*wishes)[0].interval_seconds, 1.0);
   EXPECT_TRUE(s->PreviewWishes("j", kT0 + 501)->empty());
+}
+
+// The claim order's queries as PostgresJobStore::PickClaimable and
+// RankOwners send them (RankOwners' own text; the values a claim binds),
+// explained.
+struct ClaimPlans {
+  std::string top, lapsed, first_owner, next_owner, owners, pick;
+};
+
+ClaimPlans ExplainClaimOrder(const std::string& url) {
+  pqxx::connection c(url);
+  pqxx::nontransaction n(c);
+  const auto plan = [&](const std::string& sql) {
+    std::string out;
+    for (const pqxx::row& r : n.exec("EXPLAIN " + sql)) out += r[0].as<std::string>() + "\n";
+    return out;
+  };
+  constexpr char kClaimable[] =
+      "state = 1 AND NOT cancel_requested AND shards_pending = 0 AND priority = 50";
+  ClaimPlans p;
+  p.top = plan(
+      "SELECT priority FROM jobs WHERE state = 1 AND NOT cancel_requested AND "
+      "shards_pending = 0 ORDER BY priority DESC LIMIT 1");
+  p.lapsed = plan(
+      "SELECT id, attempts FROM jobs WHERE state = 2 AND NOT cancel_requested AND "
+      "shards_pending = 0 AND lease_expiry < 1700000200000 AND priority >= 50 "
+      "ORDER BY priority DESC, create_time, seq LIMIT 1 FOR UPDATE SKIP LOCKED");
+  // The recursive walk's two seeks, and the whole of it.
+  p.first_owner =
+      plan(absl::StrCat("SELECT owner FROM jobs WHERE ", kClaimable, " ORDER BY owner LIMIT 1"));
+  p.next_owner = plan(absl::StrCat("SELECT owner FROM jobs WHERE ", kClaimable,
+                                   " AND owner > 'owner-3' ORDER BY owner LIMIT 1"));
+  n.exec(absl::StrCat("PREPARE rank_owners(integer) AS ", kRankOwnersSql));
+  p.owners = plan("EXECUTE rank_owners(50)");  // a custom plan, as exec_params gets
+  p.pick = plan(absl::StrCat("SELECT id, attempts FROM jobs WHERE ", kClaimable,
+                             " AND owner = 'owner-3' ORDER BY create_time, seq LIMIT 1 "
+                             "FOR UPDATE SKIP LOCKED"));
+  return p;
+}
+
+size_t Occurrences(const std::string& text, const std::string& needle) {
+  size_t n = 0;
+  for (size_t at = text.find(needle); at != std::string::npos; at = text.find(needle, at + 1)) ++n;
+  return n;
+}
+
+// Each query of the queue is answered from jobs_claim_order in its order
+// (no Sort), never by a scan of jobs; RUNNING jobs are counted from
+// jobs_state_owner (the lapsed-lease probe sorts only the running ones).
+void ExpectClaimOrderIndexed(const ClaimPlans& p) {
+  for (const std::string* queue : {&p.top, &p.first_owner, &p.next_owner, &p.owners, &p.pick}) {
+    EXPECT_NE(queue->find("using jobs_claim_order"), std::string::npos) << *queue;
+    EXPECT_EQ(queue->find("Sort"), std::string::npos) << *queue;
+  }
+  for (const std::string* any : {&p.top, &p.lapsed, &p.first_owner, &p.next_owner, &p.owners,
+                                 &p.pick})
+    EXPECT_EQ(any->find("Seq Scan on jobs"), std::string::npos) << *any;
+  EXPECT_EQ(Occurrences(p.owners, "using jobs_claim_order"), 2u) << p.owners;
+  EXPECT_NE(p.owners.find("using jobs_state_owner"), std::string::npos) << p.owners;
+  EXPECT_NE(p.lapsed.find("jobs_state_owner"), std::string::npos) << p.lapsed;
+}
+
+// A deep queue: 10,000 claimable jobs of 10 owners, 100 of a higher
+// priority, 20 running and 10,000 ended; explained as a flood leaves it
+// (before autovacuum analyses it) and once analysed.
+TEST_F(PostgresJobStoreTest, ClaimOrderQueriesUseTheirIndexesOverADeepQueue) {
+  ASSERT_NE(Open(), nullptr);  // the schema
+  pqxx::connection c(url_);
+  {
+    pqxx::work w(c);
+    w.exec(
+        "INSERT INTO jobs (id, state, spec, create_time, owner, priority, lease_expiry) "
+        "SELECT 'j' || i, CASE WHEN i < 10100 THEN 1 WHEN i < 10120 THEN 2 ELSE 3 END, "
+        "'\\x00'::bytea, 1700000000000 + i, 'owner-' || (i % 10), "
+        "CASE WHEN i < 10000 THEN 50 ELSE 70 END, 1700000100000 "
+        "FROM generate_series(0, 20119) AS i");
+    w.exec("INSERT INTO owner_claims (owner, last_claim) VALUES ('owner-1', 1), ('owner-2', 2)");
+    w.commit();
+  }
+  ASSERT_EQ(QueryInt("SELECT count(*) FROM jobs WHERE state = 1"), 10100);
+  {
+    SCOPED_TRACE("not analysed");
+    ExpectClaimOrderIndexed(ExplainClaimOrder(url_));
+  }
+  pqxx::nontransaction(c).exec("ANALYZE");
+  {
+    SCOPED_TRACE("analysed");
+    ExpectClaimOrderIndexed(ExplainClaimOrder(url_));
+  }
 }
 
 }  // namespace
