@@ -182,19 +182,15 @@ function jobPage(id) {
   }
   const loadPreview = previewLoader(path, img, seq, canvas, volume);
   const abort = new AbortController();
-  let seenKey = '';
   call('GET', path).then(({ job }) => {
     show(job);
     spec.textContent = JSON.stringify(job.spec, null, 2);
-    return stream(`${path}/stream?preview_resolution=64&preview_interval=0.2`, (name, data) => {
-      if (name === 'job') {
-        show(data);
-        // Progress alone makes no event: read the log at once only when the
-        // job's state, worker or priority moved (the poll catches the rest).
-        const key = `${data.state} ${data.worker} ${data.priority} ${data.progress?.phase}`;
-        if (log && key !== seenKey) log.refresh();
-        seenKey = key;
-      }
+    // The whole log from the stream too: each source is complete and in
+    // order, so the log shows every event once (eventLog's add).
+    const events = log ? '&events=1' : '';
+    return stream(`${path}/stream?preview_resolution=64&preview_interval=0.2${events}`, (name, data) => {
+      if (name === 'job') show(data);
+      else if (name === 'event' && log) log.add(data);
       else if (name === 'preview') {
         performance.mark(`nimbus-preview-${data.sequence}`);
         loadPreview(Number(data.sequence));

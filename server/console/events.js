@@ -1,6 +1,8 @@
-// A job page's event log (GET /api/v1/jobs/ID/events): read page by page
-// after the last seq shown, polled every second and on demand, so events
-// made by any client or replica appear without reloading.
+// A job page's event log: events the job's stream carries (add), and
+// GET /api/v1/jobs/ID/events read page by page after the last seq shown,
+// every second and on demand (refresh), for a stream that has ended or a
+// server whose stream carries none. Events from any client or replica
+// appear without reloading, each once, in seq order.
 import { call } from './api.js';
 import { el } from './dom.js';
 
@@ -15,22 +17,26 @@ function eventItem(ev) {
       JOB_FIELDS.has(k) ? el('a', { href: `#/job/${encodeURIComponent(v)}` }, v) : v)]));
 }
 
-// Returns { node, refresh, stop }: `node` is the list, `refresh()` reads new
+// Returns { node, add, refresh, stop }: `node` is the list, `add(event)`
+// shows one event (a JobEvent from the stream), `refresh()` reads new
 // events now, `stop()` ends the polling. `onError` gets failures other than
 // the job being gone.
 export function eventLog(path, onError) {
   const node = el('ol', { id: 'events' });
   let last = 0, busy = false, again = false, stopped = false;
+  // Events come in seq order from either source; one already shown is not
+  // shown again.
+  const add = (ev) => {
+    if (stopped || Number(ev.seq) <= last) return;
+    last = Number(ev.seq);
+    node.append(eventItem(ev));
+  };
   const read = async () => {
     for (;;) {
       const r = await call('GET', `${path}/events?page_size=500&after_seq=${last}`);
       const events = r.events || [];
-      if (stopped) return;
-      for (const ev of events) {
-        last = Math.max(last, Number(ev.seq));
-        node.append(eventItem(ev));
-      }
-      if (!Number(r.nextAfterSeq) || !events.length) return;
+      events.forEach(add);
+      if (stopped || !Number(r.nextAfterSeq) || !events.length) return;
     }
   };
   const refresh = async () => {
@@ -42,5 +48,5 @@ export function eventLog(path, onError) {
   };
   const timer = setInterval(refresh, 1000);
   refresh();
-  return { node, refresh, stop: () => { stopped = true; clearInterval(timer); } };
+  return { node, add, refresh, stop: () => { stopped = true; clearInterval(timer); } };
 }

@@ -358,6 +358,44 @@ TEST_F(HttpApi, EventStreamCarriesStateProgressAndNewPreviews) {
   EXPECT_EQ(Parse<v1::Job>(tail[tail.size() - 2].second).state(), v1::JOB_STATE_CANCELLED);
 }
 
+// With events=1 the stream carries the job's event log, once each and in
+// order, as GetJobEvents reads it; events_after_seq resumes after a seq.
+TEST_F(HttpApi, EventStreamCarriesTheJobsEventLog) {
+  const v1::Job job = Submit(testing::SmallTetrahedronJob());
+  auto c = Raw();
+  const std::string base = absl::StrCat("/api/v1/jobs/", job.id());
+  const auto log_of = [](const std::vector<std::pair<std::string, std::string>>& sse) {
+    std::vector<v1::JobEvent> out;
+    for (const auto& [name, data] : sse)
+      if (name == "event") out.push_back(Parse<v1::JobEvent>(data));
+    return out;
+  };
+  const auto streamed = log_of(ReadEvents(c, base + "/stream?events=1", [](const auto&) {
+    return false;  // to the end
+  }));
+  ASSERT_GE(streamed.size(), 3u);
+  EXPECT_EQ(streamed.front().kind(), "submitted");
+  EXPECT_EQ(streamed[1].kind(), "claimed");
+  EXPECT_EQ(streamed.back().kind(), "succeeded");
+  for (size_t i = 0; i < streamed.size(); ++i) EXPECT_EQ(streamed[i].seq(), int64_t(i) + 1);
+  auto read = Parse<v1::GetJobEventsResponse>(Client().Get(base + "/events?page_size=500").body);
+  ASSERT_EQ(read.events_size(), int(streamed.size()));
+  for (size_t i = 0; i < streamed.size(); ++i)
+    EXPECT_EQ(read.events(int(i)).kind(), streamed[i].kind());
+
+  const auto resumed = log_of(ReadEvents(c, base + "/stream?events=true&events_after_seq=2",
+                                         [](const auto&) { return false; }));
+  ASSERT_EQ(resumed.size(), streamed.size() - 2);
+  EXPECT_EQ(resumed.front().seq(), 3);
+  EXPECT_TRUE(log_of(ReadEvents(c, base + "/stream", [](const auto&) { return false; })).empty());
+  auto bad = Client().Get(base + "/stream?events=maybe");
+  EXPECT_EQ(bad.status, 400);
+  EXPECT_NE(bad.body.find("events: 1, 0, true or false"), std::string::npos) << bad.body;
+  bad = Client().Get(base + "/stream?events=1&events_after_seq=-1");
+  EXPECT_EQ(bad.status, 400);
+  EXPECT_NE(bad.body.find("events_after_seq"), std::string::npos) << bad.body;
+}
+
 TEST_F(HttpApi, AFloodOfEventStreamsIsBoundedAndGrpcStaysResponsive) {
   const v1::Job job = Submit(EndlessJob());
   AwaitRunning(job.id());
