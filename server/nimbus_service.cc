@@ -748,11 +748,16 @@ grpc::ServerUnaryReactor* NimbusServiceImpl::CancelJob(grpc::CallbackServerConte
 grpc::Status NimbusServiceImpl::Cancel(const Principal& caller, const std::string& job_id,
                                        v1::Job& out) {
   // Owners never change, so the check holds for the cancel that follows.
-  if (auto visible = LoadVisibleJob(*store_, caller, job_id); !visible.ok())
-    return ToGrpc(visible.status());
+  auto visible = LoadVisibleJob(*store_, caller, job_id);
+  if (!visible.ok()) return ToGrpc(visible.status());
+  // Logged first, so a worker that sees the request at its next heartbeat
+  // cannot log the job's end before it.
+  LogJobEvent(*store_, job_id, "cancel_requested", {{"by", caller.name}});
   auto rec = store_->RequestCancel(job_id, NowMs());
   if (!rec.ok()) return ToGrpc(rec.status());
-  LogJobEvent(*store_, job_id, "cancel_requested", {{"by", caller.name}});
+  // A queued job ends here, with no worker to log its end.
+  if (visible->state == JobState::kQueued && rec->state == JobState::kCancelled)
+    LogJobEvent(*store_, job_id, "cancelled", {{"by", caller.name}});
   pool_->Cancel(job_id);
   // A sharded job's cancel reaches the shards this process runs at once.
   if (rec->parent_id.empty())

@@ -280,23 +280,34 @@ TEST_F(ServiceE2E, CancelAnswersWithTheStoppedJob) {
 
 TEST_F(ServiceE2E, CancelNotFinishedInTimeSaysItIsCancelling) {
   Restart({"--cancel-wait-ms", "0"});  // never wait: the job cannot stop in time
-  auto job = client().Submit(Endless());
-  ASSERT_TRUE(job.ok());
   auto other = Other();
-  std::optional<absl::StatusOr<v1::Job>> cancelled;
-  auto final_job = client().Watch(job->id(), {}, [&](const v1::WatchJobResponse& r) {
-    if (!cancelled && RunningWithProgress(r.job())) cancelled = other->Cancel(job->id());
-  });
-  ASSERT_TRUE(cancelled.has_value());
-  ASSERT_TRUE(cancelled->ok()) << cancelled->status();
-  EXPECT_EQ((*cancelled)->state(), v1::JOB_STATE_RUNNING);
-  EXPECT_TRUE((*cancelled)->cancel_requested());
-  EXPECT_EQ((*cancelled)->status().code(), 0);
-  // It does stop, with the code of a cancelled job.
-  ASSERT_TRUE(final_job.ok()) << final_job.status();
-  EXPECT_EQ(final_job->state(), v1::JOB_STATE_CANCELLED);
-  EXPECT_EQ(final_job->status().code(), kCancelledCode);
-  EXPECT_FALSE(final_job->cancel_requested());
+  // The interrupt reaches this process's worker at once, so now and then
+  // the job has already stopped when the answer is made (then it answers
+  // with the end); a few attempts see the answer for a job still running.
+  bool saw_running = false;
+  for (int attempt = 0; attempt < 5 && !saw_running; ++attempt) {
+    auto job = client().Submit(Endless());
+    ASSERT_TRUE(job.ok());
+    std::optional<absl::StatusOr<v1::Job>> cancelled;
+    auto final_job = client().Watch(job->id(), {}, [&](const v1::WatchJobResponse& r) {
+      if (!cancelled && RunningWithProgress(r.job())) cancelled = other->Cancel(job->id());
+    });
+    ASSERT_TRUE(cancelled.has_value());
+    ASSERT_TRUE(cancelled->ok()) << cancelled->status();
+    if ((*cancelled)->state() == v1::JOB_STATE_RUNNING) {
+      saw_running = true;
+      EXPECT_TRUE((*cancelled)->cancel_requested());
+      EXPECT_EQ((*cancelled)->status().code(), 0);
+    } else {
+      EXPECT_EQ((*cancelled)->state(), v1::JOB_STATE_CANCELLED);
+    }
+    // Either way it stops, with the code of a cancelled job.
+    ASSERT_TRUE(final_job.ok()) << final_job.status();
+    EXPECT_EQ(final_job->state(), v1::JOB_STATE_CANCELLED);
+    EXPECT_EQ(final_job->status().code(), kCancelledCode);
+    EXPECT_FALSE(final_job->cancel_requested());
+  }
+  EXPECT_TRUE(saw_running) << "every attempt's job had stopped before the answer";
 }
 
 TEST_F(ServiceE2E, QueuedJobCancelledAtOnceHasCodeCancelled) {
@@ -314,6 +325,12 @@ TEST_F(ServiceE2E, QueuedJobCancelledAtOnceHasCodeCancelled) {
   EXPECT_EQ(got->state(), v1::JOB_STATE_CANCELLED);
   EXPECT_EQ(got->status().code(), kCancelledCode);
   EXPECT_FALSE(got->cancel_requested());
+  // No worker ever held it, so the service logs its end.
+  auto log = client().GetJobEvents(queued->id(), 0, 100);
+  ASSERT_TRUE(log.ok()) << log.status();
+  std::vector<std::string> kinds;
+  for (const v1::JobEvent& e : log->events()) kinds.push_back(e.kind());
+  EXPECT_EQ(kinds, (std::vector<std::string>{"submitted", "cancel_requested", "cancelled"}));
 }
 
 // Another process holds the job database's write lock, the way a slow
