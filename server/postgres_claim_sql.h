@@ -2,7 +2,31 @@
 // order") that tests explain as the store sends it.
 #pragma once
 
+#include <cstdint>
+#include <limits>
+
 namespace nimbus::server {
+
+// The highest priority of claimable QUEUED jobs below $1 (kAnyPriority:
+// of all of them), from the top of jobs_claim_order.
+inline constexpr char kTopPrioritySql[] =
+    "SELECT priority FROM jobs WHERE state = 1 AND NOT cancel_requested AND "
+    "shards_pending = 0 AND priority < $1 ORDER BY priority DESC LIMIT 1";
+// Above every priority a job can have (0-100).
+inline constexpr int32_t kAnyPriority = std::numeric_limits<int32_t>::max();
+
+// The RUNNING job whose lease lapsed before $1 with the highest priority at
+// least $2, oldest first, locked.
+inline constexpr char kLapsedLeaseSql[] =
+    "SELECT id, attempts FROM jobs WHERE state = 2 AND NOT cancel_requested AND "
+    "shards_pending = 0 AND lease_expiry < $1 AND priority >= $2 "
+    "ORDER BY priority DESC, create_time, seq LIMIT 1 FOR UPDATE SKIP LOCKED";
+
+// Owner $2's oldest claimable QUEUED job at priority $1, locked.
+inline constexpr char kOwnersOldestSql[] =
+    "SELECT id, attempts FROM jobs WHERE state = 1 AND NOT cancel_requested AND "
+    "shards_pending = 0 AND priority = $1 AND owner = $2 "
+    "ORDER BY create_time, seq LIMIT 1 FOR UPDATE SKIP LOCKED";
 
 // The owners with claimable QUEUED jobs at priority $1, in one round trip:
 // a recursive walk of jobs_claim_order that seeks from each owner to the

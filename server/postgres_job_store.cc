@@ -606,37 +606,20 @@ std::optional<std::pair<std::string, uint32_t>> PostgresJobStore::PickClaimable(
   };
   // Priorities from the top; a level whose rows other claimers hold
   // all is passed over for the next one down.
-  std::optional<int64_t> below;
+  int64_t below = kAnyPriority;
   for (bool first = true;; first = false) {
-    pqxx::result top =
-        below.has_value()
-            ? t.exec_params(
-                  "SELECT priority FROM jobs WHERE state = 1 AND NOT cancel_requested "
-                  "AND shards_pending = 0 AND priority < $1 "
-                  "ORDER BY priority DESC LIMIT 1",
-                  *below)
-            : t.exec(
-                  "SELECT priority FROM jobs WHERE state = 1 AND NOT cancel_requested AND "
-                  "shards_pending = 0 ORDER BY priority DESC LIMIT 1");
+    pqxx::result top = t.exec_params(kTopPrioritySql, below);
     // -1: no claimable QUEUED job (below `below`).
     const int64_t level = top.empty() ? -1 : top[0][0].as<int64_t>();
     if (first) {
       // A RUNNING job whose lease lapsed goes first unless a queued job
       // has a higher priority; running jobs are few (one per worker).
-      pqxx::result lapsed = t.exec_params(
-          "SELECT id, attempts FROM jobs WHERE state = 2 AND NOT cancel_requested AND "
-          "shards_pending = 0 AND lease_expiry < $1 AND priority >= $2 "
-          "ORDER BY priority DESC, create_time, seq LIMIT 1 FOR UPDATE SKIP LOCKED",
-          now, level);
+      pqxx::result lapsed = t.exec_params(kLapsedLeaseSql, now, level);
       if (!lapsed.empty()) return picked(lapsed);
     }
     if (level < 0) return Pick();
     for (const auto& [owner, turn] : RankOwners(t, level)) {
-      pqxx::result r = t.exec_params(
-          "SELECT id, attempts FROM jobs WHERE state = 1 AND NOT cancel_requested AND "
-          "shards_pending = 0 AND priority = $1 AND owner = $2 "
-          "ORDER BY create_time, seq LIMIT 1 FOR UPDATE SKIP LOCKED",
-          level, owner);
+      pqxx::result r = t.exec_params(kOwnersOldestSql, level, owner);
       if (!r.empty()) return picked(r);
     }
     below = level;

@@ -213,7 +213,7 @@ TEST_F(PostgresJobStoreTest, PreviewWishesExpireUnlessRenewed) {
 }
 
 // The claim order's queries as PostgresJobStore::PickClaimable and
-// RankOwners send them (RankOwners' own text; the values a claim binds),
+// RankOwners send them (their own text, with the values a claim binds),
 // explained.
 struct ClaimPlans {
   std::string top, lapsed, first_owner, next_owner, owners, pick;
@@ -230,23 +230,20 @@ ClaimPlans ExplainClaimOrder(const std::string& url) {
   constexpr char kClaimable[] =
       "state = 1 AND NOT cancel_requested AND shards_pending = 0 AND priority = 50";
   ClaimPlans p;
-  p.top = plan(
-      "SELECT priority FROM jobs WHERE state = 1 AND NOT cancel_requested AND "
-      "shards_pending = 0 ORDER BY priority DESC LIMIT 1");
-  p.lapsed = plan(
-      "SELECT id, attempts FROM jobs WHERE state = 2 AND NOT cancel_requested AND "
-      "shards_pending = 0 AND lease_expiry < 1700000200000 AND priority >= 50 "
-      "ORDER BY priority DESC, create_time, seq LIMIT 1 FOR UPDATE SKIP LOCKED");
+  // Prepared, so each plan is a custom one, as exec_params gets.
+  n.exec(absl::StrCat("PREPARE top_priority(integer) AS ", kTopPrioritySql));
+  p.top = plan(absl::StrCat("EXECUTE top_priority(", kAnyPriority, ")"));
+  n.exec(absl::StrCat("PREPARE lapsed_lease(bigint, integer) AS ", kLapsedLeaseSql));
+  p.lapsed = plan("EXECUTE lapsed_lease(1700000200000, 50)");
   // The recursive walk's two seeks, and the whole of it.
   p.first_owner =
       plan(absl::StrCat("SELECT owner FROM jobs WHERE ", kClaimable, " ORDER BY owner LIMIT 1"));
   p.next_owner = plan(absl::StrCat("SELECT owner FROM jobs WHERE ", kClaimable,
                                    " AND owner > 'owner-3' ORDER BY owner LIMIT 1"));
   n.exec(absl::StrCat("PREPARE rank_owners(integer) AS ", kRankOwnersSql));
-  p.owners = plan("EXECUTE rank_owners(50)");  // a custom plan, as exec_params gets
-  p.pick = plan(absl::StrCat("SELECT id, attempts FROM jobs WHERE ", kClaimable,
-                             " AND owner = 'owner-3' ORDER BY create_time, seq LIMIT 1 "
-                             "FOR UPDATE SKIP LOCKED"));
+  p.owners = plan("EXECUTE rank_owners(50)");
+  n.exec(absl::StrCat("PREPARE owners_oldest(integer, text) AS ", kOwnersOldestSql));
+  p.pick = plan("EXECUTE owners_oldest(50, 'owner-3')");
   return p;
 }
 
