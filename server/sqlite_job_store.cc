@@ -29,6 +29,7 @@
 #include "server/bounded_text.h"
 #include "server/job_store.h"
 #include "server/job_store_util.h"
+#include "server/sqlite_claim_sql.h"
 
 namespace nimbus::server {
 namespace {
@@ -932,13 +933,10 @@ SqliteJobStore::PickClaimableLocked(TimeMs now) {
   static_assert(static_cast<int>(JobState::kQueued) == 1);
   static_assert(static_cast<int>(JobState::kRunning) == 2);
   using Pick = std::optional<std::pair<TimeMs, std::string>>;
-  // The highest priority among claimable QUEUED jobs: one index probe (the
-  // index named, as in NIMBUS_OWNER_SEEK).
+  // The highest priority among claimable QUEUED jobs (sqlite_claim_sql.h).
   std::optional<int64_t> top;
   {
-    absl::StatusOr<Statement> s = Prepare(
-        "SELECT priority FROM jobs INDEXED BY jobs_claim_order WHERE state = 1 AND "
-        "cancel_requested = 0 AND shards_pending = 0 ORDER BY priority DESC LIMIT 1");
+    absl::StatusOr<Statement> s = Prepare(kSqliteTopPrioritySql);
     if (!s.ok()) return s.status();
     absl::StatusOr<bool> row = s->Step();
     if (!row.ok()) return row.status();
@@ -964,14 +962,6 @@ SqliteJobStore::PickClaimableLocked(TimeMs now) {
   return Pick(std::pair((*turn)->create_time, (*turn)->job_id));
 }
 
-// The first owner after ?2 (or from it: `cmp` ">=") with claimable QUEUED
-// jobs at priority ?1, and its oldest such job. The index is named: on a
-// table without statistics the planner would pick jobs_state_owner and sort.
-#define NIMBUS_OWNER_SEEK(cmp)                                                         \
-  "SELECT owner, create_time, rowid, id FROM jobs INDEXED BY jobs_claim_order "        \
-  "WHERE state = 1 AND cancel_requested = 0 AND shards_pending = 0 AND priority = ?1 " \
-  "AND owner " cmp " ?2 ORDER BY owner, create_time, rowid LIMIT 1"
-
 absl::StatusOr<std::optional<OwnerTurn>> SqliteJobStore::NextOwnerTurnLocked(int64_t priority) {
   // Steps through the owners with claimable jobs at `priority` in owner
   // order, one index seek each (which also finds the owner's oldest job);
@@ -982,7 +972,7 @@ absl::StatusOr<std::optional<OwnerTurn>> SqliteJobStore::NextOwnerTurnLocked(int
     OwnerTurn turn;
     {
       absl::StatusOr<Statement> s =
-          Prepare(first ? NIMBUS_OWNER_SEEK(">=") : NIMBUS_OWNER_SEEK(">"));
+          Prepare(first ? kSqliteOwnerSeekFromSql : kSqliteOwnerSeekAfterSql);
       if (!s.ok()) return s.status();
       s->Bind(1, priority).Bind(2, owner);
       absl::StatusOr<bool> row = s->Step();
