@@ -7,6 +7,8 @@ or nimbusd in build/bin); ctest runs it as part of python_client.
 """
 
 import json
+import os
+import subprocess
 import sys
 import unittest
 from datetime import datetime, timezone
@@ -104,6 +106,18 @@ class EventLogTest(ServerTestCase):
                 self.assertEqual(self.client.events(job, after_seq=after), full[after:])
         # Without events=True no event is sent.
         self.assertEqual(logged(self.client.watch(job)), [])
+
+    def test_the_example_prints_the_log(self):
+        job = self.client.submit(tree(4_000_000))
+        self.client.wait(job)
+        env = dict(os.environ, PYTHONPATH=str(REPO / "python"))
+        r = subprocess.run([sys.executable, str(REPO / "python" / "examples" / "watch_events.py"),
+                            self.server.address, job.id],
+                           env=env, capture_output=True, text=True, timeout=120)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        lines = [line for line in r.stdout.splitlines() if not line.lstrip().startswith(
+            ("watching", "state"))]
+        self.assertEqual(lines, [str(e) for e in self.client.events(job)])
 
 
 class RestartTest(unittest.TestCase):
