@@ -63,8 +63,11 @@ class EventLogTest(ServerTestCase):
                 running.append(ev.job.worker)
 
         def iterating(log, ev):
-            return any(e.kind == "phase" and e.fields.get("phase") == "PROGRESS_PHASE_ITERATING"
-                       for e in log)
+            # The phase event may ride on a message whose job is still the
+            # QUEUED snapshot, so wait for RUNNING too.
+            return running and any(
+                e.kind == "phase" and e.fields.get("phase") == "PROGRESS_PHASE_ITERATING"
+                for e in log)
 
         events = watch_and_cancel(self.client, job, iterating, note_running)
         self.assertEqual(events[-1].state, "CANCELLED")
