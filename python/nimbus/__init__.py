@@ -11,12 +11,12 @@ import when not installed with them.
 
 from .errors import JobFailedError, NimbusError, parse_field_path  # noqa: F401
 from .client import (  # noqa: F401
-    Client, FetchResult, Job, JobSpec, JobState, PreviewFile, PreviewSaver, RenderResult,
-    WatchEvent,
+    Client, FetchResult, Job, JobSpec, JobState, LogEvent, PreviewFile, PreviewSaver,
+    RenderResult, WatchEvent,
     for_each_asset, load_spec, pb2, raise_for_job, spec_pb2, state_name, TERMINAL_STATES)
 from . import vdb  # noqa: F401
 
 __all__ = ["Client", "NimbusError", "JobFailedError", "JobSpec", "Job", "JobState",
-           "WatchEvent", "PreviewFile", "PreviewSaver", "FetchResult", "RenderResult", "load_spec",
-           "for_each_asset", "parse_field_path", "raise_for_job", "state_name", "pb2",
+           "WatchEvent", "LogEvent", "PreviewFile", "PreviewSaver", "FetchResult", "RenderResult",
+           "load_spec", "for_each_asset", "parse_field_path", "raise_for_job", "state_name", "pb2",
            "spec_pb2", "vdb"]

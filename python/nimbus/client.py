@@ -7,8 +7,9 @@ import json
 import os
 import time
 from dataclasses import dataclass, field
+from datetime import datetime, timezone
 from pathlib import Path
-from typing import Iterator, List, Optional
+from typing import Dict, Iterator, List, Optional
 
 import grpc
 from google.protobuf import json_format, text_format
@@ -186,11 +187,50 @@ class PreviewSaver:
         return preview
 
 
+@dataclass(frozen=True)
+class LogEvent:
+    """One entry of a job's event log (nimbus.v1.JobEvent; the kinds and
+    their fields are in docs/operator_guide.md "Job event log").
+
+    seq:    1, 2, ... per job, in the order the events happened
+    time:   when it was recorded (a datetime in UTC)
+    kind:   "submitted", "claimed", "lease_lost", "released", "cancelled", ...
+    fields: what happened, by name ("worker", "attempt", "reason", ...)"""
+    seq: int
+    time: datetime
+    kind: str
+    fields: Dict[str, str]
+
+    @classmethod
+    def from_proto(cls, e):
+        return cls(seq=e.seq, time=e.time.ToDatetime(tzinfo=timezone.utc), kind=e.kind,
+                   fields=dict(e.fields))
+
+    @property
+    def worker(self):
+        """The worker ("REPLICA/wN") the event names, or ""."""
+        return self.fields.get("worker", "")
+
+    @property
+    def detail(self):
+        """The other non-empty fields as "name=value", in name order."""
+        return " ".join(f"{k}={v}" for k, v in sorted(self.fields.items())
+                        if v and k != "worker")
+
+    def __str__(self):
+        """The line `nimbus events` prints: seq, time, kind, the non-empty fields."""
+        text = "".join(f" {k}={v}" for k, v in sorted(self.fields.items()) if v)
+        return f"{self.seq:5d} {self.time:%Y-%m-%dT%H:%M:%SZ} {self.kind:<16}{text}"
+
+
 @dataclass
 class WatchEvent:
-    """A state change of the job, with a preview when one arrived."""
+    """A state change of the job, with a preview when one arrived. With
+    watch(events=True), `events` holds the LogEvents recorded since the
+    previous WatchEvent, oldest first."""
     job: "pb2.Job"
     preview: Optional[PreviewFile] = None
+    events: List[LogEvent] = field(default_factory=list)
 
     @property
     def progress(self):
@@ -377,13 +417,15 @@ class Client:
         """The replicas sharing the server's job store (nimbus.v1.Worker)."""
         return list(self._unary("ListWorkers", pb2.ListWorkersRequest()).workers)
 
-    def events(self, job, page_size=500):
-        """The job's event log (nimbus.v1.JobEvent), oldest first, every page."""
-        out, after = [], 0
+    def events(self, job, after_seq=0, page_size=500):
+        """The job's event log as LogEvents, oldest first, every page: those
+        after seq `after_seq` (0: from the oldest kept; each job keeps its
+        newest 1,000)."""
+        out, after = [], after_seq
         while True:
             page = self._unary("GetJobEvents", pb2.GetJobEventsRequest(
                 job_id=_job_id(job), after_seq=after, page_size=page_size))
-            out.extend(page.events)
+            out.extend(LogEvent.from_proto(e) for e in page.events)
             after = page.next_after_seq
             if not after:
                 return out
@@ -423,7 +465,7 @@ class Client:
                 return out[:limit] if limit else out
 
     def watch(self, job, previews_dir=None, preview_resolution=64, preview_interval=1.0,
-              want_previews=None) -> Iterator[WatchEvent]:
+              want_previews=None, events=False, events_after_seq=0) -> Iterator[WatchEvent]:
         """Yields a WatchEvent for the job's state now and every change until
         it ends; reconnects while the server is unreachable for up to
         `reconnect_timeout` seconds.
@@ -432,13 +474,24 @@ class Client:
         0002, ... (dense, in the order received) and listed with the progress
         `done` each reflects in NAME.previews.json; a second watch of the same
         job into the same folder continues the numbering. Previews are asked
-        for when `previews_dir` is given or `want_previews` is true."""
+        for when `previews_dir` is given or `want_previews` is true.
+
+        With `events`, each WatchEvent's `events` carries the job's event
+        log as it grows (LogEvents, seq increasing), starting after seq
+        `events_after_seq` (0: from the oldest kept). Across reconnects every
+        event is yielded exactly once: the watch resumes after the last seq
+        it yielded. The watch's last WatchEvent carries the events recorded
+        by the time the job's end was sent, the worker's recorded end
+        (succeeded, failed, cancelled) among them; one written later (a
+        queued job's "cancelled", a later "pinned") is read with
+        events(job, after_seq=LAST_SEQ)."""
         job_id = _job_id(job)
         if want_previews is None:
             want_previews = previews_dir is not None
         req = pb2.WatchJobRequest(job_id=job_id,
                                   preview_resolution=preview_resolution if want_previews else 0,
-                                  preview_interval_seconds=preview_interval)
+                                  preview_interval_seconds=preview_interval,
+                                  include_events=events, events_after_seq=events_after_seq)
         saver = PreviewSaver(previews_dir, job_id)
         last = None
         give_up_at = time.monotonic() + self.reconnect_timeout
@@ -451,7 +504,10 @@ class Client:
                     last = resp.job
                     preview = saver.add(resp.job, resp.preview) if resp.HasField("preview") \
                         else None
-                    yield WatchEvent(job=resp.job, preview=preview)
+                    log = [LogEvent.from_proto(e) for e in resp.events]
+                    if log:  # a reconnect asks for the events after these
+                        req.events_after_seq = max(req.events_after_seq, *(e.seq for e in log))
+                    yield WatchEvent(job=resp.job, preview=preview, events=log)
                 status = None
             except grpc.RpcError as e:
                 status = e

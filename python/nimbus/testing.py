@@ -10,6 +10,7 @@ import shutil
 import subprocess
 import tempfile
 import time
+import unittest
 from pathlib import Path
 
 _REPO = Path(__file__).resolve().parent.parent.parent
@@ -31,7 +32,9 @@ def find_nimbusd():
 
 class LocalServer:
     """A nimbusd on 127.0.0.1, on a port it picks itself (port 0), with its
-    own data dir (a temporary one unless given). stop() ends it."""
+    own data dir (a temporary one unless given). stop() ends it; start()
+    after stop() starts it again on the same port and data dir (a restart
+    its clients reconnect to)."""
 
     def __init__(self, binary=None, data_dir=None, extra_args=(), start_timeout=30.0,
                  log_path=None):
@@ -54,7 +57,8 @@ class LocalServer:
         port_file.unlink(missing_ok=True)
         self._log = open(self.log_path, "ab")
         self.proc = subprocess.Popen(
-            [self.binary, "--listen", "127.0.0.1:0", "--port-file", str(port_file),
+            [self.binary, "--listen", f"127.0.0.1:{self.port or 0}",
+             "--port-file", str(port_file),
              "--data-dir", str(self.data_dir), *self.extra_args],
             stdout=self._log, stderr=subprocess.STDOUT)
         deadline = time.monotonic() + self.start_timeout
@@ -101,3 +105,20 @@ class LocalServer:
 
     def __exit__(self, *exc):
         self.cleanup()
+
+
+class ServerTestCase(unittest.TestCase):
+    """A test case class whose tests share one LocalServer (cls.server) and
+    a Client of it (cls.client), started before the first test and stopped
+    after the last."""
+
+    @classmethod
+    def setUpClass(cls):
+        from .client import Client
+        cls.server = LocalServer().start()
+        cls.client = Client(cls.server.address)
+
+    @classmethod
+    def tearDownClass(cls):
+        cls.client.close()
+        cls.server.cleanup()

@@ -19,7 +19,7 @@ sys.path.insert(0, str(REPO / "python"))
 import grpc  # noqa: E402
 
 import nimbus  # noqa: E402
-from nimbus.testing import LocalServer  # noqa: E402
+from nimbus.testing import LocalServer, ServerTestCase  # noqa: E402
 
 EXAMPLES = REPO / "examples"
 
@@ -36,17 +36,7 @@ def sha256(path):
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-class ClientTest(unittest.TestCase):
-    @classmethod
-    def setUpClass(cls):
-        cls.server = LocalServer().start()
-        cls.client = nimbus.Client(cls.server.address)
-
-    @classmethod
-    def tearDownClass(cls):
-        cls.client.close()
-        cls.server.cleanup()
-
+class ClientTest(ServerTestCase):
     def setUp(self):
         self.tmp = Path(tempfile.mkdtemp(prefix="nimbus-pytest-"))
         self.addCleanup(shutil.rmtree, self.tmp, True)

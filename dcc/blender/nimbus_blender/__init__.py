@@ -46,6 +46,8 @@ class NimbusSceneProps(bpy.types.PropertyGroup):
     status: StringProperty(name="Status", default="")
     progress: FloatProperty(name="Progress", subtype="PERCENTAGE", min=0, max=100)
     job_id: StringProperty(name="Job")
+    recent_events: StringProperty(name="Events", default="",
+                                  description="The job's newest event-log entries, one a line")
     object_name: StringProperty(name="Object")
 
 
@@ -155,6 +157,10 @@ class NIMBUS_PT_panel(bpy.types.Panel):
         if props.status:
             col.prop(props, "progress", slider=True)
             col.label(text=props.status)
+        if props.recent_events:
+            box = col.box()
+            for line in props.recent_events.splitlines():
+                box.label(text=line)
         col.operator("nimbus.import_vdb", icon="IMPORT")
 
 

@@ -20,6 +20,7 @@ nimbus = vendor.nimbus()
 
 _active = None          # the JobSession being shown, if any
 _local_server = None    # a nimbusd started by the add-on
+RECENT_EVENTS = 5       # event-log lines the panel shows
 
 
 class JobSession:
@@ -39,6 +40,7 @@ class JobSession:
         self.previews_loaded = 0
         self.preview_dones = []
         self.shown_files = []   # the object's file after each load, in order
+        self.shown_events = []  # the job's LogEvents as the panel got them, in order
         self.error = None
         self.finished = False
         self._client = None
@@ -59,9 +61,10 @@ class JobSession:
             final = job
             for ev in self._client.watch(job, previews_dir=previews_dir,
                                          preview_resolution=self.preview_resolution,
-                                         preview_interval=self.preview_interval):
+                                         preview_interval=self.preview_interval,
+                                         events=True):
                 final = ev.job
-                self.events.put(("update", ev.job, ev.preview))
+                self.events.put(("update", ev.job, ev.preview, ev.events))
             nimbus.raise_for_job(final)
             path = self.out_dir / (final.result.file_name or f"{final.name}.vdb")
             self._client.fetch(final, path)
@@ -97,10 +100,11 @@ class JobSession:
                 props.status = f"{job.id} queued"
             elif kind == "update":
                 job, preview = ev[1], ev[2]
+                self._note_events(props, ev[3])
                 p = job.progress
-                phase = nimbus.pb2.ProgressPhase.Name(p.phase).replace("PROGRESS_PHASE_", "")
+                phase = _phase_word(nimbus.pb2.ProgressPhase.Name(p.phase))
                 props.progress = 100.0 * p.done / p.total if p.total else 0.0
-                props.status = (f"{nimbus.state_name(job.state).lower()} {phase.lower()} "
+                props.status = (f"{nimbus.state_name(job.state).lower()} {phase} "
                                 f"{p.done}/{p.total} {p.unit}".strip())
                 if preview is not None and preview.path is not None:
                     self._show(scene, preview.path, final=False)
@@ -121,6 +125,16 @@ class JobSession:
                 return True
             _redraw()
 
+    def _note_events(self, props, events):
+        """Keeps the job's newest event-log lines in the panel: the kind (a
+        phase event with its phase), then the worker it names."""
+        if not events:
+            return
+        self.shown_events.extend(events)
+        props.recent_events = "\n".join(
+            " ".join(w for w in (e.kind, _phase_word(e.fields.get("phase", "")), e.worker) if w)
+            for e in self.shown_events[-RECENT_EVENTS:])
+
     def _show(self, scene, path, final):
         if not self.object_name:
             obj = importer.ensure_volume_object(self.job_name or "nimbus", scene.collection)
@@ -130,6 +144,11 @@ class JobSession:
         importer.load_into(obj, path, final=final, grid_name=grid)
         self.shown_files.append(obj.data.filepath)
         scene.nimbus.object_name = obj.name
+
+
+def _phase_word(phase):
+    """"iterating" for PROGRESS_PHASE_ITERATING."""
+    return phase.replace("PROGRESS_PHASE_", "").lower()
 
 
 def _ignore_errors(fn, *args):
@@ -168,6 +187,7 @@ def start(scene):
                          props.preview_interval, props.priority).start()
     props.status = "submitting"
     props.progress = 0.0
+    props.recent_events = ""
     return _active
 
 

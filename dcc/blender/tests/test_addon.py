@@ -110,7 +110,25 @@ def run_panel_job():
     shown = s.shown_files
     check(any(".preview." in f for f in shown[:-1]) and shown[-1] == obj.data.filepath,
           f"object showed previews, then the result: {shown}")
+    check_events(s, props)
     return obj
+
+
+def check_events(s, props):
+    """The panel got the job's event log as the server recorded it."""
+    import nimbus
+    kinds = [e.kind for e in s.shown_events]
+    check(kinds[:2] == ["submitted", "claimed"], f"event log starts submitted, claimed: {kinds}")
+    check(s.shown_events[1].worker != "", f"the claim names its worker ({s.shown_events[1]})")
+    with nimbus.Client(props.server) as c:
+        logged = [(e.seq, e.kind) for e in c.events(s.job_id)]
+    check([(e.seq, e.kind) for e in s.shown_events] == logged,
+          f"every event shown once, in order, as GetJobEvents lists them ({len(logged)})")
+    lines = props.recent_events.splitlines()
+    check(len(lines) == min(5, len(kinds)), f"the panel shows the newest events: {lines}")
+    check(lines[-1] == f"succeeded {s.shown_events[1].worker}",
+          "the last line is the end, by the worker that claimed the job")
+    check(f"phase iterating {s.shown_events[1].worker}" in lines, "a phase line names its phase")
 
 
 def check_tree(obj):
