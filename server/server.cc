@@ -236,6 +236,140 @@ void NimbusServer::FollowOtherReplicas(Impl& impl) {
 
 NimbusServer::~NimbusServer() { Shutdown(); }
 
+namespace {
+
+// Where results go: --results-dir, or the data dir's own folder.
+std::filesystem::path ResultsDir(const ServerOptions& options) {
+  return options.results_dir.empty() ? options.data_dir / "results" : options.results_dir;
+}
+
+}  // namespace
+
+absl::Status NimbusServer::OpenStores(Impl& impl, const ServerOptions& options,
+                                      const std::string& replica_id) {
+  std::error_code ec;
+  std::filesystem::create_directories(options.data_dir, ec);
+  if (ec)
+    return absl::InvalidArgumentError(
+        absl::StrCat("--data-dir ", options.data_dir.string(), ": ", ec.message()));
+  // Replicas: the job store, result folder and replica id (see server.h).
+  const bool shared_store = !options.store_url.empty();
+  if (!shared_store) {
+    auto lock = DataDirLock::Acquire(options.data_dir);
+    if (!lock.ok()) return lock.status();
+    impl.data_dir_lock.emplace(std::move(*lock));
+  }
+  auto store = shared_store ? OpenPostgresJobStore(options.store_url)
+                            : OpenSqliteJobStore((options.data_dir / "jobs.db").string());
+  if (!store.ok()) return store.status();
+  auto timed = std::make_unique<TimedJobStore>(std::move(*store));
+  impl.metrics = std::make_unique<ServiceMetrics>(timed.get(), options.workers);
+  timed->set_observer(impl.metrics.get());
+  impl.store = std::move(timed);
+  const std::filesystem::path results_dir = ResultsDir(options);
+  // A shared store means other replicas may write the same folder: each
+  // attempt writes its own scratch file and reads check the content hash.
+  auto results = shared_store || !options.results_dir.empty()
+                     ? OpenSharedResultStore(results_dir, replica_id,
+                                             options.min_free_disk_mib << 20)
+                     : OpenLocalResultStore(results_dir, options.min_free_disk_mib << 20);
+  if (!results.ok()) return results.status();
+  impl.results = std::move(*results);
+  // Replicas sharing results share uploaded assets too: a job may run on
+  // another replica than the one its mesh was uploaded to.
+  auto assets = AssetStore::Open(options.results_dir.empty() ? options.data_dir / "assets"
+                                                             : results_dir / "assets");
+  if (!assets.ok()) return assets.status();
+  impl.assets = std::move(*assets);
+  return absl::OkStatus();
+}
+
+namespace {
+
+// This process is the only user of its SQLite store, so anything still
+// RUNNING belonged to a process that died: run it again. Not fatal: on a
+// full disk the server must still start and serve reads, and a RUNNING job
+// whose lease lapsed is claimed again anyway. With a shared store, RUNNING
+// jobs may be other replicas' live claims: only lease expiry hands them on.
+void RecoverAtStart(JobStore& store, ResultStore& results, const ServerOptions& options) {
+  const bool shared_store = !options.store_url.empty();
+  auto requeued = shared_store ? absl::StatusOr<int>(0) : store.RequeueRunning();
+  if (!requeued.ok())
+    spdlog::error("event=requeue_failed error=\"{}\"", requeued.status().ToString());
+  else if (*requeued > 0)
+    spdlog::warn("event=recovered requeued_jobs={}", *requeued);
+  ReportUnknownResults(store, ResultsDir(options));
+  if (auto space = results.CheckFreeSpace(); !space.ok())
+    spdlog::warn("event=low_disk error=\"{}\"", std::string(space.message()));
+}
+
+}  // namespace
+
+void NimbusServer::MakeService(Impl& impl, const ServerOptions& options,
+                               const std::string& replica_id, TokenTable tokens) {
+  // Specs name uploaded assets by hash; only an in-process server (the CLI's
+  // own) may also read local paths, since its client is this process.
+  spec::Limits limits = options.limits;
+  limits.asset_dir = impl.assets->dir();
+  limits.allow_local_paths = options.listen.empty();
+  WorkerOptions wo;
+  wo.workers = options.workers;
+  wo.threads_per_job = options.threads_per_job;
+  wo.limits = limits;
+  wo.lease_ms = options.lease_ms;
+  wo.heartbeat_ms = options.heartbeat_ms;
+  wo.max_attempts = options.max_attempts;
+  wo.instance_id = replica_id;
+  impl.pool = std::make_unique<WorkerPool>(impl.store.get(), impl.results.get(), &impl.hub, wo);
+  impl.service = std::make_unique<NimbusServiceImpl>(
+      impl.store.get(), impl.results.get(), impl.assets.get(), &impl.hub, impl.pool.get(), limits);
+  impl.service->set_cancel_wait_ms(options.cancel_wait_ms);
+  impl.service->set_auto_shard_iterations(options.auto_shard_iterations);
+  impl.service->set_lease_ms(options.lease_ms);
+  impl.service->set_security(
+      std::move(tokens),
+      Quotas{options.quota_jobs, options.quota_asset_bytes, options.quota_result_bytes},
+      options.retention_ms);
+  impl.retention_ms = options.retention_ms;
+  impl.sweeper = std::make_unique<RetentionSweeper>(impl.store.get(), impl.results.get(),
+                                                    impl.assets.get(), options.retention_ms,
+                                                    SweepIntervalMs(options.retention_ms));
+  impl.sweeper->set_event_log(impl.store.get());
+}
+
+absl::Status NimbusServer::Listen(Impl& impl, const ServerOptions& options,
+                                  const std::shared_ptr<grpc::ServerCredentials>& credentials) {
+  grpc::EnableDefaultHealthCheckService(true);
+  grpc::reflection::InitProtoReflectionServerBuilderPlugin();
+  grpc::ServerBuilder builder;
+  if (!options.listen.empty()) builder.AddListeningPort(options.listen, credentials, &impl.port);
+  builder.RegisterService(impl.service.get());
+  auto interceptors = UndecodableRequestInterceptors();
+  interceptors.push_back(impl.metrics->InterceptorFactory());
+  builder.experimental().SetInterceptorCreators(std::move(interceptors));
+  // Previews and result chunks are a few MiB at most.
+  builder.SetMaxSendMessageSize(64 << 20);
+  builder.SetMaxReceiveMessageSize(64 << 20);
+  impl.server = builder.BuildAndStart();
+  if (!impl.server || (!options.listen.empty() && impl.port == 0))
+    return absl::UnavailableError(absl::StrCat("cannot listen on ", options.listen));
+  if (auto* health = impl.server->GetHealthCheckService()) {
+    health->SetServingStatus("nimbus.v1.NimbusService", true);
+    health->SetServingStatus(true);
+  }
+  if (!options.http_listen.empty()) {
+    auto http = StartHttp(*impl.server, impl.metrics.get(), options);
+    if (!http.ok()) return http.status();
+    impl.http = std::move(*http);
+  }
+  if (impl.port > 0) {
+    // "host:0" asks for any free port; report the one we got.
+    const size_t colon = options.listen.rfind(':');
+    impl.address = absl::StrCat(options.listen.substr(0, colon), ":", impl.port);
+  }
+  return absl::OkStatus();
+}
+
 absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOptions& options) {
   auto tokens = LoadTokens(options);
   if (!tokens.ok()) return tokens.status();
@@ -245,119 +379,14 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
   if (!credentials.ok()) return credentials.status();
   auto impl = std::make_unique<Impl>();
   impl->drain_ms = options.drain_ms;
-  std::error_code ec;
-  std::filesystem::create_directories(options.data_dir, ec);
-  if (ec)
-    return absl::InvalidArgumentError(
-        absl::StrCat("--data-dir ", options.data_dir.string(), ": ", ec.message()));
-  // Replicas: the job store, result folder and replica id (see server.h).
-  const bool shared_store = !options.store_url.empty();
   const std::string replica_id =
       options.replica_id.empty() ? DefaultReplicaId() : options.replica_id;
-  if (!shared_store) {
-    auto lock = DataDirLock::Acquire(options.data_dir);
-    if (!lock.ok()) return lock.status();
-    impl->data_dir_lock.emplace(std::move(*lock));
-  }
-  auto store = shared_store ? OpenPostgresJobStore(options.store_url)
-                            : OpenSqliteJobStore((options.data_dir / "jobs.db").string());
-  if (!store.ok()) return store.status();
-  auto timed = std::make_unique<TimedJobStore>(std::move(*store));
-  impl->metrics = std::make_unique<ServiceMetrics>(timed.get(), options.workers);
-  timed->set_observer(impl->metrics.get());
-  impl->store = std::move(timed);
-  const std::filesystem::path results_dir =
-      options.results_dir.empty() ? options.data_dir / "results" : options.results_dir;
-  // A shared store means other replicas may write the same folder: each
-  // attempt writes its own scratch file and reads check the content hash.
-  auto results = shared_store || !options.results_dir.empty()
-                     ? OpenSharedResultStore(results_dir, replica_id,
-                                             options.min_free_disk_mib << 20)
-                     : OpenLocalResultStore(results_dir, options.min_free_disk_mib << 20);
-  if (!results.ok()) return results.status();
-  impl->results = std::move(*results);
-  // Replicas sharing results share uploaded assets too: a job may run on
-  // another replica than the one its mesh was uploaded to.
-  auto assets = AssetStore::Open(options.results_dir.empty() ? options.data_dir / "assets"
-                                                             : results_dir / "assets");
-  if (!assets.ok()) return assets.status();
-  impl->assets = std::move(*assets);
-  // Specs name uploaded assets by hash; only an in-process server (the CLI's
-  // own) may also read local paths, since its client is this process.
-  spec::Limits limits = options.limits;
-  limits.asset_dir = impl->assets->dir();
-  limits.allow_local_paths = options.listen.empty();
-
-  // This process is the only user of its SQLite store, so anything still
-  // RUNNING belonged to a process that died: run it again.
-  // Not fatal: on a full disk the server must still start and serve
-  // reads, and a RUNNING job whose lease lapsed is claimed again anyway.
-  // With a shared store, RUNNING jobs may be other replicas' live claims:
-  // only lease expiry hands them on.
-  auto requeued = shared_store ? absl::StatusOr<int>(0) : impl->store->RequeueRunning();
-  if (!requeued.ok())
-    spdlog::error("event=requeue_failed error=\"{}\"", requeued.status().ToString());
-  else if (*requeued > 0)
-    spdlog::warn("event=recovered requeued_jobs={}", *requeued);
-  ReportUnknownResults(*impl->store, results_dir);
-  if (auto space = impl->results->CheckFreeSpace(); !space.ok())
-    spdlog::warn("event=low_disk error=\"{}\"", std::string(space.message()));
-
-  WorkerOptions wo;
-  wo.workers = options.workers;
-  wo.threads_per_job = options.threads_per_job;
-  wo.limits = limits;
-  wo.lease_ms = options.lease_ms;
-  wo.heartbeat_ms = options.heartbeat_ms;
-  wo.max_attempts = options.max_attempts;
-  wo.instance_id = replica_id;
-  impl->pool = std::make_unique<WorkerPool>(impl->store.get(), impl->results.get(), &impl->hub, wo);
-  impl->service = std::make_unique<NimbusServiceImpl>(
-      impl->store.get(), impl->results.get(), impl->assets.get(), &impl->hub, impl->pool.get(),
-      limits);
-  impl->service->set_cancel_wait_ms(options.cancel_wait_ms);
-  impl->service->set_auto_shard_iterations(options.auto_shard_iterations);
-  impl->service->set_lease_ms(options.lease_ms);
-  const bool auth = !tokens->empty();
+  if (auto st = OpenStores(*impl, options, replica_id); !st.ok()) return st;
+  RecoverAtStart(*impl->store, *impl->results, options);
   const size_t principals = tokens->size();
-  impl->service->set_security(
-      std::move(*tokens),
-      Quotas{options.quota_jobs, options.quota_asset_bytes, options.quota_result_bytes},
-      options.retention_ms);
-  impl->retention_ms = options.retention_ms;
-  impl->sweeper = std::make_unique<RetentionSweeper>(impl->store.get(), impl->results.get(),
-                                                     impl->assets.get(), options.retention_ms,
-                                                     SweepIntervalMs(options.retention_ms));
-  impl->sweeper->set_event_log(impl->store.get());
-
-  grpc::EnableDefaultHealthCheckService(true);
-  grpc::reflection::InitProtoReflectionServerBuilderPlugin();
-  grpc::ServerBuilder builder;
-  if (!options.listen.empty()) builder.AddListeningPort(options.listen, *credentials, &impl->port);
-  builder.RegisterService(impl->service.get());
-  auto interceptors = UndecodableRequestInterceptors();
-  interceptors.push_back(impl->metrics->InterceptorFactory());
-  builder.experimental().SetInterceptorCreators(std::move(interceptors));
-  // Previews and result chunks are a few MiB at most.
-  builder.SetMaxSendMessageSize(64 << 20);
-  builder.SetMaxReceiveMessageSize(64 << 20);
-  impl->server = builder.BuildAndStart();
-  if (!impl->server || (!options.listen.empty() && impl->port == 0))
-    return absl::UnavailableError(absl::StrCat("cannot listen on ", options.listen));
-  if (auto* health = impl->server->GetHealthCheckService()) {
-    health->SetServingStatus("nimbus.v1.NimbusService", true);
-    health->SetServingStatus(true);
-  }
-  if (!options.http_listen.empty()) {
-    auto http = StartHttp(*impl->server, impl->metrics.get(), options);
-    if (!http.ok()) return http.status();
-    impl->http = std::move(*http);
-  }
-  if (impl->port > 0) {
-    // "host:0" asks for any free port; report the one we got.
-    const size_t colon = options.listen.rfind(':');
-    impl->address = absl::StrCat(options.listen.substr(0, colon), ":", impl->port);
-  }
+  MakeService(*impl, options, replica_id, std::move(*tokens));
+  if (auto st = Listen(*impl, options, *credentials); !st.ok()) return st;
+  const bool shared_store = !options.store_url.empty();
   if (shared_store) {
     FollowOtherReplicas(*impl);
     FollowStoreHealth(*impl);
@@ -367,10 +396,9 @@ absl::StatusOr<std::unique_ptr<NimbusServer>> NimbusServer::Start(const ServerOp
   spdlog::info(
       "event=started listen={} port={} data_dir={} store={} replica={} workers={} "
       "threads_per_job={} tls={} mtls={} auth_tokens={} retention_s={}",
-      options.listen, impl->port, options.data_dir.string(),
-      shared_store ? "postgresql" : "sqlite", replica_id, options.workers,
-      impl->pool->threads_per_job(), !options.tls_cert_file.empty(),
-      !options.tls_client_ca_file.empty(), auth ? principals : 0, options.retention_ms / 1000);
+      options.listen, impl->port, options.data_dir.string(), shared_store ? "postgresql" : "sqlite",
+      replica_id, options.workers, impl->pool->threads_per_job(), !options.tls_cert_file.empty(),
+      !options.tls_client_ca_file.empty(), principals, options.retention_ms / 1000);
   return std::unique_ptr<NimbusServer>(new NimbusServer(std::move(impl)));
 }
 

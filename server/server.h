@@ -12,9 +12,12 @@
 
 namespace grpc {
 class Channel;
+class ServerCredentials;
 }
 
 namespace nimbus::server {
+
+class TokenTable;
 
 /// hostname-pid: a replica name unique among live processes.
 std::string DefaultReplicaId();
@@ -117,6 +120,13 @@ class NimbusServer {
  private:
   struct Impl;
   explicit NimbusServer(std::unique_ptr<Impl> impl);
+  // The steps of Start(), in order.
+  static absl::Status OpenStores(Impl& impl, const ServerOptions& options,
+                                 const std::string& replica_id);
+  static void MakeService(Impl& impl, const ServerOptions& options, const std::string& replica_id,
+                          TokenTable tokens);
+  static absl::Status Listen(Impl& impl, const ServerOptions& options,
+                             const std::shared_ptr<grpc::ServerCredentials>& credentials);
   static void FollowOtherReplicas(Impl& impl);
   static void FollowStoreHealth(Impl& impl);
   std::unique_ptr<Impl> impl_;
