@@ -11,7 +11,7 @@
 # nothing. Before any patch, the named tests of the chosen patches run once
 # on the unpatched scratch tree (the baseline): a test that fails there
 # makes its fault count as not caught. One line per fault:
-#   caught | MISSED: <tests that passed> | patch does not apply |
+#   caught | MISSED: <tests that passed or skipped> | patch does not apply |
 #   build failed | baseline fails: <tests> | unknown test: <names>
 # with the seconds it took; the exit status is 1 if any fault is not caught.
 #
@@ -20,7 +20,9 @@
 # reuses cached objects; CHECK_FAULTS_TMPDIR overrides the parent) and are
 # removed on exit. The caller's tree is never written to. Patches are read
 # from the caller's tests/faults/, so a patch not yet committed can be
-# checked; the sources are HEAD's.
+# checked; the sources are HEAD's. CHECK_FAULTS_LOG_DIR=DIR keeps every
+# test's output in DIR; CHECK_FAULTS_TEST_TIMEOUT (seconds, 600) bounds
+# each test.
 #
 # --check-patches is the fast unit check (ctest label `faults`): every
 # patch has its header and applies to this source tree (`git apply
@@ -39,6 +41,7 @@ set -uo pipefail
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
 FAULTS_DIR=$ROOT/tests/faults
 TEST_TIMEOUT=${CHECK_FAULTS_TEST_TIMEOUT:-600}
+LOG_DIR=${CHECK_FAULTS_LOG_DIR:-}
 
 die() { echo "check_faults: $*" >&2; exit 2; }
 
@@ -159,9 +162,11 @@ build() {
   cmake --build "$SCRATCH/build" --target "$@" >"$TMP/build.log" 2>&1
 }
 
-# run_tests PATCH: runs each named test of PATCH in a process of its own
-# (as ctest does); prints "pass NAME" or "fail NAME" per test, or
-# "unknown NAME" for a name no binary lists.
+# run_tests PATCH LABEL: runs each named test of PATCH in a process of its own
+# (as ctest does); prints "pass NAME", "fail NAME" or "skip NAME" (the
+# test skipped itself, e.g. without PostgreSQL) per test, or "unknown NAME"
+# for a name no binary lists. With CHECK_FAULTS_LOG_DIR set, each test's
+# output is kept there as LABEL-TEST.log.
 run_tests() {
   local p=$1 name t full found
   local bins=()
@@ -176,9 +181,12 @@ run_tests() {
             >"$TMP/test.log" 2>&1) &&
           grep -q '^\[  PASSED  \] 1 test' "$TMP/test.log"; then
           echo "pass $full"
+        elif grep -q '^\[  SKIPPED \] 1 test' "$TMP/test.log"; then
+          echo "skip $full"
         else
           echo "fail $full"
         fi
+        [[ -z ${LOG_DIR:-} ]] || cp "$TMP/test.log" "$LOG_DIR/$2-${full//\//_}.log"
       done
     done
     ((found)) || echo "unknown $name"
@@ -199,6 +207,9 @@ main() {
   all=$(patches)
   [[ -n $all ]] || die "no patch in $FAULTS_DIR matches '${PATTERN}'"
 
+  if [[ -n $LOG_DIR ]]; then
+    mkdir -p "$LOG_DIR" && LOG_DIR=$(cd "$LOG_DIR" && pwd) || die "cannot make $LOG_DIR"
+  fi
   local parent=${CHECK_FAULTS_TMPDIR:-$(dirname "$ROOT")}
   TMP=$(mktemp -d "$parent/.check-faults.XXXXXX") || die "cannot make a directory in $parent"
   trap cleanup EXIT
@@ -220,10 +231,10 @@ main() {
     list_tests "$SCRATCH/build/bin/$t" >"$TMP/list/$t"
   done
   local runs baseline_failed=()
-  runs=$(for p in $all; do run_tests "$p"; done | sort -u)
-  mapfile -t baseline_failed < <(awk '$1 == "fail" {print $2}' <<<"$runs")
+  runs=$(for p in $all; do run_tests "$p" baseline; done | sort -u)
+  mapfile -t baseline_failed < <(awk '$1 == "fail" || $1 == "skip" {print $2}' <<<"$runs")
   if ((${#baseline_failed[@]})); then
-    echo "baseline: these tests fail with no fault in: ${baseline_failed[*]}"
+    echo "baseline: these tests fail or skip with no fault in: ${baseline_failed[*]}"
   else
     echo "baseline: every named test passes with no fault in ($((SECONDS - start)) s)"
   fi
@@ -242,8 +253,8 @@ main() {
         tail -n 20 "$TMP/build.log" | sed "s/^/  $name: /" >&2
       else
         local passed unknown still
-        runs=$(run_tests "$p")
-        passed=$(awk '$1 == "pass" {print $2}' <<<"$runs" | xargs)
+        runs=$(run_tests "$p" "$name")
+        passed=$(awk '$1 == "pass" || $1 == "skip" {print $2}' <<<"$runs" | xargs)
         unknown=$(awk '$1 == "unknown" {print $2}' <<<"$runs" | xargs)
         still=$(for t in $(awk '{print $2}' <<<"$runs"); do
           printf '%s\n' "${baseline_failed[@]}" | grep -qxF -- "$t" && echo "$t"
