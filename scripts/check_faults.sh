@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# shellcheck disable=SC2046,SC2013  # header values split into words on purpose
 # Re-checks the faults of tests/faults/ (docs/testing.md, "Faults the suite
 # is known to catch"): each patch is applied to a scratch git worktree of
 # HEAD, its targets are built and every test it names must FAIL.
@@ -37,6 +38,9 @@
 # e2e_tests, e2e_vdb_tests and http_tests start nimbusd and nimbus of the
 # same build, so those two are built with them.
 set -uo pipefail
+# Header values are split into words on purpose, and a test name's * must
+# reach gtest, not match files: no pathname expansion.
+set -f
 
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
 FAULTS_DIR=$ROOT/tests/faults
@@ -82,8 +86,11 @@ expand() {
 }
 
 patches() {
-  local p
-  for p in "$FAULTS_DIR"/*.patch; do
+  local p files
+  set +f
+  files=("$FAULTS_DIR"/*.patch)
+  set -f
+  for p in "${files[@]}"; do
     [[ -e $p ]] || continue
     [[ -z ${PATTERN:-} ]] || [[ $(basename "$p") =~ $PATTERN ]] || continue
     echo "$p"
@@ -157,6 +164,12 @@ cleanup() {
   git -C "$ROOT" worktree prune >/dev/null 2>&1
 }
 
+# restore: the scratch tree back to HEAD (files a patch added removed; the
+# ignored build directory kept).
+restore() {
+  git -C "$SCRATCH" checkout -q -- . && git -C "$SCRATCH" clean -fdq
+}
+
 # build TARGETS...: builds them in the scratch tree; the log in $TMP/build.log.
 build() {
   cmake --build "$SCRATCH/build" --target "$@" >"$TMP/build.log" 2>&1
@@ -198,7 +211,7 @@ main() {
   case ${1:-} in
     --check-patches) [[ $# -eq 2 ]] || die "usage: $0 --check-patches BIN_DIR"; check_patches "$2" ;;
     --list) list=1; shift ;;
-    -h | --help) sed -n '2,/^set -uo/p' "$0" | sed '$d; s/^# \{0,1\}//'; exit 0 ;;
+    -h | --help) sed -n '3,/^set -uo/p' "$0" | sed '$d; s/^# \{0,1\}//'; exit 0 ;;
   esac
   [[ $# -le 1 ]] || die "usage: $0 [--list] [PATTERN]"
   PATTERN=${1:-}
@@ -208,7 +221,8 @@ main() {
   [[ -n $all ]] || die "no patch in $FAULTS_DIR matches '${PATTERN}'"
 
   if [[ -n $LOG_DIR ]]; then
-    mkdir -p "$LOG_DIR" && LOG_DIR=$(cd "$LOG_DIR" && pwd) || die "cannot make $LOG_DIR"
+    mkdir -p "$LOG_DIR" || die "cannot make $LOG_DIR"
+    LOG_DIR=$(cd "$LOG_DIR" && pwd)
   fi
   local parent=${CHECK_FAULTS_TMPDIR:-$(dirname "$ROOT")}
   TMP=$(mktemp -d "$parent/.check-faults.XXXXXX") || die "cannot make a directory in $parent"
@@ -243,7 +257,7 @@ main() {
   for p in $all; do
     start=$SECONDS
     name=$(basename "$p" .patch)
-    git -C "$SCRATCH" checkout -q -- .
+    restore
     if ! git -C "$SCRATCH" apply "$p" 2>"$TMP/apply.log"; then
       result="patch does not apply"
     else
@@ -270,7 +284,7 @@ main() {
         fi
       fi
     fi
-    git -C "$SCRATCH" checkout -q -- .
+    restore
     [[ $result == caught ]] || missed=$((missed + 1))
     printf '%-40s %s (%d s)\n' "$name" "$result" $((SECONDS - start))
   done
