@@ -15,7 +15,9 @@ come from the tree on disk and from the programs' own --help:
    starts with a top-level folder (core/, docs/, ...) or is a root file
    exists; so does one starting with a folder beside the Markdown file
    (deploy/README.md's systemd/...), and a bare NAME.md beside it or at
-   the root. A path never holds ':', so ':12', ':12:3' or
+   the root. A bare source file name (NAME.h, .cc, .py, .sh, .proto, .mjs,
+   .cmake, .patch), written where the text says which folder it is in,
+   names a file somewhere in the tree. A path never holds ':', so ':12', ':12:3' or
    '::Symbol' after it is dropped, as is '#anchor'. Globs (*, ?, [..],
    {a,b}) must match something, and a placeholder (<name>, ...) stands for
    any text. Not checked, being generated rather than kept in the tree
@@ -28,11 +30,12 @@ come from the tree on disk and from the programs' own --help:
    after it the subcommand's ('nimbus SUB --help'), and the subcommand
    itself exists. A placeholder subcommand (<cmd>, CMD, ...) allows the
    options of any subcommand.
-4. Every examples/*.json named anywhere in the text exists. (That every
+4. Every examples/*.json named in prose (outside code) exists too. (That every
    example validates is tests/server SpecConvert.EveryExampleValidates.)
 
 Each problem is printed as FILE:LINE: message; the exit status is 1 if any.
 """
+import fnmatch
 import glob
 import os
 import re
@@ -54,6 +57,7 @@ HTML_ANCHOR = re.compile(r"<a\b[^>]*?\b(?:name|id)=\"([^\"]+)\"", re.I)
 ATX = re.compile(r"^ {0,3}(#{1,6})(?:\s+(.*?))?(?:\s+#+)?\s*$")
 EXAMPLE_JSON = re.compile(r"(?<![\w./-])examples/[\w./-]*\.json")
 SPLIT = re.compile(r"(?:[^\s`\"'(),;|={}]|\{[^{}\s]*\})+")
+SOURCE_NAME = re.compile(r"[\w.*<>+-]+\.(h|hpp|cc|cpp|py|sh|proto|mjs|cmake|patch)")
 PLACEHOLDER = re.compile(r"<[^<>/]*>|…|(?<=/)\.\.\.(?=/|$)")
 
 
@@ -165,6 +169,7 @@ class Checker:
         self.nimbus = help_options([nimbus])
         self.subcommands = {s: help_options([nimbus, s]) for s in subcommands(nimbus)}
         self.top = TOP_DIRS | {d for d in os.listdir(root) if is_source_dir(root, d)}
+        self.file_names = {os.path.basename(f) for f in tree_files(root, False)}
 
     def report(self, doc, line, message):
         self.problems.append(f"{doc.rel}:{line}: {message}")
@@ -182,7 +187,7 @@ class Checker:
             for n, code in doc.code:
                 self.check_paths(doc, n, code)
                 self.check_commands(doc, n, code)
-            for n, line in enumerate(doc.lines, 1):
+            for n, line in doc.prose:  # code is checked as paths above
                 for m in EXAMPLE_JSON.finditer(line):
                     if not os.path.isfile(os.path.join(self.root, m.group(0))):
                         self.report(doc, n, f"no example {m.group(0)}")
@@ -219,6 +224,9 @@ class Checker:
         for m in SPLIT.finditer(code):
             token = re.sub(r"^\./", "", m.group(0)).split(":")[0].split("#")[0]
             token = token.rstrip(".,!?")
+            if SOURCE_NAME.fullmatch(token):
+                self.check_source_name(doc, n, token)
+                continue
             places = self.places(doc, token)
             if (not places or is_generated(token)
                     or code[:m.start()].rstrip().endswith(">")):
@@ -229,6 +237,12 @@ class Checker:
             if missing:
                 which = f" ({', '.join(missing)})" if len(alternatives) > 1 else ""
                 self.report(doc, n, f"no such file or folder: {token}{which}")
+
+    def check_source_name(self, doc, n, token):
+        """A bare source file name (`vdb_fixtures.h` in a table of tests/support/)."""
+        self.counts["paths"] += 1
+        if not fnmatch.filter(self.file_names, PLACEHOLDER.sub("*", token)):
+            self.report(doc, n, f"no file named {token} anywhere in the tree")
 
     def places(self, doc, token):
         """The folders a token is looked up in; none if it names no repository path."""
@@ -298,18 +312,23 @@ class Checker:
                 self.report(doc, n, f"{program} has no option {name} (see its --help)")
 
 
-def markdown_files(root):
+def tree_files(root, skip_faults):
+    """Paths of the source tree's files, relative to root, sorted."""
     for folder, dirs, files in os.walk(root):
         rel = os.path.relpath(folder, root)
-        dirs[:] = sorted(d for d in dirs if not skipped_dir(root, rel, d))
+        dirs[:] = sorted(d for d in dirs if not skipped_dir(root, rel, d, skip_faults))
         for f in sorted(files):
-            if f.endswith(".md"):
-                yield os.path.normpath(os.path.join(rel, f))
+            yield os.path.normpath(os.path.join(rel, f))
 
 
-def skipped_dir(root, rel, d):
+def markdown_files(root):
+    return [f for f in tree_files(root, True) if f.endswith(".md")]
+
+
+def skipped_dir(root, rel, d, skip_faults=True):
     path = os.path.normpath(os.path.join(rel, d))
-    return (d.startswith(".") or d == "node_modules" or path == os.path.join("tests", "faults")
+    return (d.startswith(".") or d == "node_modules"
+            or (skip_faults and path == os.path.join("tests", "faults"))
             or (rel == "." and d.startswith("build"))
             or os.path.exists(os.path.join(root, path, "CMakeCache.txt")))
 
