@@ -48,7 +48,8 @@ TOP_DIRS = {"bench", "client", "core", "dcc", "deploy", "docs", "examples",
 ROOT_FILES = {"README.md", "CMakeLists.txt", "CMakePresets.json", ".gitignore",
               ".clang-format", ".containerignore"}
 GENERATED_PARTS = {"node_modules", "__pycache__"}
-FENCE = re.compile(r"^ {0,3}(`{3,}|~{3,})")
+FENCE = re.compile(r"^\s*(`{3,}|~{3,})")
+LIST_ITEM = re.compile(r"^(\s*)(?:[-*+]|\d+[.)])\s+")
 CODE_SPAN = re.compile(r"(?<!`)(`+)(?!`)(.+?)(?<!`)\1(?!`)", re.S)
 LINK = re.compile(r"!?\[(?:[^\[\]]|\[[^\]]*\])*\]\(\s*(<[^>]*>|[^)\s]+)(?:\s+\"[^\"]*\")?\s*\)")
 REF_DEF = re.compile(r"^ {0,3}\[[^\]]+\]:\s*(\S+)")
@@ -84,28 +85,37 @@ class Doc:
             self.code.append((n, line))
 
     def _split(self):
-        fence, indented, para = None, False, []
+        """Fenced blocks; indented blocks (4 columns past the enclosing list
+        item's text); paragraphs of prose between them."""
+        fence, indented, para, items = None, False, [], []
         for n, line in enumerate(self.lines, 1):
             if fence:
-                if re.match(r"^ {0,3}" + fence[0] + "{" + str(len(fence)) + r",}\s*$", line):
+                if re.match(r"^\s*" + fence[0] + "{" + str(len(fence)) + r",}\s*$", line):
                     fence = None
                 else:
                     self._code_line(n, line)
                 continue
-            m = FENCE.match(line)
-            blank = not line.strip()
-            starts_code = (line.startswith("    ") and (indented or not para)
-                           and not re.match(r"\s*([-*+]|\d+[.)])\s", line))
-            if m or blank or starts_code:
+            depth = len(line) - len(line.lstrip())
+            code = (line.strip() and depth >= (items[-1] if items else 0) + 4
+                    and (indented or not para))
+            item = None if code else LIST_ITEM.match(line)
+            if item:
+                while items and items[-1] > len(item.group(1)):
+                    items.pop()
+                items.append(len(item.group(0)))
+            if not item and not code and line.strip() and not para:
+                while items and depth < items[-1]:
+                    items.pop()
+            fenced = FENCE.match(line) if not code else None
+            if fenced or code or not line.strip():
                 self._paragraph(para)
                 para = []
-            if m:
-                fence, indented = m.group(1), False
-            elif starts_code:
-                indented = True
+            indented = bool(code) or (indented and not line.strip())
+            if fenced:
+                fence = fenced.group(1)
+            elif code:
                 self._code_line(n, line)
-            elif not blank:
-                indented = False
+            elif line.strip():
                 para.append((n, line))
         self._paragraph(para)
 
