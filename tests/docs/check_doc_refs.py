@@ -14,24 +14,23 @@ come from the tree on disk and from the programs' own --help:
 2. Paths: every token in code (`spans`, fenced and indented blocks) that
    starts with a top-level folder (core/, docs/, ...) or is a root file
    exists; so does one starting with a folder beside the Markdown file
-   (deploy/README.md's systemd/...), and a bare NAME.md beside it or at
-   the root. A bare source file name (NAME.h, .cc, .py, .sh, .proto, .mjs,
-   .cmake, .patch), written where the text says which folder it is in,
-   names a file somewhere in the tree. A path never holds ':', so ':12', ':12:3' or
-   '::Symbol' after it is dropped, as is '#anchor'. Globs (*, ?, [..],
-   {a,b}) must match something, and a placeholder (<name>, ...) stands for
-   any text. Not checked, being generated rather than kept in the tree
-   (what .gitignore ignores): paths with a node_modules/ or __pycache__/
-   part and .vdb files outside examples/. Paths under build/ or out/ start
-   with no top-level folder of the tree and so are never checked.
+   (deploy/README.md's systemd/...), a bare NAME.md beside it or at the
+   root, and a bare source file name (NAME.h, .cc, .py, .sh, .proto, .mjs,
+   .cmake, .patch; the text says which folder) somewhere in the tree.
+   A path never holds ':', so ':12', ':12:3' or '::Symbol' after it is
+   dropped, as is '#anchor'. Globs (*, ?, [..], {a,b}) must match, every
+   alternative of {a,b}, and a placeholder (<name>, ...) stands for any
+   text. What is not in the tree is not checked: paths under build/ and
+   out/ (outputs; neither is a top-level source folder), and a path after
+   '>' or '>>' (the file a command writes).
 3. Options: in code, a command line whose program is nimbusd or nimbus
    (any folder) uses only long options that program's --help lists: for
    nimbus, the options before the subcommand are the global ones and those
    after it the subcommand's ('nimbus SUB --help'), and the subcommand
-   itself exists. A placeholder subcommand (<cmd>, CMD, ...) allows the
-   options of any subcommand.
-4. Every examples/*.json named in prose (outside code) exists too. (That every
-   example validates is tests/server SpecConvert.EveryExampleValidates.)
+   itself exists (a global option after it is refused by nimbus too). A
+   placeholder subcommand (<cmd>, CMD, ...) allows any subcommand's options.
+4. Every examples/*.json named in prose (outside code) exists too. (That
+   every example validates is SpecConvert.EveryExampleValidates.)
 
 Each problem is printed as FILE:LINE: message; the exit status is 1 if any.
 """
@@ -47,7 +46,6 @@ TOP_DIRS = {"bench", "client", "core", "dcc", "deploy", "docs", "examples",
             "proto", "python", "scripts", "server", "tests"}
 ROOT_FILES = {"README.md", "CMakeLists.txt", "CMakePresets.json", ".gitignore",
               ".clang-format", ".containerignore"}
-GENERATED_PARTS = {"node_modules", "__pycache__"}
 FENCE = re.compile(r"^\s*(`{3,}|~{3,})")
 LIST_ITEM = re.compile(r"^(\s*)(?:[-*+]|\d+[.)])\s+")
 CODE_SPAN = re.compile(r"(?<!`)(`+)(?!`)(.+?)(?<!`)\1(?!`)", re.S)
@@ -124,15 +122,10 @@ class Doc:
         if not para:
             return
         text = "\n".join(line for _, line in para)
-        starts = []
-        pos = 0
-        for n, line in para:
-            starts.append((pos, n))
-            pos += len(line) + 1
-        line_of = lambda off: max(n for s, n in starts if s <= off)
         blanked = list(text)
         for m in CODE_SPAN.finditer(text):
-            self.code.append((line_of(m.start()), m.group(2).replace("\n", " ")))
+            line = para[text.count("\n", 0, m.start())][0]
+            self.code.append((line, m.group(2).replace("\n", " ")))
             blanked[m.start():m.end()] = " " * (m.end() - m.start())
         prose = "".join(blanked).split("\n")
         for (n, line), plain in zip(para, prose):
@@ -238,8 +231,7 @@ class Checker:
                 self.check_source_name(doc, n, token)
                 continue
             places = self.places(doc, token)
-            if (not places or is_generated(token)
-                    or code[:m.start()].rstrip().endswith(">")):
+            if not places or code[:m.start()].rstrip().endswith(">"):
                 continue
             self.counts["paths"] += 1
             alternatives = braces(PLACEHOLDER.sub("*", token))
@@ -346,11 +338,6 @@ def skipped_dir(root, rel, d, skip_faults=True):
 def is_source_dir(root, d):
     return (os.path.isdir(os.path.join(root, d)) and not skipped_dir(root, ".", d)
             and d != "out")
-
-
-def is_generated(token):
-    parts = token.split("/")
-    return bool(GENERATED_PARTS & set(parts)) or (token.endswith(".vdb") and parts[0] != "examples")
 
 
 def is_placeholder(word):
