@@ -944,8 +944,16 @@ void AddWatchFlags(CLI::App* c, WatchArgs& w) {
   c->add_flag("--events", w.events, "print the job's events (as `nimbus events`) as they happen");
 }
 
-// Declares the subcommands and their flags, bound to `o`; in help order.
-std::vector<Command> AddCommands(CLI::App& app, Options& o) {
+// A subcommand taking one job id.
+CLI::App* AddJobCommand(CLI::App& app, Options& o, const std::string& name,
+                        const std::string& help) {
+  CLI::App* c = app.add_subcommand(name, help);
+  c->add_option("job", o.job_id)->required();
+  return c;
+}
+
+// render, submit and explore: the commands that send a spec.
+std::vector<Command> AddSpecCommands(CLI::App& app, Options& o) {
   auto* render = app.add_subcommand("render", "submit a spec, show progress, fetch the .vdb");
   render->add_option("spec", o.spec_path, "spec file (.json or text format)")->required();
   render->add_option("-o,--output", o.out_path,
@@ -989,45 +997,57 @@ std::vector<Command> AddCommands(CLI::App& app, Options& o) {
   explore->add_flag("--no-cache", o.no_cache, "run even if a finished job had the same spec");
   AddWatchFlags(explore, o.watch);
   o.explore.command = explore;
-  auto* watch = app.add_subcommand("watch", "follow a job until it ends");
-  watch->add_option("job", o.job_id)->required();
+  return {{render, RunRender}, {submit, RunSubmit}, {explore, RunExplore}};
+}
+
+// Following, fetching and stopping jobs, and the server's health.
+std::vector<Command> AddJobCommands(CLI::App& app, Options& o) {
+  auto* watch = AddJobCommand(app, o, "watch", "follow a job until it ends");
   AddWatchFlags(watch, o.watch);
-  auto* fetch = app.add_subcommand("fetch", "download a finished job's .vdb");
-  fetch->add_option("job", o.job_id)->required();
+  auto* fetch = AddJobCommand(app, o, "fetch", "download a finished job's .vdb");
   fetch->add_option("-o,--output", o.out_path, "output path, with the file's extension")
       ->required();
   fetch->add_option("--file", o.fetch_file, "one of the job's further files (e.g. NAME.0003.vdb)");
-  auto* get = app.add_subcommand("get", "print a job as JSON");
-  get->add_option("job", o.job_id)->required();
+  auto* get = AddJobCommand(app, o, "get", "print a job as JSON");
   auto* jobs = app.add_subcommand("jobs", "list jobs, newest first");
   jobs->add_option("--state", o.state_filter, "queued, running, succeeded, failed or cancelled");
   jobs->add_option("--limit", o.limit, "how many")->capture_default_str();
   auto* health = app.add_subcommand("health", "print the server's gRPC health; exit 0 if SERVING");
   health->add_option("--service", o.health_service,
                      "a service (nimbus.v1.NimbusService follows the job store); default: the server");
-  auto* cancel = app.add_subcommand("cancel", "cancel a queued or running job");
-  cancel->add_option("job", o.job_id)->required();
-  auto* poke = app.add_subcommand("poke", "push or drag a body of a running jelly job");
-  poke->add_option("job", o.job_id)->required();
+  auto* cancel = AddJobCommand(app, o, "cancel", "cancel a queued or running job");
+  auto* poke = AddJobCommand(app, o, "poke", "push or drag a body of a running jelly job");
   poke->add_option("--body", o.body, "index into the spec's jelly.bodies")->required();
   poke->add_option("--impulse", o.impulse, "impulse x,y,z (mass x velocity change)");
   poke->add_option("--drag", o.drag, "drag the body towards the point x,y,z");
   poke->add_option("--stiffness", o.drag_stiffness, "drag spring stiffness (default 50)");
   poke->add_option("--drag-frames", o.drag_frames, "frames the drag lasts (default 1)");
-  auto* pin = app.add_subcommand("pin", "keep a job's result (and assets) past the retention age");
-  pin->add_option("job", o.job_id)->required();
-  auto* unpin = app.add_subcommand("unpin", "let a pinned job's result expire again");
-  unpin->add_option("job", o.job_id)->required();
-  auto* priority = app.add_subcommand("priority", "change a queued job's priority (0 to 100)");
-  priority->add_option("job", o.job_id)->required();
+  return {{watch, RunWatch},   {fetch, RunFetch},   {get, RunGet},  {jobs, RunJobs},
+          {health, RunHealth}, {cancel, RunCancel}, {poke, RunPoke}};
+}
+
+// The queue: retention, priority, retry, the workers and a job's log.
+std::vector<Command> AddQueueCommands(CLI::App& app, Options& o) {
+  auto* pin =
+      AddJobCommand(app, o, "pin", "keep a job's result (and assets) past the retention age");
+  auto* unpin = AddJobCommand(app, o, "unpin", "let a pinned job's result expire again");
+  auto* priority = AddJobCommand(app, o, "priority", "change a queued job's priority (0 to 100)");
   priority->add_option("priority", o.priority, "0 to 100, higher runs first")->required();
-  auto* retry = app.add_subcommand("retry", "queue a failed or cancelled job again");
-  retry->add_option("job", o.job_id)->required();
+  auto* retry = AddJobCommand(app, o, "retry", "queue a failed or cancelled job again");
   auto* workers = app.add_subcommand("workers", "list the replicas sharing the job store");
-  auto* events = app.add_subcommand("events", "print a job's event log, oldest first");
-  events->add_option("job", o.job_id)->required();
-  auto* del = app.add_subcommand("delete", "delete a finished job and its result files");
-  del->add_option("job", o.job_id)->required();
+  auto* events = AddJobCommand(app, o, "events", "print a job's event log, oldest first");
+  auto* del = AddJobCommand(app, o, "delete", "delete a finished job and its result files");
+  return {{pin, [](const Options& o) { return RunPin(o, true); }},
+          {unpin, [](const Options& o) { return RunPin(o, false); }},
+          {priority, RunPriority},
+          {retry, RunRetry},
+          {workers, RunWorkers},
+          {events, RunEvents},
+          {del, RunDelete}};
+}
+
+// validate and import-flame: local work, no server.
+std::vector<Command> AddLocalCommands(CLI::App& app, Options& o) {
   auto* validate = app.add_subcommand("validate", "check a spec locally and summarise it");
   validate->add_option("spec", o.spec_path, "spec file")->required();
   auto* import = app.add_subcommand("import-flame", "convert a flam3 genome (.flam3) to a spec");
@@ -1039,25 +1059,15 @@ std::vector<Command> AddCommands(CLI::App& app, Options& o) {
   import->add_option("--seed", o.flame.seed, "random seed")->capture_default_str();
   import->add_flag("--picture", o.flame.picture,
                    "render a PNG the size of flam3's instead of a one-voxel-thick volume");
-  return {{validate, RunValidate},
-          {import, RunImportFlame},
-          {render, RunRender},
-          {explore, RunExplore},
-          {submit, RunSubmit},
-          {watch, RunWatch},
-          {fetch, RunFetch},
-          {get, RunGet},
-          {jobs, RunJobs},
-          {health, RunHealth},
-          {cancel, RunCancel},
-          {pin, [](const Options& o) { return RunPin(o, true); }},
-          {unpin, [](const Options& o) { return RunPin(o, false); }},
-          {priority, RunPriority},
-          {retry, RunRetry},
-          {workers, RunWorkers},
-          {events, RunEvents},
-          {del, RunDelete},
-          {poke, RunPoke}};
+  return {{validate, RunValidate}, {import, RunImportFlame}};
+}
+
+// Declares the subcommands and their flags, bound to `o`; in help order.
+std::vector<Command> AddCommands(CLI::App& app, Options& o) {
+  std::vector<Command> all;
+  for (auto add : {AddSpecCommands, AddJobCommands, AddQueueCommands, AddLocalCommands})
+    for (Command& c : add(app, o)) all.push_back(std::move(c));
+  return all;
 }
 
 }  // namespace
