@@ -601,16 +601,25 @@ class Client:
                                   f"cannot write {part}: {e.strerror}") from None
 
     def render(self, spec, path, previews_dir=None, on_event=None, base_dir=None,
-               preview_resolution=64, preview_interval=1.0, request_id=None, priority=None):
+               preview_resolution=64, preview_interval=1.0, request_id=None, priority=None,
+               events=False):
         """Submits, watches (saving previews if asked), and fetches the result
-        to `path`. Raises JobFailedError when the job fails or is cancelled."""
+        to `path`. Raises JobFailedError when the job fails or is cancelled.
+
+        `on_event` is called with each WatchEvent; with `events`, their
+        `events` carry the job's event log as watch(events=True) does, e.g.
+
+            client.render(spec, "out.vdb", events=True,
+                          on_event=lambda ev: [print(e) for e in ev.events])
+        """
         job = self.submit(spec, request_id=request_id, base_dir=base_dir, priority=priority)
         previews = []
         final = job
         for ev in self.watch(job, previews_dir=previews_dir,
                              preview_resolution=preview_resolution,
                              preview_interval=preview_interval,
-                             want_previews=previews_dir is not None or on_event is not None):
+                             want_previews=previews_dir is not None or on_event is not None,
+                             events=events):
             final = ev.job
             if ev.preview is not None:
                 previews.append(ev.preview)

@@ -10,6 +10,7 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 import unittest
 from datetime import datetime, timezone
 from pathlib import Path
@@ -109,6 +110,22 @@ class EventLogTest(ServerTestCase):
                 self.assertEqual(self.client.events(job, after_seq=after), full[after:])
         # Without events=True no event is sent.
         self.assertEqual(logged(self.client.watch(job)), [])
+
+    def test_render_passes_the_log_to_on_event(self):
+        seen = []
+        with tempfile.TemporaryDirectory() as tmp:
+            result = self.client.render(tree(4_000_000), Path(tmp) / "tree.vdb", events=True,
+                                        on_event=seen.append)
+            self.assertTrue((Path(tmp) / "tree.vdb").is_file())
+        watched = logged(seen)
+        self.assertEqual(watched, self.client.events(result.job))
+        self.assertEqual((watched[0].kind, watched[-1].kind), ("submitted", "succeeded"))
+        # Without events=True, on_event sees no log.
+        seen.clear()
+        with tempfile.TemporaryDirectory() as tmp:
+            self.client.render(tree(4_000_000), Path(tmp) / "tree.vdb", on_event=seen.append)
+        self.assertTrue(seen)
+        self.assertEqual(logged(seen), [])
 
     def test_the_example_prints_the_log(self):
         job = self.client.submit(tree(4_000_000))
