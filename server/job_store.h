@@ -245,10 +245,13 @@ class JobQueue {
                                       const std::string& error, int error_code) = 0;
   /// Gives a claimed job back to the queue (graceful shutdown).
   virtual absl::Status Release(const std::string& id, const std::string& worker_id) = 0;
-  /// QUEUED jobs become CANCELLED at once; RUNNING ones get cancel_requested
-  /// (their worker finishes the transition); terminal jobs are unchanged.
-  /// Returns the job as it is afterwards. NOT_FOUND for an unknown id.
-  virtual absl::StatusOr<JobRecord> RequestCancel(const std::string& id, TimeMs now) = 0;
+  /// QUEUED jobs become CANCELLED at once, logged `cancelled` (field `by`)
+  /// in the same transaction, so only the call that ended the job logs its
+  /// end; RUNNING ones get cancel_requested (their worker finishes the
+  /// transition and logs it); terminal jobs are unchanged. Returns the job
+  /// as it is afterwards. NOT_FOUND for an unknown id.
+  virtual absl::StatusOr<JobRecord> RequestCancel(const std::string& id, TimeMs now,
+                                                  const std::string& by) = 0;
   /// Single-node recovery after a crash: every RUNNING job becomes QUEUED
   /// again (its lease holder is gone). Returns how many were requeued.
   virtual absl::StatusOr<int> RequeueRunning() = 0;

@@ -101,6 +101,10 @@ JobEvent SubmittedEvent(const NewJob& job, TimeMs now) {
            {"cached_from", job.cached_from}}};
 }
 
+JobEvent QueuedCancelEvent(const std::string& by, TimeMs now) {
+  return {0, now, "cancelled", {{"by", by}}};
+}
+
 TimeMs WallClockMs() {
   return std::chrono::duration_cast<std::chrono::milliseconds>(
              std::chrono::system_clock::now().time_since_epoch())

@@ -52,6 +52,10 @@ JobEvent EndEvent(const std::string& worker_id, const Completion& c, TimeMs now)
 /// priority, retried_from and cached_from (the last two empty unless set).
 JobEvent SubmittedEvent(const NewJob& job, TimeMs now);
 
+/// The event log entry RequestCancel writes for a QUEUED job it ends:
+/// `cancelled` with `by`, the caller who asked.
+JobEvent QueuedCancelEvent(const std::string& by, TimeMs now);
+
 /// Milliseconds since the epoch, for the few store operations that take no
 /// `now` (start-up recovery, cascades): the honest end time there.
 TimeMs WallClockMs();

@@ -753,11 +753,10 @@ grpc::Status NimbusServiceImpl::Cancel(const Principal& caller, const std::strin
   // Logged first, so a worker that sees the request at its next heartbeat
   // cannot log the job's end before it.
   LogJobEvent(*store_, job_id, "cancel_requested", {{"by", caller.name}});
-  auto rec = store_->RequestCancel(job_id, NowMs());
+  // A queued job ends here, with no worker to log its end: the store logs
+  // it with the change.
+  auto rec = store_->RequestCancel(job_id, NowMs(), caller.name);
   if (!rec.ok()) return ToGrpc(rec.status());
-  // A queued job ends here, with no worker to log its end.
-  if (visible->state == JobState::kQueued && rec->state == JobState::kCancelled)
-    LogJobEvent(*store_, job_id, "cancelled", {{"by", caller.name}});
   pool_->Cancel(job_id);
   // A sharded job's cancel reaches the shards this process runs at once.
   if (rec->parent_id.empty())

@@ -251,7 +251,8 @@ class PostgresJobStore final : public JobStore {
   absl::Status AbandonAttempt(const std::string& id, const std::string& worker_id,
                               const std::string& error, int error_code) override;
   absl::Status Release(const std::string& id, const std::string& worker_id) override;
-  absl::StatusOr<JobRecord> RequestCancel(const std::string& id, TimeMs now) override;
+  absl::StatusOr<JobRecord> RequestCancel(const std::string& id, TimeMs now,
+                                          const std::string& by) override;
   absl::StatusOr<int> RequeueRunning() override;
   absl::StatusOr<OwnerUsage> Usage(const std::string& owner) override;
   absl::StatusOr<JobRecord> SetPinned(const std::string& id, bool pinned) override;
@@ -993,7 +994,8 @@ absl::Status PostgresJobStore::GiveBack(const std::string& id, const std::string
   });
 }
 
-absl::StatusOr<JobRecord> PostgresJobStore::RequestCancel(const std::string& id, TimeMs now) {
+absl::StatusOr<JobRecord> PostgresJobStore::RequestCancel(const std::string& id, TimeMs now,
+                                                          const std::string& by) {
   return InTxn<JobRecord>("cancel a job", [&](pqxx::work& t) {
     JobRecord job = LoadExisting(t, id, true);
     if (IsTerminal(job.state)) return job;
@@ -1006,6 +1008,7 @@ absl::StatusOr<JobRecord> PostgresJobStore::RequestCancel(const std::string& id,
             : t.exec_params("UPDATE jobs SET cancel_requested = TRUE WHERE id = $1 "
                             "RETURNING " NIMBUS_PG_COLUMNS,
                             id);
+    if (job.state == JobState::kQueued) AppendEventIn(t, id, QueuedCancelEvent(by, now));
     if (job.shard_count > 1 && job.parent_id.empty())
       StopShards(t, id, now, kCancelledByRequest);
     if (job.state == JobState::kQueued) PropagateShardEnd(t, id, now);  // a cancelled shard

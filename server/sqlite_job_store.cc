@@ -370,7 +370,8 @@ class SqliteJobStore final : public JobStore {
                         const std::optional<AttemptEnd>& attempt);
 
  public:
-  absl::StatusOr<JobRecord> RequestCancel(const std::string& id, TimeMs now) override;
+  absl::StatusOr<JobRecord> RequestCancel(const std::string& id, TimeMs now,
+                                          const std::string& by) override;
   absl::StatusOr<int> RequeueRunning() override;
   absl::StatusOr<OwnerUsage> Usage(const std::string& owner) override;
   absl::StatusOr<JobRecord> SetPinned(const std::string& id, bool pinned) override;
@@ -1225,7 +1226,8 @@ absl::Status SqliteJobStore::GiveBack(const std::string& id, const std::string& 
   return txn.Commit();
 }
 
-absl::StatusOr<JobRecord> SqliteJobStore::RequestCancel(const std::string& id, TimeMs now) {
+absl::StatusOr<JobRecord> SqliteJobStore::RequestCancel(const std::string& id, TimeMs now,
+                                                        const std::string& by) {
   std::lock_guard<std::mutex> lock(mu_);
   Transaction txn(this);
   if (absl::Status s = txn.Begin(); !s.ok()) return s;
@@ -1248,6 +1250,8 @@ absl::StatusOr<JobRecord> SqliteJobStore::RequestCancel(const std::string& id, T
     s->Bind(4, id);
     if (absl::Status st = s->Run(); !st.ok()) return st;
   }
+  if (job->state == JobState::kQueued)
+    if (absl::Status st = AppendEventLocked(id, QueuedCancelEvent(by, now)); !st.ok()) return st;
   // A parent's cancel reaches its shards; a shard cancelled while queued
   // ends its parent.
   if (job->shard_count > 1 && job->parent_id.empty())

@@ -90,8 +90,9 @@ absl::Status TimedJobStore::Release(const std::string& id, const std::string& wo
   return Timed(StoreCall::kRelease, [&] { return inner_->Release(id, worker_id); });
 }
 
-absl::StatusOr<JobRecord> TimedJobStore::RequestCancel(const std::string& id, TimeMs now) {
-  return Timed(StoreCall::kRequestCancel, [&] { return inner_->RequestCancel(id, now); });
+absl::StatusOr<JobRecord> TimedJobStore::RequestCancel(const std::string& id, TimeMs now,
+                                                       const std::string& by) {
+  return Timed(StoreCall::kRequestCancel, [&] { return inner_->RequestCancel(id, now, by); });
 }
 
 absl::StatusOr<int> TimedJobStore::RequeueRunning() {

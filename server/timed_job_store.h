@@ -86,7 +86,8 @@ class TimedJobStore final : public JobStore {
   absl::Status AbandonAttempt(const std::string& id, const std::string& worker_id,
                               const std::string& error, int error_code) override;
   absl::Status Release(const std::string& id, const std::string& worker_id) override;
-  absl::StatusOr<JobRecord> RequestCancel(const std::string& id, TimeMs now) override;
+  absl::StatusOr<JobRecord> RequestCancel(const std::string& id, TimeMs now,
+                                          const std::string& by) override;
   absl::StatusOr<int> RequeueRunning() override;
   absl::StatusOr<JobRecord> SetPriority(const std::string& id, int priority) override;
   void SetChangeListener(JobChangeListener listener) override;

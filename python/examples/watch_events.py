@@ -28,8 +28,8 @@ def watch(address, job_arg):
             if ev.state != state:
                 state = ev.state
                 print(f"      state {state}")
-        # An event written just after the end (a queued job's "cancelled")
-        # is not on the watch; read whatever came after the last one shown.
+        # An event written after the end (a later "pinned") is not on the
+        # watch; read whatever came after the last one shown.
         for e in client.events(job, after_seq=last_seq):
             print(e)
         return 0 if state == "SUCCEEDED" else 1

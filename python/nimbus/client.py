@@ -481,9 +481,9 @@ class Client:
         `events_after_seq` (0: from the oldest kept). Across reconnects every
         event is yielded exactly once: the watch resumes after the last seq
         it yielded. The watch's last WatchEvent carries the events recorded
-        by the time the job's end was sent, the worker's recorded end
-        (succeeded, failed, cancelled) among them; one written later (a
-        queued job's "cancelled", a later "pinned") is read with
+        by the time the job's end was sent, its recorded end (succeeded,
+        failed, cancelled) among them; one written later (a later
+        "pinned") is read with
         events(job, after_seq=LAST_SEQ)."""
         job_id = _job_id(job)
         if want_previews is None:

@@ -55,7 +55,7 @@ TEST_P(JobQueueTest, CreateAndGetRoundTripEveryField) {
   // distinctive value, then check each one reads back.
   absl::StatusOr<std::optional<JobRecord>> claimed = store_->ClaimNext("w-a", kT0 + 10, 500);
   ASSERT_TRUE(claimed.ok() && claimed->has_value()) << claimed.status();
-  ASSERT_TRUE(store_->RequestCancel("job-1", kT0 + 15).ok());
+  ASSERT_TRUE(store_->RequestCancel("job-1", kT0 + 15, "ann").ok());
   absl::StatusOr<bool> hb = store_->Heartbeat("job-1", "w-a", kT0 + 20, 500, 700, ~uint64_t{0} - 1);
   ASSERT_TRUE(hb.ok()) << hb.status();
   expected.state = JobState::kRunning;
@@ -217,7 +217,7 @@ TEST_P(JobQueueTest, ListFiltersByState) {
   for (int i = 0; i < 5; ++i) CreateOrDie(*store_, "j" + std::to_string(i), kT0 + i);
   absl::StatusOr<std::optional<JobRecord>> claimed = store_->ClaimNext("w", kT0 + 10, 1000);
   ASSERT_TRUE(claimed.ok() && claimed->has_value());  // j0
-  ASSERT_TRUE(store_->RequestCancel("j3", kT0 + 11).ok());
+  ASSERT_TRUE(store_->RequestCancel("j3", kT0 + 11, "ann").ok());
 
   ListOptions options;
   options.state = JobState::kQueued;
@@ -385,7 +385,7 @@ TEST_P(JobQueueTest, HeartbeatExtendsLeaseRecordsProgressAndReportsCancel) {
   ASSERT_TRUE(c.ok());
   EXPECT_FALSE(c->has_value());
 
-  ASSERT_TRUE(store_->RequestCancel("j", kT0 + 60).ok());
+  ASSERT_TRUE(store_->RequestCancel("j", kT0 + 60, "ann").ok());
   hb = store_->Heartbeat("j", "w", kT0 + 70, 100, 4, 10);
   ASSERT_TRUE(hb.ok()) << hb.status();
   EXPECT_TRUE(*hb);
@@ -393,7 +393,7 @@ TEST_P(JobQueueTest, HeartbeatExtendsLeaseRecordsProgressAndReportsCancel) {
 
 TEST_P(JobQueueTest, CancelQueuedJobFinishesItAtOnce) {
   CreateOrDie(*store_, "j", kT0);
-  absl::StatusOr<JobRecord> r = store_->RequestCancel("j", kT0 + 5);
+  absl::StatusOr<JobRecord> r = store_->RequestCancel("j", kT0 + 5, "ann");
   ASSERT_TRUE(r.ok()) << r.status();
   EXPECT_EQ(r->state, JobState::kCancelled);
   EXPECT_EQ(r->end_time, kT0 + 5);
@@ -407,7 +407,7 @@ TEST_P(JobQueueTest, CancelQueuedJobFinishesItAtOnce) {
 TEST_P(JobQueueTest, CancelRunningJobOnlyFlagsIt) {
   CreateOrDie(*store_, "j", kT0);
   ASSERT_TRUE(store_->ClaimNext("w", kT0 + 1, 100).ok());
-  absl::StatusOr<JobRecord> r = store_->RequestCancel("j", kT0 + 5);
+  absl::StatusOr<JobRecord> r = store_->RequestCancel("j", kT0 + 5, "ann");
   ASSERT_TRUE(r.ok()) << r.status();
   EXPECT_EQ(r->state, JobState::kRunning);
   EXPECT_TRUE(r->cancel_requested);
@@ -429,7 +429,7 @@ TEST_P(JobQueueTest, CancelRunningJobOnlyFlagsIt) {
 TEST_P(JobQueueTest, CancelRequestedJobWithLapsedLeaseIsNeverReclaimed) {
   CreateOrDie(*store_, "j", kT0);
   ASSERT_TRUE(store_->ClaimNext("dead", kT0 + 1, 100).ok());
-  ASSERT_TRUE(store_->RequestCancel("j", kT0 + 5).ok());
+  ASSERT_TRUE(store_->RequestCancel("j", kT0 + 5, "ann").ok());
   absl::StatusOr<std::optional<JobRecord>> c = store_->ClaimNext("w", kT0 + 1000, 100);
   ASSERT_TRUE(c.ok()) << c.status();
   EXPECT_FALSE(c->has_value());
@@ -450,7 +450,7 @@ TEST_P(JobQueueTest, CancelFinishedJobLeavesItUnchanged) {
   ASSERT_TRUE(store_->Complete("j", "w", failed, kT0 + 2).ok());
   absl::StatusOr<JobRecord> before = store_->Get("j");
   ASSERT_TRUE(before.ok());
-  absl::StatusOr<JobRecord> after = store_->RequestCancel("j", kT0 + 3);
+  absl::StatusOr<JobRecord> after = store_->RequestCancel("j", kT0 + 3, "ann");
   ASSERT_TRUE(after.ok()) << after.status();
   ExpectSameRecord(*after, *before);
   EXPECT_EQ(after->state, JobState::kFailed);
@@ -475,7 +475,7 @@ TEST_P(JobQueueTest, FailedJobKeepsItsStatusCodeAcrossReopen) {
 }
 
 TEST_P(JobQueueTest, CancelUnknownJobIsNotFound) {
-  absl::StatusOr<JobRecord> r = store_->RequestCancel("ghost", kT0);
+  absl::StatusOr<JobRecord> r = store_->RequestCancel("ghost", kT0, "ann");
   EXPECT_EQ(r.status().code(), absl::StatusCode::kNotFound);
   EXPECT_NE(r.status().message().find("ghost"), std::string::npos);
 }
@@ -607,8 +607,8 @@ TEST_P(JobQueueTest, CancelRequestedJobsAreCancelledNotRequeued) {
   CreateOrDie(*store_, "crashed", kT0 + 1);
   CreateOrDie(*store_, "plain", kT0 + 2);
   for (int i = 0; i < 3; ++i) ASSERT_TRUE(store_->ClaimNext("w", kT0 + 10, 100000).ok());
-  ASSERT_TRUE(store_->RequestCancel("released", kT0 + 11).ok());
-  ASSERT_TRUE(store_->RequestCancel("crashed", kT0 + 11).ok());
+  ASSERT_TRUE(store_->RequestCancel("released", kT0 + 11, "ann").ok());
+  ASSERT_TRUE(store_->RequestCancel("crashed", kT0 + 11, "ann").ok());
 
   ASSERT_TRUE(store_->Release("released", "w").ok());
   absl::StatusOr<int> n = store_->RequeueRunning();

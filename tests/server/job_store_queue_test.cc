@@ -329,6 +329,31 @@ TEST_P(JobStoreQueueTest, CompleteLogsTheEndWithTheResult) {
   EXPECT_EQ(Kinds("bad", "code").back(), "failed:INVALID_ARGUMENT");
 }
 
+// A queued job's end is logged by the RequestCancel that ends it, in its
+// transaction: once however many cancels follow, and also for a job that
+// ran and went back to the queue; a running job's end is its worker's.
+TEST_P(JobStoreQueueTest, RequestCancelLogsTheEndOfAQueuedJobOnce) {
+  Queue("q", "ann", 50, kT0);
+  ASSERT_TRUE(store().RequestCancel("q", kT0 + 1, "ann").ok());
+  auto again = store().RequestCancel("q", kT0 + 2, "bob");
+  ASSERT_TRUE(again.ok()) << again.status();
+  EXPECT_EQ(again->state, JobState::kCancelled);
+  EXPECT_EQ(Kinds("q", "by"), (std::vector<std::string>{"cancelled:ann"}));
+
+  Queue("r", "ann", 50, kT0);
+  ASSERT_EQ(Claim(), "r");
+  auto running = store().RequestCancel("r", kT0 + 3, "ann");
+  ASSERT_TRUE(running.ok()) << running.status();
+  EXPECT_EQ(running->state, JobState::kRunning);
+  EXPECT_EQ(Kinds("r", "by"), (std::vector<std::string>{"claimed:"}));
+
+  Queue("back", "ann", 50, kT0);
+  ASSERT_EQ(Claim(), "back");
+  ASSERT_TRUE(store().Release("back", "w").ok());
+  ASSERT_TRUE(store().RequestCancel("back", kT0 + 4, "cy").ok());
+  EXPECT_EQ(Kinds("back", "by"), (std::vector<std::string>{"claimed:", "cancelled:cy"}));
+}
+
 TEST_P(JobStoreQueueTest, EventLogKeepsTheNewestThousandAndPages) {
   Queue("j", "ann", 50, kT0);
   for (int i = 1; i <= 1003; ++i)
@@ -367,7 +392,7 @@ TEST_P(JobStoreQueueTest, EventFieldsAreBoundedAndOneLineEach) {
 TEST_P(JobStoreQueueTest, DeletingAJobDeletesItsLog) {
   Queue("j", "ann", 50, kT0);
   ASSERT_TRUE(store().AppendEvent("j", {0, kT0, "submitted", {}}).ok());
-  ASSERT_TRUE(store().RequestCancel("j", kT0 + 1).ok());
+  ASSERT_TRUE(store().RequestCancel("j", kT0 + 1, "ann").ok());
   ASSERT_TRUE(store().Delete("j").ok());
   auto page = store().ListEvents("j", 0, 10);
   ASSERT_TRUE(page.ok());

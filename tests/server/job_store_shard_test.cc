@@ -142,7 +142,7 @@ TEST_P(ShardStoreTest, ACancelledShardCancelsTheParent) {
 TEST_P(ShardStoreTest, CancellingTheParentCascades) {
   ASSERT_TRUE(store().Create(OwnedJob("p", 3), kT0).ok());
   EXPECT_EQ(Claim("w0"), "p.shard-0");
-  auto after = store().RequestCancel("p", kT0 + 1);
+  auto after = store().RequestCancel("p", kT0 + 1, "ann");
   ASSERT_TRUE(after.ok());
   EXPECT_EQ(after->state, JobState::kCancelled);
   EXPECT_TRUE(store().Get("p.shard-0")->cancel_requested);
@@ -175,7 +175,7 @@ TEST_P(ShardStoreTest, ListingsAndUsageHideShards) {
 TEST_P(ShardStoreTest, DeleteTakesTheShardsAndWaitsForThem) {
   ASSERT_TRUE(store().Create(OwnedJob("p", 2), kT0).ok());
   EXPECT_EQ(Claim("w0"), "p.shard-0");
-  ASSERT_TRUE(store().RequestCancel("p", kT0 + 1).ok());
+  ASSERT_TRUE(store().RequestCancel("p", kT0 + 1, "ann").ok());
   // shard-0 still runs.
   EXPECT_EQ(store().Delete("p").code(), absl::StatusCode::kFailedPrecondition);
   Completion cancelled;

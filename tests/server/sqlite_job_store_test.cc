@@ -265,7 +265,7 @@ TEST_F(SqliteJobStoreTest, ReadsDoNotWaitForABlockedWrite) {
   ASSERT_EQ(sqlite3_open(db_path().c_str(), &db), SQLITE_OK);
   ASSERT_EQ(sqlite3_exec(db, "BEGIN IMMEDIATE", nullptr, nullptr, nullptr), SQLITE_OK);
   std::future<absl::StatusOr<JobRecord>> cancel =
-      std::async(std::launch::async, [&] { return store_->RequestCancel("a", kT0 + 2); });
+      std::async(std::launch::async, [&] { return store_->RequestCancel("a", kT0 + 2, "ann"); });
   // The write cannot finish while the lock is held; this also lets it reach
   // SQLite and wait there, holding the store's write mutex.
   EXPECT_EQ(cancel.wait_for(std::chrono::milliseconds(300)), std::future_status::timeout);

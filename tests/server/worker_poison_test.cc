@@ -51,8 +51,9 @@ class CompleteFailsStore final : public JobStore {
   absl::Status Release(const std::string& id, const std::string& w) override {
     return inner_->Release(id, w);
   }
-  absl::StatusOr<JobRecord> RequestCancel(const std::string& id, TimeMs now) override {
-    return inner_->RequestCancel(id, now);
+  absl::StatusOr<JobRecord> RequestCancel(const std::string& id, TimeMs now,
+                                          const std::string& by) override {
+    return inner_->RequestCancel(id, now, by);
   }
   absl::StatusOr<int> RequeueRunning() override { return inner_->RequeueRunning(); }
   absl::StatusOr<OwnerUsage> Usage(const std::string& owner) override {
