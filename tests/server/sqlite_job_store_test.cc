@@ -269,17 +269,18 @@ TEST_F(SqliteJobStoreTest, ReadsDoNotWaitForABlockedWrite) {
   // The write cannot finish while the lock is held; this also lets it reach
   // SQLite and wait there, holding the store's write mutex.
   EXPECT_EQ(cancel.wait_for(std::chrono::milliseconds(300)), std::future_status::timeout);
+  // The lock is held until every read has answered: a read that queued
+  // behind the blocked write could only answer once that write had failed
+  // (its busy timeout), and the cancel checked below would have failed.
   for (int i = 0; i < 10; ++i) {
-    const auto start = std::chrono::steady_clock::now();
     absl::StatusOr<JobRecord> b = store_->Get("b");
     absl::StatusOr<ListPage> page = store_->List({});
-    const auto took = std::chrono::steady_clock::now() - start;
     ASSERT_TRUE(b.ok()) << b.status();
     ASSERT_TRUE(page.ok()) << page.status();
     EXPECT_EQ(page->jobs.size(), 2u);
-    EXPECT_LT(took, std::chrono::milliseconds(100)) << "a read waited for the blocked write";
   }
-  EXPECT_EQ(cancel.wait_for(std::chrono::seconds(0)), std::future_status::timeout);
+  EXPECT_EQ(cancel.wait_for(std::chrono::seconds(0)), std::future_status::timeout)
+      << "the cancel ended while the lock was held";
   ASSERT_EQ(sqlite3_exec(db, "ROLLBACK", nullptr, nullptr, nullptr), SQLITE_OK);
   sqlite3_close(db);
   absl::StatusOr<JobRecord> cancelled = cancel.get();
