@@ -157,6 +157,28 @@ void ReportUnknownResults(JobStore& store, const std::filesystem::path& results_
       absl::StrJoin(unknown->ids.begin(), unknown->ids.begin() + shown, " "));
 }
 
+// Where results go: --results-dir, or the data dir's own folder.
+std::filesystem::path ResultsDir(const ServerOptions& options) {
+  return options.results_dir.empty() ? options.data_dir / "results" : options.results_dir;
+}
+
+// This process is the only user of its SQLite store, so anything still
+// RUNNING belonged to a process that died: run it again. Not fatal: on a
+// full disk the server must still start and serve reads, and a RUNNING job
+// whose lease lapsed is claimed again anyway. With a shared store, RUNNING
+// jobs may be other replicas' live claims: only lease expiry hands them on.
+void RecoverAtStart(JobStore& store, ResultStore& results, const ServerOptions& options) {
+  const bool shared_store = !options.store_url.empty();
+  auto requeued = shared_store ? absl::StatusOr<int>(0) : store.RequeueRunning();
+  if (!requeued.ok())
+    spdlog::error("event=requeue_failed error=\"{}\"", requeued.status().ToString());
+  else if (*requeued > 0)
+    spdlog::warn("event=recovered requeued_jobs={}", *requeued);
+  ReportUnknownResults(store, ResultsDir(options));
+  if (auto space = results.CheckFreeSpace(); !space.ok())
+    spdlog::warn("event=low_disk error=\"{}\"", std::string(space.message()));
+}
+
 absl::StatusOr<std::unique_ptr<HttpServer>> StartHttp(grpc::Server& server, ServiceMetrics* metrics,
                                                       const ServerOptions& o) {
   HttpOptions http;
@@ -236,15 +258,6 @@ void NimbusServer::FollowOtherReplicas(Impl& impl) {
 
 NimbusServer::~NimbusServer() { Shutdown(); }
 
-namespace {
-
-// Where results go: --results-dir, or the data dir's own folder.
-std::filesystem::path ResultsDir(const ServerOptions& options) {
-  return options.results_dir.empty() ? options.data_dir / "results" : options.results_dir;
-}
-
-}  // namespace
-
 absl::Status NimbusServer::OpenStores(Impl& impl, const ServerOptions& options,
                                       const std::string& replica_id) {
   std::error_code ec;
@@ -283,27 +296,6 @@ absl::Status NimbusServer::OpenStores(Impl& impl, const ServerOptions& options,
   impl.assets = std::move(*assets);
   return absl::OkStatus();
 }
-
-namespace {
-
-// This process is the only user of its SQLite store, so anything still
-// RUNNING belonged to a process that died: run it again. Not fatal: on a
-// full disk the server must still start and serve reads, and a RUNNING job
-// whose lease lapsed is claimed again anyway. With a shared store, RUNNING
-// jobs may be other replicas' live claims: only lease expiry hands them on.
-void RecoverAtStart(JobStore& store, ResultStore& results, const ServerOptions& options) {
-  const bool shared_store = !options.store_url.empty();
-  auto requeued = shared_store ? absl::StatusOr<int>(0) : store.RequeueRunning();
-  if (!requeued.ok())
-    spdlog::error("event=requeue_failed error=\"{}\"", requeued.status().ToString());
-  else if (*requeued > 0)
-    spdlog::warn("event=recovered requeued_jobs={}", *requeued);
-  ReportUnknownResults(store, ResultsDir(options));
-  if (auto space = results.CheckFreeSpace(); !space.ok())
-    spdlog::warn("event=low_disk error=\"{}\"", std::string(space.message()));
-}
-
-}  // namespace
 
 void NimbusServer::MakeService(Impl& impl, const ServerOptions& options,
                                const std::string& replica_id, TokenTable tokens) {
